@@ -1,0 +1,215 @@
+//! The C ABI: status codes, a thread-local last-error message, opaque handles and
+//! caller-owned buffers with explicit lengths. No logic lives here: every function
+//! validates its arguments, calls the library and maps errors to a status. No panic
+//! crosses the boundary (each entry point runs under `catch_unwind`).
+
+mod camera;
+
+pub use camera::*;
+
+use std::cell::RefCell;
+use std::ffi::{c_char, CString};
+use std::panic::{catch_unwind, AssertUnwindSafe};
+
+/// Status of every fallible call. On anything but `CCP_STATUS_OK`, `ccp_last_error`
+/// returns a message naming the argument or input and the problem.
+#[repr(C)]
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum CcpStatus {
+    Ok = 0,
+    NullPointer = 1,
+    InvalidArgument = 2,
+    NotFinite = 3,
+    Io = 4,
+    Format = 5,
+    Numeric = 6,
+    NotFound = 7,
+    BufferTooSmall = 8,
+    Panic = 99,
+}
+
+/// An error on its way out through the C ABI.
+#[derive(Debug)]
+pub(crate) struct FfiError {
+    pub status: CcpStatus,
+    pub message: String,
+}
+
+impl FfiError {
+    pub fn new(status: CcpStatus, message: impl Into<String>) -> Self {
+        Self {
+            status,
+            message: message.into(),
+        }
+    }
+    pub fn invalid(message: impl Into<String>) -> Self {
+        Self::new(CcpStatus::InvalidArgument, message)
+    }
+}
+
+impl From<crate::geometry::GeometryError> for FfiError {
+    fn from(e: crate::geometry::GeometryError) -> Self {
+        use crate::geometry::GeometryError as G;
+        let status = match &e {
+            G::NotFinite { .. } => CcpStatus::NotFinite,
+            G::NotConverged { .. } | G::Degenerate(_) | G::NoIntersection(_) => CcpStatus::Numeric,
+            _ => CcpStatus::InvalidArgument,
+        };
+        Self::new(status, e.to_string())
+    }
+}
+
+impl From<crate::formats::FormatError> for FfiError {
+    fn from(e: crate::formats::FormatError) -> Self {
+        use crate::formats::FormatError as F;
+        let status = match &e {
+            F::Io { .. } => CcpStatus::Io,
+            F::Geometry(_) => CcpStatus::Numeric,
+            _ => CcpStatus::Format,
+        };
+        Self::new(status, e.to_string())
+    }
+}
+
+pub(crate) type FfiResult<T> = Result<T, FfiError>;
+
+thread_local! {
+    static LAST_ERROR: RefCell<CString> = RefCell::new(CString::default());
+}
+
+fn set_last_error(message: &str) {
+    let c = CString::new(message.replace('\0', "\\0")).unwrap_or_default();
+    LAST_ERROR.with(|e| *e.borrow_mut() = c);
+}
+
+/// Runs an entry point: clears the last error, catches panics, maps errors to a status.
+pub(crate) fn guard(f: impl FnOnce() -> FfiResult<()>) -> CcpStatus {
+    set_last_error("");
+    match catch_unwind(AssertUnwindSafe(f)) {
+        Ok(Ok(())) => CcpStatus::Ok,
+        Ok(Err(e)) => {
+            set_last_error(&e.message);
+            e.status
+        }
+        Err(payload) => {
+            let what = payload
+                .downcast_ref::<&str>()
+                .map(|s| s.to_string())
+                .or_else(|| payload.downcast_ref::<String>().cloned())
+                .unwrap_or_else(|| "unknown".into());
+            set_last_error(&format!(
+                "internal error (panic caught at the C ABI): {what}"
+            ));
+            CcpStatus::Panic
+        }
+    }
+}
+
+/// Largest element count we accept for any array; guards against negative lengths
+/// converted to `size_t` by callers.
+const MAX_ELEMENTS: usize = 1 << 40;
+
+/// Borrows a caller-owned input array of `len` elements, refusing null, zero length when
+/// `allow_empty` is false, and absurd lengths.
+pub(crate) unsafe fn input<'a, T>(
+    ptr: *const T,
+    len: usize,
+    name: &str,
+    allow_empty: bool,
+) -> FfiResult<&'a [T]> {
+    if len == 0 {
+        if allow_empty {
+            return Ok(&[]);
+        }
+        return Err(FfiError::invalid(format!("{name}: length is zero")));
+    }
+    if len > MAX_ELEMENTS {
+        return Err(FfiError::invalid(format!(
+            "{name}: length {len} is not plausible (a negative value passed as size_t?)"
+        )));
+    }
+    if ptr.is_null() {
+        return Err(FfiError::new(
+            CcpStatus::NullPointer,
+            format!("{name} is a null pointer"),
+        ));
+    }
+    if (ptr as usize) % std::mem::align_of::<T>() != 0 {
+        return Err(FfiError::invalid(format!("{name} is not aligned")));
+    }
+    Ok(std::slice::from_raw_parts(ptr, len))
+}
+
+/// Borrows a caller-owned output array that must hold at least `needed` elements.
+pub(crate) unsafe fn output<'a, T>(
+    ptr: *mut T,
+    len: usize,
+    needed: usize,
+    name: &str,
+) -> FfiResult<&'a mut [T]> {
+    if len > MAX_ELEMENTS {
+        return Err(FfiError::invalid(format!(
+            "{name}: length {len} is not plausible (a negative value passed as size_t?)"
+        )));
+    }
+    if ptr.is_null() {
+        return Err(FfiError::new(
+            CcpStatus::NullPointer,
+            format!("{name} is a null pointer"),
+        ));
+    }
+    if len < needed {
+        return Err(FfiError::new(
+            CcpStatus::BufferTooSmall,
+            format!("{name} holds {len} values but {needed} are needed"),
+        ));
+    }
+    if (ptr as usize) % std::mem::align_of::<T>() != 0 {
+        return Err(FfiError::invalid(format!("{name} is not aligned")));
+    }
+    Ok(std::slice::from_raw_parts_mut(ptr, needed))
+}
+
+/// Refuses NaN and infinities in an input array, naming the first bad element.
+pub(crate) fn finite(values: &[f64], name: &str) -> FfiResult<()> {
+    match values.iter().position(|v| !v.is_finite()) {
+        None => Ok(()),
+        Some(i) => Err(FfiError::new(
+            CcpStatus::NotFinite,
+            format!("{name}[{i}] is not finite"),
+        )),
+    }
+}
+
+/// Borrows a handle, refusing null.
+pub(crate) unsafe fn handle<'a, T>(ptr: *const T, name: &str) -> FfiResult<&'a T> {
+    ptr.as_ref()
+        .ok_or_else(|| FfiError::new(CcpStatus::NullPointer, format!("{name} is a null handle")))
+}
+
+/// The library version as a static NUL-terminated string (never freed).
+#[no_mangle]
+pub extern "C" fn ccp_version() -> *const c_char {
+    concat!(env!("CARGO_PKG_VERSION"), "\0").as_ptr() as *const c_char
+}
+
+/// Copies the calling thread's last error message into `buf` (NUL-terminated, truncated
+/// to `buf_len`) and returns the buffer size the whole message needs, NUL included.
+/// Call with `buf = NULL, buf_len = 0` to ask for the size. The message is empty after a
+/// successful call.
+#[no_mangle]
+pub unsafe extern "C" fn ccp_last_error(buf: *mut c_char, buf_len: usize) -> usize {
+    catch_unwind(|| {
+        LAST_ERROR.with(|e| {
+            let e = e.borrow();
+            let bytes = e.as_bytes();
+            if !buf.is_null() && buf_len > 0 {
+                let n = bytes.len().min(buf_len - 1);
+                std::ptr::copy_nonoverlapping(bytes.as_ptr() as *const c_char, buf, n);
+                *buf.add(n) = 0;
+            }
+            bytes.len() + 1
+        })
+    })
+    .unwrap_or(0)
+}

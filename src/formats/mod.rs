@@ -1,0 +1,85 @@
+//! Format adapters: coordinate reference systems (GDAL/PROJ), GeoTIFF rasters, and the
+//! photogrammetric exchange formats. Readers and writers only; no photogrammetry here.
+
+pub mod crs;
+pub mod raster;
+
+use std::path::{Path, PathBuf};
+
+/// Errors of the format adapters; each names the file (or CRS) and what was wrong.
+#[derive(Debug, thiserror::Error)]
+pub enum FormatError {
+    #[error("{path}: {source}")]
+    Io {
+        path: PathBuf,
+        source: std::io::Error,
+    },
+    #[error("{path}: {message}")]
+    Invalid { path: PathBuf, message: String },
+    #[error("coordinate reference system {crs:?}: {message}")]
+    Crs { crs: String, message: String },
+    #[error("{path}: GDAL: {message}")]
+    Gdal { path: PathBuf, message: String },
+    #[error(transparent)]
+    Geometry(#[from] crate::geometry::GeometryError),
+}
+
+pub type Result<T> = std::result::Result<T, FormatError>;
+
+impl FormatError {
+    pub fn invalid(path: impl AsRef<Path>, message: impl Into<String>) -> Self {
+        FormatError::Invalid {
+            path: path.as_ref().to_path_buf(),
+            message: message.into(),
+        }
+    }
+    pub fn io(path: impl AsRef<Path>, source: std::io::Error) -> Self {
+        FormatError::Io {
+            path: path.as_ref().to_path_buf(),
+            source,
+        }
+    }
+    pub fn gdal(path: impl AsRef<Path>, e: gdal::errors::GdalError) -> Self {
+        FormatError::Gdal {
+            path: path.as_ref().to_path_buf(),
+            message: e.to_string(),
+        }
+    }
+}
+
+/// A temporary sibling of `path` to write into before an atomic rename, so that readers
+/// never see a half-written output. The extension is kept (GDAL picks drivers by it).
+pub fn temporary_sibling(path: &Path) -> PathBuf {
+    let name = path
+        .file_name()
+        .map(|n| n.to_string_lossy().into_owned())
+        .unwrap_or_default();
+    path.with_file_name(format!(".{name}.part-{}", std::process::id()))
+        .with_extension(path.extension().unwrap_or_default())
+}
+
+/// Writes a file atomically: the closure writes into a temporary sibling which is renamed
+/// over `path` only when it succeeded; on failure the temporary file is removed.
+pub fn write_atomically<T>(path: &Path, write: impl FnOnce(&Path) -> Result<T>) -> Result<T> {
+    if let Some(dir) = path.parent().filter(|d| !d.as_os_str().is_empty()) {
+        std::fs::create_dir_all(dir).map_err(|e| FormatError::io(dir, e))?;
+    }
+    let tmp = temporary_sibling(path);
+    match write(&tmp) {
+        Ok(v) => {
+            std::fs::rename(&tmp, path).map_err(|e| FormatError::io(path, e))?;
+            Ok(v)
+        }
+        Err(e) => {
+            let _ = std::fs::remove_file(&tmp);
+            Err(e)
+        }
+    }
+}
+
+/// Writes bytes atomically (text formats, JSON reports).
+pub fn write_bytes_atomically(path: &Path, bytes: &[u8]) -> Result<()> {
+    write_atomically(path, |tmp| {
+        std::fs::write(tmp, bytes).map_err(|e| FormatError::io(path, e))
+    })
+}

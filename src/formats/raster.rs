@@ -1,0 +1,121 @@
+//! GeoTIFF rasters through GDAL: DEMs (float32 with nodata) with CRS and geotransform.
+//! Outputs are tiled, written to a temporary file and renamed, so a crash never leaves a
+//! half-written GeoTIFF behind.
+
+use super::crs::Crs;
+use super::{write_atomically, FormatError, Result};
+use crate::geometry::{Dem, GeoTransform};
+use gdal::raster::{Buffer, RasterCreationOptions};
+use gdal::{Dataset, DriverManager};
+use std::path::Path;
+
+/// No-data value written for DEM holes (NaN inside [`Dem`]).
+pub const DEM_NODATA: f32 = -9999.0;
+
+/// Options of GeoTIFF outputs.
+#[derive(Debug, Clone)]
+pub struct GeoTiffOptions {
+    /// Internal tile size (pixels); GDAL's default strips are slow for windowed reads.
+    pub tile: usize,
+    pub compress: &'static str,
+    /// Overview factors to build (e.g. [2, 4, 8]); empty for none.
+    pub overviews: Vec<i32>,
+}
+
+impl Default for GeoTiffOptions {
+    fn default() -> Self {
+        Self {
+            tile: 256,
+            compress: "DEFLATE",
+            overviews: Vec::new(),
+        }
+    }
+}
+
+fn creation_options(
+    opts: &GeoTiffOptions,
+    width: usize,
+    height: usize,
+) -> Result<RasterCreationOptions> {
+    let mut list = vec![
+        format!("COMPRESS={}", opts.compress),
+        "BIGTIFF=IF_SAFER".to_string(),
+    ];
+    // Tiles larger than the raster are legal but wasteful; GDAL needs multiples of 16.
+    if width >= opts.tile && height >= opts.tile && opts.tile % 16 == 0 {
+        list.push("TILED=YES".into());
+        list.push(format!("BLOCKXSIZE={}", opts.tile));
+        list.push(format!("BLOCKYSIZE={}", opts.tile));
+    }
+    Ok(RasterCreationOptions::from_iter(
+        list.iter().map(|s| s.as_str()),
+    ))
+}
+
+/// Writes a DEM as a float32 GeoTIFF with CRS, geotransform and nodata.
+pub fn write_dem(path: &Path, dem: &Dem, crs: &Crs, opts: &GeoTiffOptions) -> Result<()> {
+    write_atomically(path, |tmp| {
+        let driver =
+            DriverManager::get_driver_by_name("GTiff").map_err(|e| FormatError::gdal(path, e))?;
+        let co = creation_options(opts, dem.width, dem.height)?;
+        let mut ds = driver
+            .create_with_band_type_with_options::<f32, _>(tmp, dem.width, dem.height, 1, &co)
+            .map_err(|e| FormatError::gdal(path, e))?;
+        ds.set_geo_transform(&dem.transform.0)
+            .map_err(|e| FormatError::gdal(path, e))?;
+        ds.set_spatial_ref(crs.spatial_ref())
+            .map_err(|e| FormatError::gdal(path, e))?;
+        {
+            let mut band = ds.rasterband(1).map_err(|e| FormatError::gdal(path, e))?;
+            band.set_no_data_value(Some(DEM_NODATA as f64))
+                .map_err(|e| FormatError::gdal(path, e))?;
+            let data: Vec<f32> = dem
+                .data
+                .iter()
+                .map(|&v| if v.is_finite() { v } else { DEM_NODATA })
+                .collect();
+            let mut buf = Buffer::new((dem.width, dem.height), data);
+            band.write((0, 0), (dem.width, dem.height), &mut buf)
+                .map_err(|e| FormatError::gdal(path, e))?;
+        }
+        if !opts.overviews.is_empty() {
+            ds.build_overviews("AVERAGE", &opts.overviews, &[])
+                .map_err(|e| FormatError::gdal(path, e))?;
+        }
+        ds.flush_cache().map_err(|e| FormatError::gdal(path, e))?;
+        drop(ds);
+        Ok(())
+    })
+}
+
+/// Reads a single-band DEM GeoTIFF (any numeric type) with its CRS; nodata becomes NaN.
+pub fn read_dem(path: &Path) -> Result<(Dem, Option<Crs>)> {
+    if !path.exists() {
+        return Err(FormatError::invalid(path, "file does not exist"));
+    }
+    let ds = Dataset::open(path).map_err(|e| FormatError::gdal(path, e))?;
+    let gt = ds.geo_transform().map_err(|e| FormatError::gdal(path, e))?;
+    let band = ds.rasterband(1).map_err(|e| FormatError::gdal(path, e))?;
+    let (w, h) = band.size();
+    let nodata = band.no_data_value();
+    let buf = band
+        .read_as::<f32>((0, 0), (w, h), (w, h), None)
+        .map_err(|e| FormatError::gdal(path, e))?;
+    let (_, mut data) = buf.into_shape_and_vec();
+    if let Some(nd) = nodata {
+        let nd = nd as f32;
+        for v in data.iter_mut().filter(|v| **v == nd) {
+            *v = f32::NAN;
+        }
+    }
+    let crs = match ds.spatial_ref() {
+        Ok(srs) => match srs.to_wkt() {
+            Ok(wkt) if !wkt.is_empty() => Some(Crs::parse(&wkt)?),
+            _ => None,
+        },
+        Err(_) => None,
+    };
+    let dem = Dem::new(w, h, GeoTransform(gt), data)
+        .map_err(|e| FormatError::invalid(path, e.to_string()))?;
+    Ok((dem, crs))
+}

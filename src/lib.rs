@@ -1,0 +1,15 @@
+//! cloudcontrol — cloud control photogrammetry.
+//!
+//! Orients archived aerial photographs without field surveys by taking control from
+//! geodata that already exists: airborne LiDAR and previously oriented photos. See
+//! `README.md` and the design overview for the architecture; data flows
+//! formats/lidar → block → matching/adjust/control → pipeline → outputs, with [`ffi`] and
+//! the CLI as thin skins.
+
+pub mod ffi;
+pub mod formats;
+pub mod geometry;
+pub mod pipeline;
+
+/// Library version (the crate version).
+pub const VERSION: &str = env!("CARGO_PKG_VERSION");
