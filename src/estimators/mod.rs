@@ -1,0 +1,300 @@
+//! Robust estimation of small models from samples with gross errors: one interface for
+//! every minimal solver (relative orientation, resection, homographies, planes…), driven
+//! by RANSAC or by least median of squares (LMedS, breakdown point 50 %, seed 003).
+//!
+//! The drivers are deterministic: the random stream comes from the caller's seed.
+
+use rand::seq::index::sample;
+use rand::SeedableRng;
+use rand_chacha::ChaCha8Rng;
+
+/// A model family with a minimal solver.
+pub trait Estimator {
+    type Sample;
+    type Model: Clone;
+    /// Samples the minimal solver needs.
+    const MIN_SAMPLES: usize;
+    /// All models consistent with a minimal sample (P3P gives up to four); empty when the
+    /// sample is degenerate.
+    fn fit_minimal(&self, samples: &[&Self::Sample]) -> Vec<Self::Model>;
+    /// Squared residual of a sample under a model, in the units the threshold uses.
+    fn residual_sq(&self, model: &Self::Model, sample: &Self::Sample) -> f64;
+    /// Optional least-squares refinement on the inliers (local optimisation).
+    fn refine(&self, model: &Self::Model, _inliers: &[&Self::Sample]) -> Option<Self::Model> {
+        Some(model.clone())
+    }
+}
+
+#[derive(Debug, Clone)]
+pub struct RobustOptions {
+    /// Inlier threshold on the residual (not squared), in the estimator's units.
+    pub threshold: f64,
+    /// Probability of having drawn at least one all-inlier sample when stopping.
+    pub confidence: f64,
+    pub max_iterations: usize,
+    pub min_iterations: usize,
+    pub seed: u64,
+}
+
+impl Default for RobustOptions {
+    fn default() -> Self {
+        Self {
+            threshold: 1.0,
+            confidence: 0.999,
+            max_iterations: 10_000,
+            min_iterations: 50,
+            seed: 42,
+        }
+    }
+}
+
+/// Result of a robust estimation.
+#[derive(Debug, Clone)]
+pub struct RobustResult<M> {
+    pub model: M,
+    pub inliers: Vec<bool>,
+    pub num_inliers: usize,
+    pub iterations: usize,
+    /// LMedS: the median squared residual of the best model; RANSAC: mean inlier residual².
+    pub score: f64,
+    /// Robust standard deviation of the residuals (LMedS: 1.4826·(1+5/(n−p))·√median).
+    pub sigma: f64,
+}
+
+#[derive(Debug, thiserror::Error, Clone, PartialEq)]
+pub enum RobustError {
+    #[error("{needed} samples are needed, only {got} given")]
+    TooFewSamples { needed: usize, got: usize },
+    #[error("no model could be fitted: every minimal sample was degenerate")]
+    NoModel,
+}
+
+fn iterations_needed(inlier_ratio: f64, m: usize, confidence: f64) -> usize {
+    let p_good = inlier_ratio.powi(m as i32);
+    if p_good <= f64::EPSILON {
+        return usize::MAX;
+    }
+    if p_good >= 1.0 {
+        return 1;
+    }
+    ((1.0 - confidence).ln() / (1.0 - p_good).ln())
+        .ceil()
+        .max(1.0) as usize
+}
+
+fn classify<E: Estimator>(
+    est: &E,
+    model: &E::Model,
+    samples: &[E::Sample],
+    t2: f64,
+) -> (Vec<bool>, usize, f64) {
+    let mut inl = vec![false; samples.len()];
+    let (mut n, mut sum) = (0, 0.0);
+    for (i, s) in samples.iter().enumerate() {
+        let r = est.residual_sq(model, s);
+        if r <= t2 {
+            inl[i] = true;
+            n += 1;
+            sum += r;
+        }
+    }
+    (inl, n, if n > 0 { sum / n as f64 } else { f64::INFINITY })
+}
+
+fn refine_on<E: Estimator>(
+    est: &E,
+    model: &E::Model,
+    samples: &[E::Sample],
+    inl: &[bool],
+) -> Option<E::Model> {
+    let chosen: Vec<&E::Sample> = samples
+        .iter()
+        .zip(inl)
+        .filter(|(_, &b)| b)
+        .map(|(s, _)| s)
+        .collect();
+    if chosen.len() < E::MIN_SAMPLES {
+        return None;
+    }
+    est.refine(model, &chosen)
+}
+
+/// RANSAC with adaptive stopping and a final least-squares refinement on the inliers
+/// (re-classified after refinement, LO-RANSAC style).
+pub fn ransac<E: Estimator>(
+    est: &E,
+    samples: &[E::Sample],
+    opts: &RobustOptions,
+) -> Result<RobustResult<E::Model>, RobustError> {
+    let n = samples.len();
+    let m = E::MIN_SAMPLES;
+    if n < m {
+        return Err(RobustError::TooFewSamples { needed: m, got: n });
+    }
+    let t2 = opts.threshold * opts.threshold;
+    let mut rng = ChaCha8Rng::seed_from_u64(opts.seed);
+    let mut best: Option<(E::Model, Vec<bool>, usize, f64)> = None;
+    let mut needed = opts.max_iterations;
+    let mut it = 0;
+    while it < needed.max(opts.min_iterations).min(opts.max_iterations) {
+        it += 1;
+        let idx = sample(&mut rng, n, m);
+        let picked: Vec<&E::Sample> = idx.iter().map(|i| &samples[i]).collect();
+        for model in est.fit_minimal(&picked) {
+            let (inl, k, mean) = classify(est, &model, samples, t2);
+            let better = best
+                .as_ref()
+                .is_none_or(|b| k > b.2 || (k == b.2 && mean < b.3));
+            if better {
+                needed = iterations_needed(k as f64 / n as f64, m, opts.confidence);
+                best = Some((model, inl, k, mean));
+            }
+        }
+    }
+    let (mut model, mut inl, mut k, mut mean) = best.ok_or(RobustError::NoModel)?;
+    // Local optimisation: refine on the inliers while the consensus grows.
+    for _ in 0..5 {
+        let Some(r) = refine_on(est, &model, samples, &inl) else {
+            break;
+        };
+        let (inl2, k2, mean2) = classify(est, &r, samples, t2);
+        if k2 < k || (k2 == k && mean2 >= mean) {
+            break;
+        }
+        (model, inl, k, mean) = (r, inl2, k2, mean2);
+    }
+    Ok(RobustResult {
+        sigma: mean.sqrt(),
+        model,
+        inliers: inl,
+        num_inliers: k,
+        iterations: it,
+        score: mean,
+    })
+}
+
+/// Least median of squares (Rousseeuw): the model minimising the median squared residual
+/// over random minimal samples; inliers are those within 2.5 robust σ. Tolerates up to
+/// 50 % gross errors without a threshold chosen in advance.
+pub fn lmeds<E: Estimator>(
+    est: &E,
+    samples: &[E::Sample],
+    opts: &RobustOptions,
+) -> Result<RobustResult<E::Model>, RobustError> {
+    let n = samples.len();
+    let m = E::MIN_SAMPLES;
+    if n < m {
+        return Err(RobustError::TooFewSamples { needed: m, got: n });
+    }
+    let mut rng = ChaCha8Rng::seed_from_u64(opts.seed);
+    // Enough draws to hit an outlier-free sample with 50 % contamination.
+    let iterations =
+        iterations_needed(0.5, m, opts.confidence).clamp(opts.min_iterations, opts.max_iterations);
+    let mut best: Option<(E::Model, f64)> = None;
+    let mut res = vec![0.0; n];
+    for _ in 0..iterations {
+        let idx = sample(&mut rng, n, m);
+        let picked: Vec<&E::Sample> = idx.iter().map(|i| &samples[i]).collect();
+        for model in est.fit_minimal(&picked) {
+            for (r, s) in res.iter_mut().zip(samples) {
+                *r = est.residual_sq(&model, s);
+            }
+            let mid = n / 2;
+            let med = *res.select_nth_unstable_by(mid, |a, b| a.total_cmp(b)).1;
+            if best.as_ref().is_none_or(|b| med < b.1) {
+                best = Some((model, med));
+            }
+        }
+    }
+    let (mut model, med) = best.ok_or(RobustError::NoModel)?;
+    let sigma = 1.4826 * (1.0 + 5.0 / (n.saturating_sub(m).max(1)) as f64) * med.sqrt();
+    let t2 = (2.5 * sigma.max(1e-12)).powi(2);
+    let (mut inl, mut k, mut mean) = classify(est, &model, samples, t2);
+    if let Some(r) = refine_on(est, &model, samples, &inl) {
+        let (inl2, k2, mean2) = classify(est, &r, samples, t2);
+        if k2 >= k {
+            (model, inl, k, mean) = (r, inl2, k2, mean2);
+        }
+    }
+    let _ = mean;
+    Ok(RobustResult {
+        model,
+        inliers: inl,
+        num_inliers: k,
+        iterations,
+        score: med,
+        sigma,
+    })
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// 2-D line y = a x + b, residual vertical distance.
+    struct Line;
+    impl Estimator for Line {
+        type Sample = (f64, f64);
+        type Model = (f64, f64);
+        const MIN_SAMPLES: usize = 2;
+        fn fit_minimal(&self, s: &[&(f64, f64)]) -> Vec<(f64, f64)> {
+            let (p, q) = (s[0], s[1]);
+            if (q.0 - p.0).abs() < 1e-12 {
+                return vec![];
+            }
+            let a = (q.1 - p.1) / (q.0 - p.0);
+            vec![(a, p.1 - a * p.0)]
+        }
+        fn residual_sq(&self, m: &(f64, f64), s: &(f64, f64)) -> f64 {
+            (s.1 - (m.0 * s.0 + m.1)).powi(2)
+        }
+    }
+
+    fn data() -> (Vec<(f64, f64)>, Vec<bool>) {
+        let mut rng = ChaCha8Rng::seed_from_u64(7);
+        use rand::Rng;
+        let mut pts = Vec::new();
+        let mut truth = Vec::new();
+        for i in 0..200 {
+            let x = i as f64 * 0.1;
+            if i % 5 < 2 {
+                // 40 % gross errors.
+                pts.push((x, rng.gen_range(-50.0..50.0)));
+                truth.push(false);
+            } else {
+                pts.push((x, 2.0 * x - 3.0 + rng.gen_range(-0.01..0.01)));
+                truth.push(true);
+            }
+        }
+        (pts, truth)
+    }
+
+    #[test]
+    fn ransac_and_lmeds_recover_a_line_with_40_percent_outliers() {
+        let (pts, truth) = data();
+        let opts = RobustOptions {
+            threshold: 0.05,
+            ..Default::default()
+        };
+        for r in [
+            ransac(&Line, &pts, &opts).unwrap(),
+            lmeds(&Line, &pts, &opts).unwrap(),
+        ] {
+            assert!(
+                (r.model.0 - 2.0).abs() < 0.01 && (r.model.1 + 3.0).abs() < 0.05,
+                "{:?}",
+                r.model
+            );
+            let wrong = r.inliers.iter().zip(&truth).filter(|(a, b)| a != b).count();
+            assert!(wrong <= 2, "{wrong} misclassified");
+        }
+    }
+
+    #[test]
+    fn too_few_samples_is_an_error() {
+        assert_eq!(
+            ransac(&Line, &[(0.0, 0.0)], &RobustOptions::default()).unwrap_err(),
+            RobustError::TooFewSamples { needed: 2, got: 1 }
+        );
+    }
+}
