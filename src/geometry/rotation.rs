@@ -58,15 +58,17 @@ pub fn matrix_from_opk(omega: f64, phi: f64, kappa: f64) -> Matrix3<f64> {
 /// is set to zero and kappa absorbs the rotation.
 pub fn opk_from_matrix(r: &Matrix3<f64>) -> (f64, f64, f64) {
     let m = flip_yz() * r;
-    // m13 = −sin φ, m23 = sin ω cos φ ... from M = R3 R2 R1 (see tests for the element formulas).
-    let sp = (-m[(0, 2)]).clamp(-1.0, 1.0);
+    // M = R3 R2 R1 gives m31 = sin φ, m32 = −sin ω cos φ, m33 = cos ω cos φ,
+    // m21 = −cos φ sin κ, m11 = cos φ cos κ.
+    let sp = m[(2, 0)].clamp(-1.0, 1.0);
     let phi = sp.asin();
     if sp.abs() < 1.0 - 1e-12 {
-        let omega = m[(1, 2)].atan2(m[(2, 2)]);
-        let kappa = m[(0, 1)].atan2(m[(0, 0)]);
+        let omega = (-m[(2, 1)]).atan2(m[(2, 2)]);
+        let kappa = (-m[(1, 0)]).atan2(m[(0, 0)]);
         (omega, phi, kappa)
     } else {
-        let kappa = (-m[(1, 0)]).atan2(m[(1, 1)]);
+        // With ω = 0: m12 = sin κ, m22 = cos κ.
+        let kappa = m[(0, 1)].atan2(m[(1, 1)]);
         (0.0, phi, kappa)
     }
 }
