@@ -50,12 +50,12 @@ impl FormatError {
 /// A temporary sibling of `path` to write into before an atomic rename, so that readers
 /// never see a half-written output. The extension is kept (GDAL picks drivers by it).
 pub fn temporary_sibling(path: &Path) -> PathBuf {
-    let name = path
-        .file_name()
-        .map(|n| n.to_string_lossy().into_owned())
-        .unwrap_or_default();
-    path.with_file_name(format!(".{name}.part-{}", std::process::id()))
-        .with_extension(path.extension().unwrap_or_default())
+    let stem = path.file_stem().map(|n| n.to_string_lossy().into_owned()).unwrap_or_default();
+    let name = match path.extension() {
+        Some(ext) => format!(".{stem}.part-{}.{}", std::process::id(), ext.to_string_lossy()),
+        None => format!(".{stem}.part-{}", std::process::id()),
+    };
+    path.with_file_name(name)
 }
 
 /// Writes a file atomically: the closure writes into a temporary sibling which is renamed
@@ -66,10 +66,13 @@ pub fn write_atomically<T>(path: &Path, write: impl FnOnce(&Path) -> Result<T>) 
     }
     let tmp = temporary_sibling(path);
     match write(&tmp) {
-        Ok(v) => {
-            std::fs::rename(&tmp, path).map_err(|e| FormatError::io(path, e))?;
-            Ok(v)
-        }
+        Ok(v) => match std::fs::rename(&tmp, path) {
+            Ok(()) => Ok(v),
+            Err(e) => {
+                let _ = std::fs::remove_file(&tmp);
+                Err(FormatError::io(path, e))
+            }
+        },
         Err(e) => {
             let _ = std::fs::remove_file(&tmp);
             Err(e)
