@@ -1,6 +1,6 @@
 //! Camera handles, projection and back-projection.
 
-use super::{finite, guard, handle, input, output, CcpStatus, FfiError, FfiResult};
+use super::{finite, finite_rows, guard, handle, input, output, CcpStatus, FfiError, FfiResult};
 use crate::geometry::{self, Brown, Camera, FrameCamera, Pose};
 use nalgebra::{Matrix3, Vector3};
 
@@ -139,7 +139,7 @@ pub unsafe extern "C" fn ccp_project(
             .checked_mul(3)
             .ok_or_else(|| FfiError::invalid("n_points overflows"))?;
         let pts = input(points, n3, "points", false)?;
-        finite(pts, "points")?;
+        finite_rows(pts, 3, "points")?;
         let out = output(out_pixels, out_len, 2 * n_points, "out_pixels")?;
         for (i, (x, o)) in pts.chunks_exact(3).zip(out.chunks_exact_mut(2)).enumerate() {
             let p = geometry::project(cam, &pose, &Vector3::new(x[0], x[1], x[2]))
@@ -170,7 +170,7 @@ pub unsafe extern "C" fn ccp_back_project(
             .checked_mul(2)
             .ok_or_else(|| FfiError::invalid("n_pixels overflows"))?;
         let px = input(pixels, n2, "pixels", false)?;
-        finite(px, "pixels")?;
+        finite_rows(px, 2, "pixels")?;
         let out = output(out_directions, out_len, 3 * n_pixels, "out_directions")?;
         for (i, (p, o)) in px.chunks_exact(2).zip(out.chunks_exact_mut(3)).enumerate() {
             let ray = geometry::back_project(cam, &pose, [p[0], p[1]])

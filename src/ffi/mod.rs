@@ -181,6 +181,19 @@ pub(crate) fn finite(values: &[f64], name: &str) -> FfiResult<()> {
     }
 }
 
+/// Refuses NaN and infinities in an interleaved array of `cols`-vectors, naming the row
+/// and the coordinate (`points[7].z is not finite`).
+pub(crate) fn finite_rows(values: &[f64], cols: usize, name: &str) -> FfiResult<()> {
+    const AXES: [&str; 4] = ["x", "y", "z", "w"];
+    match values.iter().position(|v| !v.is_finite()) {
+        None => Ok(()),
+        Some(i) => {
+            let axis = AXES.get(i % cols).copied().unwrap_or("?");
+            Err(FfiError::new(CcpStatus::NotFinite, format!("{name}[{}].{axis} is not finite", i / cols)))
+        }
+    }
+}
+
 /// Borrows a handle, refusing null.
 pub(crate) unsafe fn handle<'a, T>(ptr: *const T, name: &str) -> FfiResult<&'a T> {
     ptr.as_ref()

@@ -1,0 +1,21 @@
+#!/usr/bin/env bash
+# Runs every test: Rust (unit, integration, C ABI, header drift), the C program, the header
+# as C++, and the Python binding's tests. Sets up what is missing first.
+set -euo pipefail
+cd "$(dirname "$0")"
+./setup.sh
+
+echo "== Rust tests"
+cargo test --release
+
+echo "== C program against the library"
+mkdir -p bindings/c/build
+gcc -std=c99 -Wall -Wextra -Werror -pedantic -Iinclude bindings/c/check_projection.c \
+    -Ltarget/release -lcloudcontrol -lm -o bindings/c/build/check_projection
+LD_LIBRARY_PATH=target/release bindings/c/build/check_projection
+printf '#include "cloudcontrol.h"\nint main() { return CCP_STATUS_OK; }\n' > bindings/c/build/header.cpp
+g++ -std=c++11 -Wall -Wextra -Werror -pedantic -Iinclude bindings/c/build/header.cpp -o bindings/c/build/header_cpp
+echo "header compiles as C++"
+
+echo "== Python binding tests"
+CLOUDCONTROL_LIB="$PWD/target/release/libcloudcontrol.so" .venv/bin/python -m pytest -q -p no:cacheprovider bindings/python/tests
