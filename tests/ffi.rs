@@ -23,9 +23,15 @@ fn camera() -> *mut CcpCamera {
 }
 
 fn nadir_pose() -> CcpPose {
-    let mut pose = CcpPose { rotation: [0.0; 9], center: [0.0; 3] };
+    let mut pose = CcpPose {
+        rotation: [0.0; 9],
+        center: [0.0; 3],
+    };
     let c = [0.0, 0.0, 1000.0];
-    assert_eq!(unsafe { ccp_pose_from_opk(0.0, 0.0, 0.0, c.as_ptr(), &mut pose) }, CcpStatus::Ok);
+    assert_eq!(
+        unsafe { ccp_pose_from_opk(0.0, 0.0, 0.0, c.as_ptr(), &mut pose) },
+        CcpStatus::Ok
+    );
     pose
 }
 
@@ -51,14 +57,20 @@ fn projection_through_the_abi_matches_the_known_value() {
     let mut px = [0.0; 2];
     let st = unsafe { ccp_project(cam, &pose, pts.as_ptr(), 1, px.as_mut_ptr(), 2) };
     assert_eq!(st, CcpStatus::Ok, "{}", last_error());
-    assert!((px[0] - expected[0]).abs() < 1e-9 && (px[1] - expected[1]).abs() < 1e-9, "{px:?} vs {expected:?}");
+    assert!(
+        (px[0] - expected[0]).abs() < 1e-9 && (px[1] - expected[1]).abs() < 1e-9,
+        "{px:?} vs {expected:?}"
+    );
     let mut dir = [0.0; 3];
     let st = unsafe { ccp_back_project(cam, &pose, px.as_ptr(), 1, dir.as_mut_ptr(), 3) };
     assert_eq!(st, CcpStatus::Ok);
     // The ray from (0, 0, 1000) through the pixel reaches the point at t = |P − C|.
     let len = (100.0f64 * 100.0 + 50.0 * 50.0 + 1000.0 * 1000.0).sqrt();
     let hit = [dir[0] * len, dir[1] * len, 1000.0 + dir[2] * len];
-    assert!((hit[0] - 100.0).abs() < 1e-6 && (hit[1] - 50.0).abs() < 1e-6 && hit[2].abs() < 1e-6, "{hit:?}");
+    assert!(
+        (hit[0] - 100.0).abs() < 1e-6 && (hit[1] - 50.0).abs() < 1e-6 && hit[2].abs() < 1e-6,
+        "{hit:?}"
+    );
     unsafe { ccp_camera_free(cam) };
 }
 
@@ -70,55 +82,127 @@ fn bad_arguments_give_a_status_and_a_message() {
     let mut px = [0.0; 4];
     unsafe {
         // Null handle, null pose, null arrays.
-        assert_eq!(ccp_project(null(), &pose, pts.as_ptr(), 1, px.as_mut_ptr(), 2), CcpStatus::NullPointer);
+        assert_eq!(
+            ccp_project(null(), &pose, pts.as_ptr(), 1, px.as_mut_ptr(), 2),
+            CcpStatus::NullPointer
+        );
         assert!(last_error().contains("camera"), "{}", last_error());
-        assert_eq!(ccp_project(cam, null(), pts.as_ptr(), 1, px.as_mut_ptr(), 2), CcpStatus::NullPointer);
+        assert_eq!(
+            ccp_project(cam, null(), pts.as_ptr(), 1, px.as_mut_ptr(), 2),
+            CcpStatus::NullPointer
+        );
         assert!(last_error().contains("pose"));
-        assert_eq!(ccp_project(cam, &pose, null(), 1, px.as_mut_ptr(), 2), CcpStatus::NullPointer);
+        assert_eq!(
+            ccp_project(cam, &pose, null(), 1, px.as_mut_ptr(), 2),
+            CcpStatus::NullPointer
+        );
         assert!(last_error().contains("points"));
-        assert_eq!(ccp_project(cam, &pose, pts.as_ptr(), 1, null_mut(), 2), CcpStatus::NullPointer);
+        assert_eq!(
+            ccp_project(cam, &pose, pts.as_ptr(), 1, null_mut(), 2),
+            CcpStatus::NullPointer
+        );
         assert!(last_error().contains("out_pixels"));
         // Zero length, a negative length passed as size_t, a too small output.
-        assert_eq!(ccp_project(cam, &pose, pts.as_ptr(), 0, px.as_mut_ptr(), 2), CcpStatus::InvalidArgument);
+        assert_eq!(
+            ccp_project(cam, &pose, pts.as_ptr(), 0, px.as_mut_ptr(), 2),
+            CcpStatus::InvalidArgument
+        );
         assert!(last_error().contains("zero"), "{}", last_error());
-        assert_eq!(ccp_project(cam, &pose, pts.as_ptr(), (-1isize) as usize, px.as_mut_ptr(), 2), CcpStatus::InvalidArgument);
+        assert_eq!(
+            ccp_project(
+                cam,
+                &pose,
+                pts.as_ptr(),
+                (-1isize) as usize,
+                px.as_mut_ptr(),
+                2
+            ),
+            CcpStatus::InvalidArgument
+        );
         assert!(!last_error().is_empty());
-        assert_eq!(ccp_project(cam, &pose, pts.as_ptr(), 2, px.as_mut_ptr(), 3), CcpStatus::BufferTooSmall);
-        assert!(last_error().contains("out_pixels holds 3"), "{}", last_error());
+        assert_eq!(
+            ccp_project(cam, &pose, pts.as_ptr(), 2, px.as_mut_ptr(), 3),
+            CcpStatus::BufferTooSmall
+        );
+        assert!(
+            last_error().contains("out_pixels holds 3"),
+            "{}",
+            last_error()
+        );
         // NaN coordinates, NaN pose, a point behind the camera, a non-rotation.
         let nan = [f64::NAN, 0.0, 0.0];
-        assert_eq!(ccp_project(cam, &pose, nan.as_ptr(), 1, px.as_mut_ptr(), 2), CcpStatus::NotFinite);
+        assert_eq!(
+            ccp_project(cam, &pose, nan.as_ptr(), 1, px.as_mut_ptr(), 2),
+            CcpStatus::NotFinite
+        );
         assert!(last_error().contains("points[0]"), "{}", last_error());
         let mut bad_pose = pose;
         bad_pose.center[2] = f64::INFINITY;
-        assert_eq!(ccp_project(cam, &bad_pose, pts.as_ptr(), 1, px.as_mut_ptr(), 2), CcpStatus::NotFinite);
+        assert_eq!(
+            ccp_project(cam, &bad_pose, pts.as_ptr(), 1, px.as_mut_ptr(), 2),
+            CcpStatus::NotFinite
+        );
         let above = [0.0, 0.0, 2000.0];
-        assert_ne!(ccp_project(cam, &pose, above.as_ptr(), 1, px.as_mut_ptr(), 2), CcpStatus::Ok);
-        assert!(last_error().contains("behind the camera"), "{}", last_error());
+        assert_ne!(
+            ccp_project(cam, &pose, above.as_ptr(), 1, px.as_mut_ptr(), 2),
+            CcpStatus::Ok
+        );
+        assert!(
+            last_error().contains("behind the camera"),
+            "{}",
+            last_error()
+        );
         let mut skew = pose;
         skew.rotation[0] = 2.0;
-        assert_eq!(ccp_project(cam, &skew, pts.as_ptr(), 1, px.as_mut_ptr(), 2), CcpStatus::InvalidArgument);
+        assert_eq!(
+            ccp_project(cam, &skew, pts.as_ptr(), 1, px.as_mut_ptr(), 2),
+            CcpStatus::InvalidArgument
+        );
         let nan_px = [f64::NAN, 1.0];
         let mut dir = [0.0; 3];
-        assert_eq!(ccp_back_project(cam, &pose, nan_px.as_ptr(), 1, dir.as_mut_ptr(), 3), CcpStatus::NotFinite);
+        assert_eq!(
+            ccp_back_project(cam, &pose, nan_px.as_ptr(), 1, dir.as_mut_ptr(), 3),
+            CcpStatus::NotFinite
+        );
 
         // Bad cameras: wrong parameter count, negative focal length, NaN, empty image, null out.
         let mut out = null_mut();
         let p3 = [1.0, 2.0, 3.0];
-        assert_eq!(ccp_camera_new_frame(100, 100, p3.as_ptr(), 3, &mut out), CcpStatus::InvalidArgument);
+        assert_eq!(
+            ccp_camera_new_frame(100, 100, p3.as_ptr(), 3, &mut out),
+            CcpStatus::InvalidArgument
+        );
         assert!(out.is_null() && last_error().contains("4 (pinhole) or 9 (Brown)"));
         let neg = [-1000.0, 1000.0, 50.0, 50.0];
-        assert_eq!(ccp_camera_new_frame(100, 100, neg.as_ptr(), 4, &mut out), CcpStatus::InvalidArgument);
+        assert_eq!(
+            ccp_camera_new_frame(100, 100, neg.as_ptr(), 4, &mut out),
+            CcpStatus::InvalidArgument
+        );
         assert!(last_error().contains("focal length"), "{}", last_error());
         let nanp = [f64::NAN, 1000.0, 50.0, 50.0];
-        assert_eq!(ccp_camera_new_frame(100, 100, nanp.as_ptr(), 4, &mut out), CcpStatus::NotFinite);
+        assert_eq!(
+            ccp_camera_new_frame(100, 100, nanp.as_ptr(), 4, &mut out),
+            CcpStatus::NotFinite
+        );
         let ok = [1000.0, 1000.0, 50.0, 50.0];
-        assert_eq!(ccp_camera_new_frame(0, 100, ok.as_ptr(), 4, &mut out), CcpStatus::InvalidArgument);
-        assert_eq!(ccp_camera_new_frame(100, 100, ok.as_ptr(), 4, null_mut()), CcpStatus::NullPointer);
-        assert_eq!(ccp_camera_new_frame(100, 100, null(), 4, &mut out), CcpStatus::NullPointer);
+        assert_eq!(
+            ccp_camera_new_frame(0, 100, ok.as_ptr(), 4, &mut out),
+            CcpStatus::InvalidArgument
+        );
+        assert_eq!(
+            ccp_camera_new_frame(100, 100, ok.as_ptr(), 4, null_mut()),
+            CcpStatus::NullPointer
+        );
+        assert_eq!(
+            ccp_camera_new_frame(100, 100, null(), 4, &mut out),
+            CcpStatus::NullPointer
+        );
 
         // A success clears the message; freeing NULL is harmless.
-        assert_eq!(ccp_project(cam, &pose, pts.as_ptr(), 1, px.as_mut_ptr(), 2), CcpStatus::Ok);
+        assert_eq!(
+            ccp_project(cam, &pose, pts.as_ptr(), 1, px.as_mut_ptr(), 2),
+            CcpStatus::Ok
+        );
         assert_eq!(last_error(), "");
         ccp_camera_free(null_mut());
         ccp_camera_free(cam);

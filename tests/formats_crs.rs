@@ -49,39 +49,82 @@ impl Tm {
 }
 
 /// EPSG:32650 — WGS 84 / UTM zone 50N: central meridian 117°E, k0 = 0.9996, FE 500 km.
-const UTM50: Tm = Tm { a: 6378137.0, inv_f: 298.257223563, lon0: 117.0, k0: 0.9996, false_easting: 500000.0 };
+const UTM50: Tm = Tm {
+    a: 6378137.0,
+    inv_f: 298.257223563,
+    lon0: 117.0,
+    k0: 0.9996,
+    false_easting: 500000.0,
+};
 /// EPSG:4547 — CGCS2000 / 3-degree Gauss-Kruger CM 114E: k0 = 1, FE 500 km, CGCS2000 ellipsoid.
-const GK114: Tm = Tm { a: 6378137.0, inv_f: 298.257222101, lon0: 114.0, k0: 1.0, false_easting: 500000.0 };
+const GK114: Tm = Tm {
+    a: 6378137.0,
+    inv_f: 298.257222101,
+    lon0: 114.0,
+    k0: 1.0,
+    false_easting: 500000.0,
+};
 
 #[test]
 fn wgs84_to_utm50n_matches_snyder_and_inverts() {
-    let t = Transformer::new(&Crs::from_epsg(4326).unwrap(), &Crs::from_epsg(32650).unwrap()).unwrap();
-    let inv = Transformer::new(&Crs::from_epsg(32650).unwrap(), &Crs::from_epsg(4326).unwrap()).unwrap();
+    let t = Transformer::new(
+        &Crs::from_epsg(4326).unwrap(),
+        &Crs::from_epsg(32650).unwrap(),
+    )
+    .unwrap();
+    let inv = Transformer::new(
+        &Crs::from_epsg(32650).unwrap(),
+        &Crs::from_epsg(4326).unwrap(),
+    )
+    .unwrap();
     // Beijing, and points up to 2° off the central meridian at several latitudes.
-    let pts = [(116.3975, 39.9087), (115.2, 30.0), (118.9, 45.5), (117.0, 0.5), (117.0, 39.0)];
+    let pts = [
+        (116.3975, 39.9087),
+        (115.2, 30.0),
+        (118.9, 45.5),
+        (117.0, 0.5),
+        (117.0, 39.0),
+    ];
     let mut x: Vec<f64> = pts.iter().map(|p| p.0).collect();
     let mut y: Vec<f64> = pts.iter().map(|p| p.1).collect();
     t.transform(&mut x, &mut y, &mut []).unwrap();
     for (i, &(lon, lat)) in pts.iter().enumerate() {
         let (ex, ey) = UTM50.forward(lon, lat);
-        assert!((x[i] - ex).abs() < 1e-3 && (y[i] - ey).abs() < 1e-3, "{lon},{lat}: PROJ ({}, {}) vs Snyder ({ex}, {ey})", x[i], y[i]);
+        assert!(
+            (x[i] - ex).abs() < 1e-3 && (y[i] - ey).abs() < 1e-3,
+            "{lon},{lat}: PROJ ({}, {}) vs Snyder ({ex}, {ey})",
+            x[i],
+            y[i]
+        );
     }
     // On the central meridian the easting is exactly the false easting.
     assert!((x[4] - 500000.0).abs() < 1e-6);
     inv.transform(&mut x, &mut y, &mut []).unwrap();
     for (i, &(lon, lat)) in pts.iter().enumerate() {
-        assert!((x[i] - lon).abs() < 1e-9 && (y[i] - lat).abs() < 1e-9, "inverse: easting/longitude first");
+        assert!(
+            (x[i] - lon).abs() < 1e-9 && (y[i] - lat).abs() < 1e-9,
+            "inverse: easting/longitude first"
+        );
     }
 }
 
 #[test]
 fn cgcs2000_geographic_to_gauss_kruger_114e_matches_snyder() {
-    let t = Transformer::new(&Crs::from_epsg(4490).unwrap(), &Crs::from_epsg(4547).unwrap()).unwrap();
+    let t = Transformer::new(
+        &Crs::from_epsg(4490).unwrap(),
+        &Crs::from_epsg(4547).unwrap(),
+    )
+    .unwrap();
     // EPSG:4490 is latitude-first by authority; we pass longitude first (GIS order).
     for &(lon, lat) in &[(114.0, 39.7), (114.5, 39.74), (112.6, 36.1), (115.4, 41.0)] {
         let p = t.transform_point([lon, lat, 100.0]).unwrap();
         let (ex, ey) = GK114.forward(lon, lat);
-        assert!((p[0] - ex).abs() < 1e-3 && (p[1] - ey).abs() < 1e-3, "{lon},{lat}: ({}, {}) vs ({ex}, {ey})", p[0], p[1]);
+        assert!(
+            (p[0] - ex).abs() < 1e-3 && (p[1] - ey).abs() < 1e-3,
+            "{lon},{lat}: ({}, {}) vs ({ex}, {ey})",
+            p[0],
+            p[1]
+        );
         assert_eq!(p[2], 100.0, "no vertical transformation between these CRSs");
     }
     // The synthetic block's area (≈ 500 000 E / 4 400 000 N) lies near 39.7°N on the CM.
@@ -95,15 +138,31 @@ fn bad_crs_and_coordinates_are_refused_with_a_clear_message() {
     assert!(e.contains("EPSG:999999"), "{e}");
     let e = Crs::parse("").unwrap_err().to_string();
     assert!(e.contains("empty"), "{e}");
-    let t = Transformer::new(&Crs::from_epsg(4326).unwrap(), &Crs::from_epsg(32650).unwrap()).unwrap();
-    let e = t.transform(&mut [f64::NAN], &mut [1.0], &mut []).unwrap_err().to_string();
+    let t = Transformer::new(
+        &Crs::from_epsg(4326).unwrap(),
+        &Crs::from_epsg(32650).unwrap(),
+    )
+    .unwrap();
+    let e = t
+        .transform(&mut [f64::NAN], &mut [1.0], &mut [])
+        .unwrap_err()
+        .to_string();
     assert!(e.contains("not finite"), "{e}");
-    let e = t.transform(&mut [1.0, 2.0], &mut [1.0], &mut []).unwrap_err().to_string();
+    let e = t
+        .transform(&mut [1.0, 2.0], &mut [1.0], &mut [])
+        .unwrap_err()
+        .to_string();
     assert!(e.contains("differ in length"), "{e}");
     let geo = Crs::from_epsg(4326).unwrap();
-    let e = geo.require_projected(Some((116.4, 39.9))).unwrap_err().to_string();
+    let e = geo
+        .require_projected(Some((116.4, 39.9)))
+        .unwrap_err()
+        .to_string();
     assert!(e.contains("EPSG:32650"), "names the UTM zone: {e}");
-    assert!(Crs::from_epsg(4547).unwrap().require_projected(None).is_ok());
+    assert!(Crs::from_epsg(4547)
+        .unwrap()
+        .require_projected(None)
+        .is_ok());
 }
 
 fn sample_dem() -> Dem {
@@ -122,10 +181,16 @@ fn geotiff_dem_round_trip_is_exact_and_gdalinfo_agrees() {
     let path = dir.path().join("sub").join("dem.tif");
     let dem = sample_dem();
     let crs = Crs::from_epsg(4547).unwrap();
-    let opts = GeoTiffOptions { overviews: vec![2, 4], ..Default::default() };
+    let opts = GeoTiffOptions {
+        overviews: vec![2, 4],
+        ..Default::default()
+    };
     write_dem(&path, &dem, &crs, &opts).unwrap();
     // No temporary file left beside the output.
-    let names: Vec<_> = std::fs::read_dir(path.parent().unwrap()).unwrap().map(|e| e.unwrap().file_name()).collect();
+    let names: Vec<_> = std::fs::read_dir(path.parent().unwrap())
+        .unwrap()
+        .map(|e| e.unwrap().file_name())
+        .collect();
     assert_eq!(names.len(), 1, "{names:?}");
 
     let (back, back_crs) = read_dem(&path).unwrap();
@@ -137,18 +202,30 @@ fn geotiff_dem_round_trip_is_exact_and_gdalinfo_agrees() {
     assert_eq!(back_crs.unwrap().epsg(), Some(4547));
 
     // Independent reader: gdalinfo.
-    let out = std::process::Command::new("gdalinfo").arg("-json").arg(&path).output().expect("gdalinfo runs");
+    let out = std::process::Command::new("gdalinfo")
+        .arg("-json")
+        .arg(&path)
+        .output()
+        .expect("gdalinfo runs");
     assert!(out.status.success());
     let info: serde_json::Value = serde_json::from_slice(&out.stdout).unwrap();
     let wkt = info["coordinateSystem"]["wkt"].as_str().unwrap();
     assert!(wkt.contains("ID[\"EPSG\",4547]"), "{wkt}");
-    let gt: Vec<f64> = info["geoTransform"].as_array().unwrap().iter().map(|v| v.as_f64().unwrap()).collect();
+    let gt: Vec<f64> = info["geoTransform"]
+        .as_array()
+        .unwrap()
+        .iter()
+        .map(|v| v.as_f64().unwrap())
+        .collect();
     assert_eq!(gt, dem.transform.0.to_vec());
     let band = &info["bands"][0];
     assert_eq!(band["type"], "Float32");
     assert_eq!(band["noDataValue"].as_f64(), Some(-9999.0));
     assert_eq!(band["overviews"].as_array().map(|o| o.len()), Some(2));
-    assert_eq!(info["metadata"]["IMAGE_STRUCTURE"]["COMPRESSION"], "DEFLATE");
+    assert_eq!(
+        info["metadata"]["IMAGE_STRUCTURE"]["COMPRESSION"],
+        "DEFLATE"
+    );
 }
 
 #[test]
@@ -157,11 +234,24 @@ fn failed_raster_write_leaves_nothing_behind() {
     // The target is an existing directory: the rename must fail and the temporary go away.
     let path = dir.path().join("occupied.tif");
     std::fs::create_dir(&path).unwrap();
-    let err = write_dem(&path, &sample_dem(), &Crs::from_epsg(4547).unwrap(), &GeoTiffOptions::default());
+    let err = write_dem(
+        &path,
+        &sample_dem(),
+        &Crs::from_epsg(4547).unwrap(),
+        &GeoTiffOptions::default(),
+    );
     assert!(err.is_err());
-    let names: Vec<_> = std::fs::read_dir(dir.path()).unwrap().map(|e| e.unwrap().file_name()).collect();
+    let names: Vec<_> = std::fs::read_dir(dir.path())
+        .unwrap()
+        .map(|e| e.unwrap().file_name())
+        .collect();
     assert_eq!(names, vec![std::ffi::OsString::from("occupied.tif")]);
-    let e = read_dem(&dir.path().join("missing.tif")).unwrap_err().to_string();
-    assert!(e.contains("missing.tif") && e.contains("does not exist"), "{e}");
+    let e = read_dem(&dir.path().join("missing.tif"))
+        .unwrap_err()
+        .to_string();
+    assert!(
+        e.contains("missing.tif") && e.contains("does not exist"),
+        "{e}"
+    );
     let _ = GeoTransform::north_up(0.0, 0.0, 1.0);
 }

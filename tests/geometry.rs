@@ -13,7 +13,13 @@ fn brown_camera() -> Camera {
         fy: 8010.0,
         cx: 3010.5,
         cy: 1990.25,
-        distortion: Brown { k1: -0.12, k2: 0.05, k3: -0.01, p1: 3e-4, p2: -2e-4 },
+        distortion: Brown {
+            k1: -0.12,
+            k2: 0.05,
+            k3: -0.01,
+            p1: 3e-4,
+            p2: -2e-4,
+        },
     })
 }
 
@@ -41,7 +47,13 @@ fn film_camera(kind: InteriorTransformKind) -> Camera {
         height: 11000,
         focal_mm: 153.12,
         principal_point_mm: [0.012, -0.008],
-        distortion: Brown { k1: 1e-3, k2: -2e-4, k3: 0.0, p1: 1e-5, p2: 2e-5 },
+        distortion: Brown {
+            k1: 1e-3,
+            k2: -2e-4,
+            k3: 0.0,
+            p1: 1e-5,
+            p2: 2e-5,
+        },
         interior: InteriorOrientation::new(kind, m).unwrap(),
     })
 }
@@ -59,13 +71,24 @@ fn check_jacobians(camera: &Camera, pose: &Pose, x: &Vector3<f64>) {
         let h = if k < 3 { 1e-7 } else { 1e-5 };
         let mut d = [0.0; 6];
         d[k] = h;
-        let plus = pose.perturbed(&Vector3::new(d[0], d[1], d[2]), &Vector3::new(d[3], d[4], d[5]));
+        let plus = pose.perturbed(
+            &Vector3::new(d[0], d[1], d[2]),
+            &Vector3::new(d[3], d[4], d[5]),
+        );
         d[k] = -h;
-        let minus = pose.perturbed(&Vector3::new(d[0], d[1], d[2]), &Vector3::new(d[3], d[4], d[5]));
+        let minus = pose.perturbed(
+            &Vector3::new(d[0], d[1], d[2]),
+            &Vector3::new(d[3], d[4], d[5]),
+        );
         let fd = (px(camera, &plus, x) - px(camera, &minus, x)) / (2.0 * h);
         for r in 0..2 {
             let e = rel_err(j.pose[(r, k)], fd[r]);
-            assert!(e < 1e-6, "pose column {k} row {r}: analytic {} vs fd {}", j.pose[(r, k)], fd[r]);
+            assert!(
+                e < 1e-6,
+                "pose column {k} row {r}: analytic {} vs fd {}",
+                j.pose[(r, k)],
+                fd[r]
+            );
         }
     }
     for k in 0..3 {
@@ -117,7 +140,11 @@ fn collinearity_jacobians_match_finite_differences() {
                 rng.gen_range(-0.1..0.1),
                 rng.gen_range(-0.1..0.1),
                 rng.gen_range(-3.1..3.1),
-                Vector3::new(rng.gen_range(-50.0..50.0), rng.gen_range(-50.0..50.0), 1500.0),
+                Vector3::new(
+                    rng.gen_range(-50.0..50.0),
+                    rng.gen_range(-50.0..50.0),
+                    1500.0,
+                ),
             );
             // A ground point inside the field of view.
             let d = pose.direction_to_world(&Vector3::new(
@@ -154,7 +181,11 @@ fn rotation_conventions_round_trip_and_match_independent_formulas() {
     let mut rng = ChaCha8Rng::seed_from_u64(2);
     let flip = Matrix3::from_diagonal(&Vector3::new(1.0, -1.0, -1.0));
     for _ in 0..1000 {
-        let (o, p, k) = (rng.gen_range(-3.1..3.1), rng.gen_range(-1.5..1.5), rng.gen_range(-3.1..3.1));
+        let (o, p, k) = (
+            rng.gen_range(-3.1..3.1),
+            rng.gen_range(-1.5..1.5),
+            rng.gen_range(-3.1..3.1),
+        );
         let r = matrix_from_opk(o, p, k);
         assert!((r - flip * opk_elements(o, p, k)).abs().max() < 1e-14);
         let (o2, p2, k2) = opk_from_matrix(&r);
@@ -178,13 +209,22 @@ fn rotation_conventions_round_trip_and_match_independent_formulas() {
         );
         assert!((r - rq).abs().max() < 1e-12);
 
-        let (ya, pi, ro) = (rng.gen_range(-3.1..3.1), rng.gen_range(-1.5..1.5), rng.gen_range(-3.1..3.1));
+        let (ya, pi, ro) = (
+            rng.gen_range(-3.1..3.1),
+            rng.gen_range(-1.5..1.5),
+            rng.gen_range(-3.1..3.1),
+        );
         let ry = matrix_from_ypr(ya, pi, ro);
         let (ya2, pi2, ro2) = ypr_from_matrix(&ry);
         assert!((ya - ya2).abs() < 1e-12 && (pi - pi2).abs() < 1e-12 && (ro - ro2).abs() < 1e-12);
     }
     // Nadir photo, image top towards north: OPK = 0 and heading 0 give the same camera.
-    assert!((matrix_from_opk(0.0, 0.0, 0.0) - matrix_from_ypr(0.0, 0.0, 0.0)).abs().max() < 1e-15);
+    assert!(
+        (matrix_from_opk(0.0, 0.0, 0.0) - matrix_from_ypr(0.0, 0.0, 0.0))
+            .abs()
+            .max()
+            < 1e-15
+    );
     // Heading east (yaw = 90°): the image top points east, so image x points south.
     let r = matrix_from_ypr(90f64.to_radians(), 0.0, 0.0);
     assert!((r.row(0).transpose() - Vector3::new(0.0, -1.0, 0.0)).norm() < 1e-12);
@@ -223,7 +263,9 @@ fn distortion_inverse_converges_to_a_micro_pixel() {
 #[test]
 fn interior_orientation_is_recovered_from_fiducials() {
     let film = film_camera(InteriorTransformKind::Affine);
-    let Camera::Film(f) = &film else { unreachable!() };
+    let Camera::Film(f) = &film else {
+        unreachable!()
+    };
     // Eight fiducials of a typical metric camera (corners and side midpoints, mm).
     let mm: Vec<[f64; 2]> = vec![
         [-106.0, -106.0],
@@ -242,17 +284,28 @@ fn interior_orientation_is_recovered_from_fiducials() {
             [p.x, p.y]
         })
         .collect();
-    for kind in [InteriorTransformKind::Affine, InteriorTransformKind::Projective] {
+    for kind in [
+        InteriorTransformKind::Affine,
+        InteriorTransformKind::Projective,
+    ] {
         let (io, res) = InteriorOrientation::estimate(kind, &px, &mm).unwrap();
-        assert!(res.iter().all(|r| r[0].abs() < 1e-6 && r[1].abs() < 1e-6), "{res:?}");
+        assert!(
+            res.iter().all(|r| r[0].abs() < 1e-6 && r[1].abs() < 1e-6),
+            "{res:?}"
+        );
         let m = io.pixel_to_mm / io.pixel_to_mm[(2, 2)];
         assert!((m - f.interior.pixel_to_mm).abs().max() < 1e-9);
     }
-    assert!(InteriorOrientation::estimate(InteriorTransformKind::Projective, &px[..3], &mm[..3]).is_err());
+    assert!(
+        InteriorOrientation::estimate(InteriorTransformKind::Projective, &px[..3], &mm[..3])
+            .is_err()
+    );
     // Collinear fiducials cannot define an affine transform.
     let line_mm = [[0.0, 0.0], [1.0, 1.0], [2.0, 2.0]];
     let line_px = [[0.0, 0.0], [10.0, 10.0], [20.0, 20.0]];
-    assert!(InteriorOrientation::estimate(InteriorTransformKind::Affine, &line_px, &line_mm).is_err());
+    assert!(
+        InteriorOrientation::estimate(InteriorTransformKind::Affine, &line_px, &line_mm).is_err()
+    );
 }
 
 #[test]
@@ -264,7 +317,13 @@ fn similarity_is_recovered_exactly_and_to_the_noise_level() {
         Vector3::new(512.3, -80.1, 12.7),
     );
     let src: Vec<Vector3<f64>> = (0..200)
-        .map(|_| Vector3::new(rng.gen_range(-500.0..500.0), rng.gen_range(-500.0..500.0), rng.gen_range(0.0..80.0)))
+        .map(|_| {
+            Vector3::new(
+                rng.gen_range(-500.0..500.0),
+                rng.gen_range(-500.0..500.0),
+                rng.gen_range(0.0..80.0),
+            )
+        })
         .collect();
     let dst: Vec<Vector3<f64>> = src.iter().map(|p| truth.apply(p)).collect();
     let est = Similarity::estimate(&src[..3], &dst[..3], None, true).unwrap();
@@ -284,11 +343,18 @@ fn similarity_is_recovered_exactly_and_to_the_noise_level() {
         })
         .collect();
     let est = Similarity::estimate(&src, &noisy, None, true).unwrap();
-    let rms = (src.iter().zip(&noisy).map(|(s, d)| (est.apply(s) - d).norm_squared()).sum::<f64>()
+    let rms = (src
+        .iter()
+        .zip(&noisy)
+        .map(|(s, d)| (est.apply(s) - d).norm_squared())
+        .sum::<f64>()
         / src.len() as f64
         / 3.0)
         .sqrt();
-    assert!((rms - sigma).abs() < 0.2 * sigma, "residual rms {rms} vs noise {sigma}");
+    assert!(
+        (rms - sigma).abs() < 0.2 * sigma,
+        "residual rms {rms} vs noise {sigma}"
+    );
     // Over 1000 m, the scale error of 200 points at 5 cm is a few 1e-5.
     assert!((est.scale - truth.scale).abs() < 5e-5);
     let rigid = Similarity::estimate(&src, &dst, None, false).unwrap();
@@ -304,17 +370,31 @@ fn similarity_is_recovered_exactly_and_to_the_noise_level() {
     assert!((a - b).norm() < 1e-9);
     // 4×4 matrix round trip and inverse.
     let back = Similarity::from_matrix4(&truth.to_matrix4()).unwrap();
-    assert!((back.scale - truth.scale).abs() < 1e-12 && (back.translation - truth.translation).norm() < 1e-9);
+    assert!(
+        (back.scale - truth.scale).abs() < 1e-12
+            && (back.translation - truth.translation).norm() < 1e-9
+    );
     let id = truth.compose(&truth.inverse());
-    assert!((id.to_matrix4() - nalgebra::Matrix4::identity()).abs().max() < 1e-9);
+    assert!(
+        (id.to_matrix4() - nalgebra::Matrix4::identity())
+            .abs()
+            .max()
+            < 1e-9
+    );
 
     // Degenerate input.
     let line: Vec<Vector3<f64>> = (0..5).map(|i| Vector3::new(i as f64, 0.0, 0.0)).collect();
-    assert!(matches!(Similarity::estimate(&line, &line, None, true), Err(GeometryError::Degenerate(_))));
+    assert!(matches!(
+        Similarity::estimate(&line, &line, None, true),
+        Err(GeometryError::Degenerate(_))
+    ));
     assert!(Similarity::estimate(&src[..2], &dst[..2], None, true).is_err());
     let mut bad = src.clone();
     bad[0].x = f64::NAN;
-    assert!(matches!(Similarity::estimate(&bad, &dst, None, true), Err(GeometryError::NotFinite { .. })));
+    assert!(matches!(
+        Similarity::estimate(&bad, &dst, None, true),
+        Err(GeometryError::NotFinite { .. })
+    ));
 }
 
 fn relief(x: f64, y: f64) -> f64 {
@@ -334,7 +414,11 @@ fn ray_dem_intersection_hits_the_true_point_on_steep_relief() {
             rng.gen_range(-0.35..0.35),
             rng.gen_range(-0.35..0.35),
             rng.gen_range(-3.0..3.0),
-            Vector3::new(rng.gen_range(-100.0..100.0), rng.gen_range(-100.0..100.0), 1200.0),
+            Vector3::new(
+                rng.gen_range(-100.0..100.0),
+                rng.gen_range(-100.0..100.0),
+                1200.0,
+            ),
         );
         let px = [rng.gen_range(500.0..5500.0), rng.gen_range(500.0..3500.0)];
         let ray = back_project(&cam, &pose, px).unwrap();
@@ -351,7 +435,10 @@ fn ray_dem_intersection_hits_the_true_point_on_steep_relief() {
         for i in 1..200 {
             let p = ray.at(along * i as f64 / 200.0 * 0.999);
             if let Some(hh) = dem.height_at(p.x, p.y) {
-                assert!(p.z >= hh - 1e-3, "ray passes below the surface before the hit");
+                assert!(
+                    p.z >= hh - 1e-3,
+                    "ray passes below the surface before the hit"
+                );
             }
         }
         // Re-projection of the hit lands on the pixel.
@@ -377,7 +464,10 @@ fn ray_dem_intersection_hits_the_true_point_on_steep_relief() {
         }
     }
     // A ray pointing up misses.
-    let up = Ray { origin: Vector3::new(0.0, 0.0, 1000.0), direction: Vector3::new(0.0, 0.0, 1.0) };
+    let up = Ray {
+        origin: Vector3::new(0.0, 0.0, 1000.0),
+        direction: Vector3::new(0.0, 0.0, 1.0),
+    };
     assert!(dem.intersect(&up).is_err());
 }
 
@@ -389,9 +479,15 @@ fn invalid_cameras_and_points_behind_are_refused() {
     let cam = Camera::Frame(FrameCamera::pinhole(0, 100, 50.0));
     assert!(cam.validate().is_err());
     let cam = brown_camera();
-    assert!(matches!(cam.project(&Vector3::new(0.0, 0.0, -5.0)), Err(GeometryError::BehindCamera { .. })));
+    assert!(matches!(
+        cam.project(&Vector3::new(0.0, 0.0, -5.0)),
+        Err(GeometryError::BehindCamera { .. })
+    ));
     assert!(cam.unproject([f64::NAN, 1.0]).is_err());
-    let pose = Pose::new(Matrix3::new(1.0, 0.0, 0.0, 0.0, 1.0, 0.0, 0.0, 0.0, 2.0), Vector3::zeros());
+    let pose = Pose::new(
+        Matrix3::new(1.0, 0.0, 0.0, 0.0, 1.0, 0.0, 0.0, 0.0, 2.0),
+        Vector3::zeros(),
+    );
     assert!(pose.validate(1e-9).is_err());
     let json = serde_json::to_string(&film_camera(InteriorTransformKind::Affine)).unwrap();
     let back: Camera = serde_json::from_str(&json).unwrap();

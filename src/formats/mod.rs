@@ -50,9 +50,16 @@ impl FormatError {
 /// A temporary sibling of `path` to write into before an atomic rename, so that readers
 /// never see a half-written output. The extension is kept (GDAL picks drivers by it).
 pub fn temporary_sibling(path: &Path) -> PathBuf {
-    let stem = path.file_stem().map(|n| n.to_string_lossy().into_owned()).unwrap_or_default();
+    let stem = path
+        .file_stem()
+        .map(|n| n.to_string_lossy().into_owned())
+        .unwrap_or_default();
     let name = match path.extension() {
-        Some(ext) => format!(".{stem}.part-{}.{}", std::process::id(), ext.to_string_lossy()),
+        Some(ext) => format!(
+            ".{stem}.part-{}.{}",
+            std::process::id(),
+            ext.to_string_lossy()
+        ),
         None => format!(".{stem}.part-{}", std::process::id()),
     };
     path.with_file_name(name)
