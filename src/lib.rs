@@ -7,6 +7,7 @@
 //! the CLI as thin skins.
 
 pub mod block;
+pub mod control;
 pub mod estimators;
 pub mod ffi;
 pub mod formats;

@@ -1,0 +1,656 @@
+//! Digital Control Photo packages: reusable control patches with orientation, object
+//! coordinates and metadata, specified in `formats/dcp/README.md`.
+//!
+//! A package is a folder: `manifest.json` (versioned, self-describing) and `chips/` (PNG
+//! image patches around each control point in each photo that sees it). Every chip is
+//! listed with its SHA-256 in the manifest, so a package is verified on import and is
+//! readable without this library.
+
+use crate::formats::crs::Crs;
+use crate::geometry::{Camera, Pose};
+use image::DynamicImage;
+use kiddo::{KdTree, SquaredEuclidean};
+use nalgebra::{Matrix3, Vector3};
+use serde::{Deserialize, Serialize};
+use sha2::{Digest, Sha256};
+use std::collections::{BTreeMap, BTreeSet};
+use std::path::{Path, PathBuf};
+
+pub const DCP_FORMAT: &str = "cloudcontrol-dcp";
+pub const DCP_VERSION: u32 = 1;
+const MANIFEST: &str = "manifest.json";
+
+#[derive(Debug, thiserror::Error)]
+pub enum DcpError {
+    #[error("{path}: {source}")]
+    Io {
+        path: PathBuf,
+        source: std::io::Error,
+    },
+    #[error("DCP package {package}: {message}")]
+    Invalid { package: PathBuf, message: String },
+    #[error("DCP package {package}: chip {file}: {message}")]
+    Chip {
+        package: PathBuf,
+        file: String,
+        message: String,
+    },
+}
+
+pub type Result<T> = std::result::Result<T, DcpError>;
+
+fn invalid(package: &Path, message: impl Into<String>) -> DcpError {
+    DcpError::Invalid {
+        package: package.to_path_buf(),
+        message: message.into(),
+    }
+}
+
+/// Epoch the control was derived from.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct EpochInfo {
+    pub name: String,
+    /// Acquisition date (ISO 8601), when known.
+    #[serde(default)]
+    pub date: Option<String>,
+}
+
+/// Accuracy of the control points' object coordinates (1σ, m).
+#[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct Accuracy {
+    pub plan_m: f64,
+    pub height_m: f64,
+}
+
+/// An oriented photo of the package.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct DcpPhoto {
+    pub id: u32,
+    pub name: String,
+    pub camera: Camera,
+    /// World→camera rotation, row-major (x right, y down, z forward).
+    pub rotation: [f64; 9],
+    /// Projection centre in world coordinates of the package CRS.
+    pub center: [f64; 3],
+    #[serde(default)]
+    pub date: Option<String>,
+}
+
+impl DcpPhoto {
+    /// Exterior orientation in a block-local frame with the given origin.
+    pub fn pose(&self, origin: &Vector3<f64>) -> Pose {
+        Pose::new(
+            Matrix3::from_row_slice(&self.rotation),
+            Vector3::from(self.center) - origin,
+        )
+    }
+}
+
+/// Where a chip sits in its photo.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct ChipRef {
+    /// Path relative to the package folder.
+    pub file: String,
+    /// Photo pixel of the chip's top-left corner (integer: chips are cut on the pixel grid).
+    pub x0: u32,
+    pub y0: u32,
+    pub width: u32,
+    pub height: u32,
+}
+
+/// One image measurement of a control point with its chip.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct DcpMeasurement {
+    pub photo: u32,
+    /// Pixel position in the photo (design-overview convention).
+    pub pixel: [f64; 2],
+    pub chip: ChipRef,
+}
+
+/// Quality record of a cloud control point.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize, Default)]
+#[serde(deny_unknown_fields)]
+pub struct PointQuality {
+    /// Förstner interest value of the point in its best photo.
+    #[serde(default)]
+    pub interest: f64,
+    /// LiDAR coplanarity λmin/Σλ of the supporting plane (0 = perfectly planar).
+    #[serde(default)]
+    pub coplanarity: f64,
+    /// Land-cover class of the support (e.g. "ground").
+    #[serde(default)]
+    pub class: String,
+}
+
+/// A control point of the package.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct DcpPoint {
+    pub id: u64,
+    #[serde(default)]
+    pub name: String,
+    /// World coordinates in the package CRS.
+    pub xyz: [f64; 3],
+    /// 1σ of x, y, z (m).
+    pub sigma: [f64; 3],
+    /// Unit normal of the supporting surface (LiDAR plane), used to align chips to a new
+    /// photo's geometry through the ground plane.
+    #[serde(default)]
+    pub normal: Option<[f64; 3]>,
+    #[serde(default)]
+    pub quality: PointQuality,
+    pub measurements: Vec<DcpMeasurement>,
+}
+
+/// The manifest: everything but the chip pixels.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct Manifest {
+    pub format: String,
+    pub version: u32,
+    /// `EPSG:n` or WKT.
+    pub crs: String,
+    pub epoch: EpochInfo,
+    /// How the control was derived (e.g. "reference photos oriented against LiDAR").
+    pub source: String,
+    /// Ground pixel size of the photos (m).
+    pub gsd_m: f64,
+    pub accuracy: Accuracy,
+    pub photos: Vec<DcpPhoto>,
+    pub points: Vec<DcpPoint>,
+    /// SHA-256 (hex) of every file of the package but the manifest, by relative path.
+    pub files: BTreeMap<String, String>,
+}
+
+impl Manifest {
+    pub fn new(crs: &str, epoch: EpochInfo, source: &str, gsd_m: f64, accuracy: Accuracy) -> Self {
+        Self {
+            format: DCP_FORMAT.into(),
+            version: DCP_VERSION,
+            crs: crs.into(),
+            epoch,
+            source: source.into(),
+            gsd_m,
+            accuracy,
+            photos: Vec::new(),
+            points: Vec::new(),
+            files: BTreeMap::new(),
+        }
+    }
+}
+
+/// A package on disk, validated.
+#[derive(Debug, Clone)]
+pub struct DcpPackage {
+    pub dir: PathBuf,
+    pub manifest: Manifest,
+}
+
+fn sha256_hex(bytes: &[u8]) -> String {
+    let d = Sha256::digest(bytes);
+    d.iter().map(|b| format!("{b:02x}")).collect()
+}
+
+fn finite(v: &[f64]) -> bool {
+    v.iter().all(|x| x.is_finite())
+}
+
+/// Chip file names may not leave the package (no absolute paths, no `..`).
+fn safe_relative(file: &str) -> bool {
+    let p = Path::new(file);
+    !file.is_empty()
+        && p.is_relative()
+        && p.components()
+            .all(|c| matches!(c, std::path::Component::Normal(_)))
+}
+
+impl DcpPackage {
+    /// Checks the manifest's internal consistency (no file access).
+    pub fn validate_manifest(m: &Manifest, package: &Path) -> Result<()> {
+        if m.format != DCP_FORMAT {
+            return Err(invalid(
+                package,
+                format!("format is {:?}, not {DCP_FORMAT:?}", m.format),
+            ));
+        }
+        if m.version > DCP_VERSION {
+            return Err(invalid(
+                package,
+                format!(
+                    "package version {} is newer than this library reads ({DCP_VERSION})",
+                    m.version
+                ),
+            ));
+        }
+        if m.version == 0 {
+            return Err(invalid(package, "package version 0 does not exist"));
+        }
+        let crs = Crs::parse(&m.crs).map_err(|e| invalid(package, e.to_string()))?;
+        crs.require_projected(None)
+            .map_err(|e| invalid(package, e.to_string()))?;
+        if !(m.gsd_m.is_finite() && m.gsd_m > 0.0) {
+            return Err(invalid(
+                package,
+                format!("gsd_m must be positive, got {}", m.gsd_m),
+            ));
+        }
+        if !finite(&[m.accuracy.plan_m, m.accuracy.height_m]) {
+            return Err(invalid(package, "accuracy is not finite"));
+        }
+        let mut photo_ids = BTreeSet::new();
+        for p in &m.photos {
+            if !photo_ids.insert(p.id) {
+                return Err(invalid(package, format!("photo id {} appears twice", p.id)));
+            }
+            p.camera
+                .validate()
+                .map_err(|e| invalid(package, format!("photo {} ({}): {e}", p.id, p.name)))?;
+            let pose = Pose::new(
+                Matrix3::from_row_slice(&p.rotation),
+                Vector3::from(p.center),
+            );
+            pose.validate(1e-6)
+                .map_err(|e| invalid(package, format!("photo {} ({}): {e}", p.id, p.name)))?;
+        }
+        let mut point_ids = BTreeSet::new();
+        let mut referenced = BTreeSet::new();
+        for pt in &m.points {
+            if !point_ids.insert(pt.id) {
+                return Err(invalid(
+                    package,
+                    format!("point id {} appears twice", pt.id),
+                ));
+            }
+            if !finite(&pt.xyz) || !finite(&pt.sigma) || pt.sigma.iter().any(|s| *s <= 0.0) {
+                return Err(invalid(
+                    package,
+                    format!("point {}: coordinates or σ not finite and positive", pt.id),
+                ));
+            }
+            if pt.measurements.is_empty() {
+                return Err(invalid(
+                    package,
+                    format!("point {} has no measurement", pt.id),
+                ));
+            }
+            for ms in &pt.measurements {
+                if !photo_ids.contains(&ms.photo) {
+                    return Err(invalid(
+                        package,
+                        format!("point {} is measured in unknown photo {}", pt.id, ms.photo),
+                    ));
+                }
+                if !finite(&ms.pixel) {
+                    return Err(invalid(
+                        package,
+                        format!("point {} in photo {}: pixel not finite", pt.id, ms.photo),
+                    ));
+                }
+                let c = &ms.chip;
+                if !safe_relative(&c.file) {
+                    return Err(invalid(
+                        package,
+                        format!("chip path {:?} leaves the package", c.file),
+                    ));
+                }
+                if !m.files.contains_key(&c.file) {
+                    return Err(DcpError::Chip {
+                        package: package.into(),
+                        file: c.file.clone(),
+                        message: "not listed with a checksum in the manifest".into(),
+                    });
+                }
+                let inside = ms.pixel[0] >= c.x0 as f64
+                    && ms.pixel[1] >= c.y0 as f64
+                    && ms.pixel[0] <= (c.x0 + c.width) as f64
+                    && ms.pixel[1] <= (c.y0 + c.height) as f64;
+                if !inside || c.width == 0 || c.height == 0 {
+                    return Err(DcpError::Chip {
+                        package: package.into(),
+                        file: c.file.clone(),
+                        message: format!("does not contain its point's pixel {:?}", ms.pixel),
+                    });
+                }
+                referenced.insert(c.file.clone());
+            }
+        }
+        Ok(())
+    }
+
+    /// Opens and fully verifies a package: manifest schema and consistency, CRS, presence
+    /// and checksum of every listed file. Nothing is written.
+    pub fn open(dir: &Path) -> Result<Self> {
+        let mpath = dir.join(MANIFEST);
+        let bytes = std::fs::read(&mpath).map_err(|e| DcpError::Io {
+            path: mpath.clone(),
+            source: e,
+        })?;
+        let manifest: Manifest =
+            serde_json::from_slice(&bytes).map_err(|e| invalid(dir, format!("{MANIFEST}: {e}")))?;
+        Self::validate_manifest(&manifest, dir)?;
+        for (file, sum) in &manifest.files {
+            if !safe_relative(file) {
+                return Err(invalid(
+                    dir,
+                    format!("listed file {file:?} leaves the package"),
+                ));
+            }
+            let path = dir.join(file);
+            let data = std::fs::read(&path).map_err(|e| DcpError::Chip {
+                package: dir.into(),
+                file: file.clone(),
+                message: format!("cannot be read ({e})"),
+            })?;
+            let actual = sha256_hex(&data);
+            if !actual.eq_ignore_ascii_case(sum) {
+                return Err(DcpError::Chip {
+                    package: dir.into(),
+                    file: file.clone(),
+                    message: format!("checksum mismatch (manifest {sum}, file {actual}): the chip was changed or damaged"),
+                });
+            }
+        }
+        Ok(Self {
+            dir: dir.to_path_buf(),
+            manifest,
+        })
+    }
+
+    /// Writes a package folder atomically: everything goes into a temporary sibling folder
+    /// that replaces `dir` only when complete. Checksums are computed here.
+    pub fn write(
+        dir: &Path,
+        mut manifest: Manifest,
+        chips: &BTreeMap<String, DynamicImage>,
+    ) -> Result<Self> {
+        let parent = dir
+            .parent()
+            .filter(|p| !p.as_os_str().is_empty())
+            .unwrap_or(Path::new("."));
+        std::fs::create_dir_all(parent).map_err(|e| DcpError::Io {
+            path: parent.into(),
+            source: e,
+        })?;
+        let name = dir
+            .file_name()
+            .map(|n| n.to_string_lossy().into_owned())
+            .unwrap_or_else(|| "dcp".into());
+        let tmp = parent.join(format!(".{name}.part-{}", std::process::id()));
+        let result = (|| -> Result<()> {
+            if tmp.exists() {
+                std::fs::remove_dir_all(&tmp).map_err(|e| DcpError::Io {
+                    path: tmp.clone(),
+                    source: e,
+                })?;
+            }
+            manifest.files.clear();
+            for (file, img) in chips {
+                if !safe_relative(file) {
+                    return Err(invalid(
+                        dir,
+                        format!("chip path {file:?} leaves the package"),
+                    ));
+                }
+                let path = tmp.join(file);
+                if let Some(p) = path.parent() {
+                    std::fs::create_dir_all(p).map_err(|e| DcpError::Io {
+                        path: p.into(),
+                        source: e,
+                    })?;
+                }
+                let mut buf = std::io::Cursor::new(Vec::new());
+                img.write_to(&mut buf, image::ImageFormat::Png)
+                    .map_err(|e| DcpError::Chip {
+                        package: dir.into(),
+                        file: file.clone(),
+                        message: format!("cannot be encoded ({e})"),
+                    })?;
+                let bytes = buf.into_inner();
+                std::fs::write(&path, &bytes).map_err(|e| DcpError::Io {
+                    path: path.clone(),
+                    source: e,
+                })?;
+                manifest.files.insert(file.clone(), sha256_hex(&bytes));
+            }
+            Self::validate_manifest(&manifest, dir)?;
+            let json =
+                serde_json::to_vec_pretty(&manifest).map_err(|e| invalid(dir, e.to_string()))?;
+            let mpath = tmp.join(MANIFEST);
+            std::fs::write(&mpath, json).map_err(|e| DcpError::Io {
+                path: mpath,
+                source: e,
+            })?;
+            Ok(())
+        })();
+        if let Err(e) = result {
+            let _ = std::fs::remove_dir_all(&tmp);
+            return Err(e);
+        }
+        // Swap in: move an old package aside first so a failure leaves it intact.
+        let old = parent.join(format!(".{name}.old-{}", std::process::id()));
+        let had_old = dir.exists();
+        if had_old {
+            std::fs::rename(dir, &old).map_err(|e| DcpError::Io {
+                path: dir.into(),
+                source: e,
+            })?;
+        }
+        if let Err(e) = std::fs::rename(&tmp, dir) {
+            if had_old {
+                let _ = std::fs::rename(&old, dir);
+            }
+            let _ = std::fs::remove_dir_all(&tmp);
+            return Err(DcpError::Io {
+                path: dir.into(),
+                source: e,
+            });
+        }
+        if had_old {
+            let _ = std::fs::remove_dir_all(&old);
+        }
+        Ok(Self {
+            dir: dir.to_path_buf(),
+            manifest,
+        })
+    }
+
+    /// Loads a chip, verifying its checksum and size again (the package may have changed
+    /// on disk since it was opened).
+    pub fn chip(&self, chip: &ChipRef) -> Result<DynamicImage> {
+        let err = |message: String| DcpError::Chip {
+            package: self.dir.clone(),
+            file: chip.file.clone(),
+            message,
+        };
+        let data = std::fs::read(self.dir.join(&chip.file))
+            .map_err(|e| err(format!("cannot be read ({e})")))?;
+        let want = self
+            .manifest
+            .files
+            .get(&chip.file)
+            .ok_or_else(|| err("not listed in the manifest".into()))?;
+        if !sha256_hex(&data).eq_ignore_ascii_case(want) {
+            return Err(err(
+                "checksum mismatch: the chip was changed or damaged".into()
+            ));
+        }
+        let img =
+            image::load_from_memory(&data).map_err(|e| err(format!("cannot be decoded ({e})")))?;
+        if img.width() != chip.width || img.height() != chip.height {
+            return Err(err(format!(
+                "is {}×{} pixels, the manifest says {}×{}",
+                img.width(),
+                img.height(),
+                chip.width,
+                chip.height
+            )));
+        }
+        Ok(img)
+    }
+
+    /// Merges packages of one CRS into a new package at `dir`. Photo and point ids are
+    /// renumbered so they stay unique; chips are copied under `chips/<n>/`; the accuracy is
+    /// the worst of the inputs and the epoch names are joined.
+    pub fn merge(packages: &[DcpPackage], dir: &Path) -> Result<Self> {
+        let first = packages
+            .first()
+            .ok_or_else(|| invalid(dir, "nothing to merge"))?;
+        let crs0 =
+            Crs::parse(&first.manifest.crs).map_err(|e| invalid(&first.dir, e.to_string()))?;
+        let mut m = Manifest::new(
+            &first.manifest.crs,
+            EpochInfo {
+                name: packages
+                    .iter()
+                    .map(|p| p.manifest.epoch.name.as_str())
+                    .collect::<Vec<_>>()
+                    .join("+"),
+                date: None,
+            },
+            &format!("merge of {} packages", packages.len()),
+            packages
+                .iter()
+                .map(|p| p.manifest.gsd_m)
+                .fold(0.0, f64::max),
+            Accuracy {
+                plan_m: packages
+                    .iter()
+                    .map(|p| p.manifest.accuracy.plan_m)
+                    .fold(0.0, f64::max),
+                height_m: packages
+                    .iter()
+                    .map(|p| p.manifest.accuracy.height_m)
+                    .fold(0.0, f64::max),
+            },
+        );
+        let mut chips = BTreeMap::new();
+        let (mut next_photo, mut next_point) = (1u32, 1u64);
+        for (k, pkg) in packages.iter().enumerate() {
+            let crs =
+                Crs::parse(&pkg.manifest.crs).map_err(|e| invalid(&pkg.dir, e.to_string()))?;
+            if crs.label() != crs0.label() {
+                return Err(invalid(
+                    &pkg.dir,
+                    format!(
+                        "CRS {} differs from {} of {}",
+                        crs.label(),
+                        crs0.label(),
+                        first.dir.display()
+                    ),
+                ));
+            }
+            let mut photo_map = BTreeMap::new();
+            for p in &pkg.manifest.photos {
+                photo_map.insert(p.id, next_photo);
+                m.photos.push(DcpPhoto {
+                    id: next_photo,
+                    date: p.date.clone().or(pkg.manifest.epoch.date.clone()),
+                    ..p.clone()
+                });
+                next_photo += 1;
+            }
+            for pt in &pkg.manifest.points {
+                let mut q = pt.clone();
+                q.id = next_point;
+                next_point += 1;
+                for ms in &mut q.measurements {
+                    ms.photo = photo_map[&ms.photo];
+                    let new_file =
+                        format!("chips/{k}/{}", ms.chip.file.trim_start_matches("chips/"));
+                    let img = pkg.chip(&ms.chip)?;
+                    chips.insert(new_file.clone(), img);
+                    ms.chip.file = new_file;
+                }
+                m.points.push(q);
+            }
+        }
+        Self::write(dir, m, &chips)
+    }
+
+    /// World coordinates of every point.
+    pub fn points_xy(&self) -> impl Iterator<Item = (usize, [f64; 2])> + '_ {
+        self.manifest
+            .points
+            .iter()
+            .enumerate()
+            .map(|(i, p)| (i, [p.xyz[0], p.xyz[1]]))
+    }
+}
+
+/// Spatial index over the control points of one or more packages, for footprint queries.
+pub struct DcpIndex {
+    tree: KdTree<f64, 2>,
+    entries: Vec<(usize, usize)>,
+    xy: Vec<[f64; 2]>,
+}
+
+impl DcpIndex {
+    pub fn new(packages: &[DcpPackage]) -> Self {
+        let mut tree = KdTree::new();
+        let mut entries = Vec::new();
+        let mut xy = Vec::new();
+        for (k, pkg) in packages.iter().enumerate() {
+            for (i, p) in pkg.points_xy() {
+                tree.add(&p, entries.len() as u64);
+                entries.push((k, i));
+                xy.push(p);
+            }
+        }
+        Self { tree, entries, xy }
+    }
+
+    pub fn len(&self) -> usize {
+        self.entries.len()
+    }
+
+    pub fn is_empty(&self) -> bool {
+        self.entries.is_empty()
+    }
+
+    /// (package, point) indices inside a polygon (world XY, any orientation), in a
+    /// deterministic order.
+    pub fn query_polygon(&self, polygon: &[[f64; 2]]) -> Vec<(usize, usize)> {
+        if polygon.len() < 3 || self.is_empty() {
+            return Vec::new();
+        }
+        let (mut lo, mut hi) = ([f64::INFINITY; 2], [f64::NEG_INFINITY; 2]);
+        for p in polygon {
+            for a in 0..2 {
+                lo[a] = lo[a].min(p[a]);
+                hi[a] = hi[a].max(p[a]);
+            }
+        }
+        let c = [(lo[0] + hi[0]) / 2.0, (lo[1] + hi[1]) / 2.0];
+        let r2 = ((hi[0] - lo[0]).powi(2) + (hi[1] - lo[1]).powi(2)) / 4.0 * (1.0 + 1e-12);
+        let mut hits: Vec<usize> = self
+            .tree
+            .within_unsorted::<SquaredEuclidean>(&c, r2)
+            .into_iter()
+            .map(|n| n.item as usize)
+            .filter(|&i| point_in_polygon(self.xy[i], polygon))
+            .collect();
+        hits.sort_unstable();
+        hits.into_iter().map(|i| self.entries[i]).collect()
+    }
+}
+
+/// Even–odd rule.
+pub fn point_in_polygon(p: [f64; 2], poly: &[[f64; 2]]) -> bool {
+    let mut inside = false;
+    let mut j = poly.len() - 1;
+    for i in 0..poly.len() {
+        let (a, b) = (poly[i], poly[j]);
+        if (a[1] > p[1]) != (b[1] > p[1])
+            && p[0] < (b[0] - a[0]) * (p[1] - a[1]) / (b[1] - a[1]) + a[0]
+        {
+            inside = !inside;
+        }
+        j = i;
+    }
+    inside
+}

@@ -1,0 +1,8 @@
+//! Control from previously oriented photos: Digital Control Photo (DCP) packages, their
+//! spatial index, and approximate orientation of archive photos (strip interpolation when
+//! no POS exists).
+
+pub mod dcp;
+pub mod strips;
+
+pub use dcp::{DcpError, DcpIndex, DcpPackage, Manifest};

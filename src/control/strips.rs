@@ -1,0 +1,150 @@
+//! Approximate exterior orientation of archive photos without POS (seed 000): each strip's
+//! first and last projection centres are known (e.g. from a flight map); the centres in
+//! between are interpolated, kappa follows the strip direction, the photos are taken as
+//! nadir, and the uncertainty is stated so that patch prediction can size its windows.
+
+use crate::block::PosPrior;
+use crate::geometry::{matrix_from_opk, GeometryError, Pose};
+use nalgebra::Vector3;
+use serde::{Deserialize, Serialize};
+
+/// Which image axis points along the flight direction.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize, Default)]
+#[serde(rename_all = "snake_case")]
+pub enum FlightAxis {
+    /// Image x (the fiducial x axis): the classic film-camera convention.
+    #[default]
+    ImageX,
+    /// Image up (towards row 0): common for digital frame cameras.
+    ImageUp,
+}
+
+/// A strip given by its end points.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub struct StripEnds {
+    pub name: String,
+    /// Photo names in flight order (first to last).
+    pub photos: Vec<String>,
+    /// Projection centres of the first and last photo (block-local).
+    pub first: [f64; 3],
+    pub last: [f64; 3],
+    #[serde(default)]
+    pub flight_axis: FlightAxis,
+}
+
+/// Kappa of a nadir photo whose `axis` points along the horizontal direction `d`.
+pub fn kappa_from_direction(d: [f64; 2], axis: FlightAxis) -> f64 {
+    match axis {
+        FlightAxis::ImageX => d[1].atan2(d[0]),
+        FlightAxis::ImageUp => (-d[0]).atan2(d[1]),
+    }
+}
+
+/// Interpolated approximate orientation and its prior for every photo of a strip.
+///
+/// Photos of a strip are exposed at nearly equal air base, so equal spacing between the
+/// ends is the best guess; the along-track σ grows towards the middle of the strip, where
+/// speed variations accumulate (`base_sigma_fraction` of the base per √photo from the
+/// nearer end), the across-track σ is a drift of the same order, the attitude σ covers
+/// crab and tilt of a nadir photo.
+pub fn interpolate_strip(
+    strip: &StripEnds,
+    base_sigma_fraction: f64,
+    attitude_sigma_rad: f64,
+) -> Result<Vec<(Pose, PosPrior)>, GeometryError> {
+    let n = strip.photos.len();
+    if n < 2 {
+        return Err(GeometryError::InvalidArgument(format!(
+            "strip {}: needs at least its first and last photo, has {n}",
+            strip.name
+        )));
+    }
+    let (a, b) = (Vector3::from(strip.first), Vector3::from(strip.last));
+    if !a.iter().chain(b.iter()).all(|v| v.is_finite()) {
+        return Err(GeometryError::NotFinite {
+            what: format!("strip {} end points", strip.name),
+        });
+    }
+    let d = b - a;
+    let horizontal = (d.x * d.x + d.y * d.y).sqrt();
+    if horizontal < 1e-6 {
+        return Err(GeometryError::Degenerate(format!(
+            "strip {}: first and last centres coincide",
+            strip.name
+        )));
+    }
+    let kappa = kappa_from_direction([d.x / horizontal, d.y / horizontal], strip.flight_axis);
+    let rotation = matrix_from_opk(0.0, 0.0, kappa);
+    let base = horizontal / (n - 1) as f64;
+    Ok((0..n)
+        .map(|i| {
+            let t = i as f64 / (n - 1) as f64;
+            let c = a + d * t;
+            let from_end = i.min(n - 1 - i) as f64;
+            let s_along = (base * base_sigma_fraction * from_end.sqrt()).max(1e-3);
+            let s_across = s_along;
+            let s_height = (0.01 * c.z.abs()).max(1.0);
+            (
+                Pose::new(rotation, c),
+                PosPrior {
+                    center: c,
+                    center_sigma: [s_along.max(s_across), s_along.max(s_across), s_height],
+                    rotation: Some(rotation),
+                    rotation_sigma_rad: attitude_sigma_rad,
+                },
+            )
+        })
+        .collect())
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn kappa_follows_the_flight_direction() {
+        // Flying east with image x along track: camera x (row 0 of R) points east.
+        let r = matrix_from_opk(
+            0.0,
+            0.0,
+            kappa_from_direction([1.0, 0.0], FlightAxis::ImageX),
+        );
+        assert!((r.row(0)[0] - 1.0).abs() < 1e-12);
+        // Flying east with image up along track: −(camera y) points east.
+        let r = matrix_from_opk(
+            0.0,
+            0.0,
+            kappa_from_direction([1.0, 0.0], FlightAxis::ImageUp),
+        );
+        assert!((-r.row(1)[0] - 1.0).abs() < 1e-12);
+        // Flying north-west.
+        let s = std::f64::consts::FRAC_1_SQRT_2;
+        let r = matrix_from_opk(0.0, 0.0, kappa_from_direction([-s, s], FlightAxis::ImageX));
+        assert!((r.row(0)[0] + s).abs() < 1e-12 && (r.row(0)[1] - s).abs() < 1e-12);
+    }
+
+    #[test]
+    fn centres_are_interpolated_at_equal_base() {
+        let strip = StripEnds {
+            name: "S1".into(),
+            photos: (0..5).map(|i| format!("p{i}")).collect(),
+            first: [0.0, 0.0, 3000.0],
+            last: [2000.0, 0.0, 3020.0],
+            flight_axis: FlightAxis::ImageX,
+        };
+        let out = interpolate_strip(&strip, 0.1, 3f64.to_radians()).unwrap();
+        assert_eq!(out.len(), 5);
+        assert!((out[2].0.center - Vector3::new(1000.0, 0.0, 3010.0)).norm() < 1e-9);
+        assert!(out[2].1.center_sigma[0] > out[1].1.center_sigma[0]);
+        let bad = StripEnds {
+            photos: vec!["a".into()],
+            ..strip.clone()
+        };
+        assert!(interpolate_strip(&bad, 0.1, 0.05).is_err());
+        let bad = StripEnds {
+            last: strip.first,
+            ..strip
+        };
+        assert!(interpolate_strip(&bad, 0.1, 0.05).is_err());
+    }
+}
