@@ -263,7 +263,7 @@ fn packages_merge_and_footprint_queries_find_their_points() {
     );
 
     // Index: a rotated square footprint around the first row of points.
-    let index = DcpIndex::new(&[pa.clone()]);
+    let index = DcpIndex::new(std::slice::from_ref(&pa));
     assert_eq!(index.len(), 12);
     let (cx, cy) = (ORIGIN[0] + 40.0, ORIGIN[1] - 30.0);
     let poly: Vec<[f64; 2]> = (0..4)
