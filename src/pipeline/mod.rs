@@ -2,3 +2,4 @@
 //! synthetic block and the full five-step workflow land.
 
 pub mod demo;
+pub mod project;

@@ -1,0 +1,309 @@
+//! The project file (TOML, specified in `formats/project/`): control sources, the
+//! reference epoch, archive epochs, thresholds and wanted outputs. It is validated
+//! completely before any work starts, and every error names the key.
+
+use serde::{Deserialize, Serialize};
+use std::path::{Path, PathBuf};
+
+#[derive(Debug, thiserror::Error)]
+pub enum ProjectError {
+    #[error("{path}: {source}")]
+    Io {
+        path: PathBuf,
+        source: std::io::Error,
+    },
+    #[error("{path}: {message}")]
+    Parse { path: PathBuf, message: String },
+    #[error("{path}: key `{key}`: {message}")]
+    Key {
+        path: PathBuf,
+        key: String,
+        message: String,
+    },
+}
+
+/// LiDAR and surveyed checkpoints: the control sources.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct ControlSources {
+    /// LAS/LAZ files or folders holding them.
+    pub lidar: Vec<PathBuf>,
+    /// Surveyed checkpoints (CSV `id,x,y,z,sigma_xy,sigma_z`), for evaluation only.
+    #[serde(default)]
+    pub checkpoints: Option<PathBuf>,
+}
+
+/// How the approximate exterior orientation of an epoch is known.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct Epoch {
+    pub name: String,
+    /// Acquisition date, ISO 8601 (`1985` or `1985-06-12`).
+    pub date: String,
+    /// Folder of the photos.
+    pub photos: PathBuf,
+    /// Camera definition (JSON): a frame camera, or a film camera with fiducials.
+    pub camera: PathBuf,
+    /// POS file (CSV: name,x,y,z,omega,phi,kappa[,sigma_xyz,sigma_angle]).
+    #[serde(default)]
+    pub pos: Option<PathBuf>,
+    /// Strip end points (CSV: strip,photo,x,y,z for each strip's first and last photo).
+    #[serde(default)]
+    pub strips: Option<PathBuf>,
+}
+
+/// Thresholds of the method (seed 000, 001).
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields, default)]
+pub struct Thresholds {
+    /// Spacing of cloud control points in the reference photos (px); never above 1000.
+    pub control_interval_px: f64,
+    /// Gross-error rejection at k·σ0 (2–3).
+    pub reject_k: f64,
+    /// Minimum NCC of an accepted patch match.
+    pub ncc_min: f64,
+    /// Largest distance between the NCC and LSM positions of an accepted match (px).
+    pub lsm_agreement_px: f64,
+    /// Side of the control patch chips (px).
+    pub chip_size_px: u32,
+}
+
+impl Default for Thresholds {
+    fn default() -> Self {
+        Self {
+            control_interval_px: 250.0,
+            reject_k: 3.0,
+            ncc_min: 0.7,
+            lsm_agreement_px: 1.0,
+            chip_size_px: 41,
+        }
+    }
+}
+
+/// Which products to write for each epoch.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields, default)]
+pub struct Outputs {
+    pub colmap: bool,
+    pub blocks_exchange: bool,
+    pub orthophoto: bool,
+    pub dem: bool,
+    pub html_report: bool,
+    /// Ground pixel of orthophotos, as a multiple of the epoch's GSD.
+    pub ortho_gsd_factor: f64,
+}
+
+impl Default for Outputs {
+    fn default() -> Self {
+        Self {
+            colmap: true,
+            blocks_exchange: true,
+            orthophoto: true,
+            dem: true,
+            html_report: true,
+            ortho_gsd_factor: 1.0,
+        }
+    }
+}
+
+/// A project.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct Project {
+    pub name: String,
+    /// CRS of the project (projected, metres): `EPSG:n` or WKT.
+    pub crs: String,
+    /// Output folder.
+    pub output: PathBuf,
+    pub control: ControlSources,
+    /// The recent epoch oriented against the LiDAR.
+    pub reference: Epoch,
+    /// Older epochs, oriented in time order (newest first) from the DCPs of the previous one.
+    #[serde(default)]
+    pub archive: Vec<Epoch>,
+    #[serde(default)]
+    pub thresholds: Thresholds,
+    #[serde(default)]
+    pub outputs: Outputs,
+}
+
+impl Project {
+    /// Reads and validates a project file. Relative paths are taken from the file's folder.
+    pub fn load(path: &Path) -> Result<Self, ProjectError> {
+        let text = std::fs::read_to_string(path).map_err(|e| ProjectError::Io {
+            path: path.into(),
+            source: e,
+        })?;
+        let mut p: Project = toml::from_str(&text).map_err(|e| ProjectError::Parse {
+            path: path.into(),
+            message: e.to_string(),
+        })?;
+        let base = path.parent().unwrap_or(Path::new("."));
+        p.resolve(base);
+        p.validate(path)?;
+        Ok(p)
+    }
+
+    fn resolve(&mut self, base: &Path) {
+        let abs = |p: &mut PathBuf| {
+            if p.is_relative() {
+                *p = base.join(&*p);
+            }
+        };
+        abs(&mut self.output);
+        self.control.lidar.iter_mut().for_each(abs);
+        if let Some(c) = self.control.checkpoints.as_mut() {
+            abs(c)
+        }
+        for e in std::iter::once(&mut self.reference).chain(self.archive.iter_mut()) {
+            abs(&mut e.photos);
+            abs(&mut e.camera);
+            if let Some(p) = e.pos.as_mut() {
+                abs(p)
+            }
+            if let Some(s) = e.strips.as_mut() {
+                abs(s)
+            }
+        }
+    }
+
+    /// Every check that can be made before work starts.
+    pub fn validate(&self, file: &Path) -> Result<(), ProjectError> {
+        let key_err = |key: &str, message: String| ProjectError::Key {
+            path: file.into(),
+            key: key.into(),
+            message,
+        };
+        let exists = |key: &str, p: &Path| -> Result<(), ProjectError> {
+            if p.exists() {
+                Ok(())
+            } else {
+                Err(key_err(key, format!("{} does not exist", p.display())))
+            }
+        };
+        let crs = crate::formats::crs::Crs::parse(&self.crs)
+            .map_err(|e| key_err("crs", e.to_string()))?;
+        crs.require_projected(None)
+            .map_err(|e| key_err("crs", e.to_string()))?;
+        if self.control.lidar.is_empty() {
+            return Err(key_err("control.lidar", "no LiDAR source given".into()));
+        }
+        for (i, l) in self.control.lidar.iter().enumerate() {
+            exists(&format!("control.lidar[{i}]"), l)?;
+        }
+        if let Some(c) = &self.control.checkpoints {
+            exists("control.checkpoints", c)?;
+        }
+        let mut names = std::collections::BTreeSet::new();
+        let epochs = std::iter::once(("reference".to_string(), &self.reference)).chain(
+            self.archive
+                .iter()
+                .enumerate()
+                .map(|(i, e)| (format!("archive[{i}]"), e)),
+        );
+        let mut prev_date: Option<String> = None;
+        for (key, e) in epochs {
+            if e.name.trim().is_empty() {
+                return Err(key_err(&format!("{key}.name"), "is empty".into()));
+            }
+            if !names.insert(e.name.clone()) {
+                return Err(key_err(
+                    &format!("{key}.name"),
+                    format!("epoch name {:?} is used twice", e.name),
+                ));
+            }
+            if !valid_date(&e.date) {
+                return Err(key_err(
+                    &format!("{key}.date"),
+                    format!(
+                        "{:?} is not an ISO 8601 date (YYYY, YYYY-MM or YYYY-MM-DD)",
+                        e.date
+                    ),
+                ));
+            }
+            if let Some(p) = &prev_date {
+                if e.date.as_str() >= p.as_str() {
+                    return Err(key_err(
+                        &format!("{key}.date"),
+                        format!(
+                            "archive epochs go back in time: {} is not older than {p}",
+                            e.date
+                        ),
+                    ));
+                }
+            }
+            prev_date = Some(e.date.clone());
+            exists(&format!("{key}.photos"), &e.photos)?;
+            exists(&format!("{key}.camera"), &e.camera)?;
+            match (&e.pos, &e.strips) {
+                (Some(p), None) => exists(&format!("{key}.pos"), p)?,
+                (None, Some(s)) => exists(&format!("{key}.strips"), s)?,
+                (Some(_), Some(_)) => {
+                    return Err(key_err(
+                        &format!("{key}.pos"),
+                        "give either pos or strips, not both".into(),
+                    ))
+                }
+                (None, None) => {
+                    return Err(key_err(
+                        &format!("{key}.pos"),
+                        "missing: give pos (POS file) or strips (strip end points)".into(),
+                    ))
+                }
+            }
+        }
+        let t = &self.thresholds;
+        if !(t.control_interval_px > 0.0 && t.control_interval_px <= 1000.0) {
+            return Err(key_err(
+                "thresholds.control_interval_px",
+                format!("{} is outside (0, 1000]", t.control_interval_px),
+            ));
+        }
+        if !(1.0..=5.0).contains(&t.reject_k) {
+            return Err(key_err(
+                "thresholds.reject_k",
+                format!("{} is outside [1, 5] (2–3 is usual)", t.reject_k),
+            ));
+        }
+        if !(t.ncc_min > 0.0 && t.ncc_min < 1.0) {
+            return Err(key_err(
+                "thresholds.ncc_min",
+                format!("{} is outside (0, 1)", t.ncc_min),
+            ));
+        }
+        if !(t.lsm_agreement_px > 0.0) {
+            return Err(key_err(
+                "thresholds.lsm_agreement_px",
+                "must be positive".into(),
+            ));
+        }
+        if t.chip_size_px < 11 || t.chip_size_px % 2 == 0 {
+            return Err(key_err(
+                "thresholds.chip_size_px",
+                format!("{} must be odd and ≥ 11", t.chip_size_px),
+            ));
+        }
+        if !(self.outputs.ortho_gsd_factor > 0.0) {
+            return Err(key_err(
+                "outputs.ortho_gsd_factor",
+                "must be positive".into(),
+            ));
+        }
+        Ok(())
+    }
+}
+
+fn valid_date(s: &str) -> bool {
+    let parts: Vec<&str> = s.split('-').collect();
+    let num = |p: &str, len: usize, lo: u32, hi: u32| {
+        p.len() == len
+            && p.chars().all(|c| c.is_ascii_digit())
+            && p.parse::<u32>().is_ok_and(|v| (lo..=hi).contains(&v))
+    };
+    match parts.as_slice() {
+        [y] => num(y, 4, 1800, 2200),
+        [y, m] => num(y, 4, 1800, 2200) && num(m, 2, 1, 12),
+        [y, m, d] => num(y, 4, 1800, 2200) && num(m, 2, 1, 12) && num(d, 2, 1, 31),
+        _ => false,
+    }
+}

@@ -1,0 +1,107 @@
+//! Project files: the documented example loads; mistakes fail at once naming the key.
+
+use cloudcontrol::pipeline::project::Project;
+use std::path::Path;
+
+fn example_tree(dir: &Path) -> String {
+    for d in [
+        "lidar",
+        "epochs/reference/images",
+        "epochs/digital/images",
+        "epochs/film/images",
+    ] {
+        std::fs::create_dir_all(dir.join(d)).unwrap();
+    }
+    for f in [
+        "checkpoints.csv",
+        "epochs/reference/camera.json",
+        "epochs/reference/pos.csv",
+        "epochs/digital/camera.json",
+        "epochs/digital/pos.csv",
+        "epochs/film/camera.json",
+        "epochs/film/strips.csv",
+    ] {
+        std::fs::write(dir.join(f), "").unwrap();
+    }
+    std::fs::read_to_string(
+        Path::new(env!("CARGO_MANIFEST_DIR")).join("formats/project/example.toml"),
+    )
+    .unwrap()
+}
+
+fn load(dir: &Path, text: &str) -> Result<Project, String> {
+    let path = dir.join("project.toml");
+    std::fs::write(&path, text).unwrap();
+    Project::load(&path).map_err(|e| e.to_string())
+}
+
+#[test]
+fn documented_example_loads_with_paths_resolved() {
+    let dir = tempfile::tempdir().unwrap();
+    let text = example_tree(dir.path());
+    let p = load(dir.path(), &text).unwrap();
+    assert_eq!(p.archive.len(), 2);
+    assert_eq!(
+        p.archive[1].strips.as_deref(),
+        Some(dir.path().join("epochs/film/strips.csv").as_path())
+    );
+    assert_eq!(p.output, dir.path().join("out"));
+    assert_eq!(p.thresholds.reject_k, 3.0);
+}
+
+#[test]
+fn mistakes_fail_naming_the_key() {
+    let dir = tempfile::tempdir().unwrap();
+    let text = example_tree(dir.path());
+    let cases: Vec<(String, &str)> = vec![
+        (
+            text.replace("reject_k = 3.0", "reject_k = 3.0\nrejekt = 2"),
+            "rejekt",
+        ),
+        (text.replace("date = \"2010-08\"\n", ""), "date"),
+        (
+            text.replace("epochs/digital/pos.csv", "epochs/digital/nowhere.csv"),
+            "archive[0].pos",
+        ),
+        (
+            text.replace(
+                "lidar = [\"lidar\"]",
+                "lidar = [\"lidar\", \"missing.laz\"]",
+            ),
+            "control.lidar[1]",
+        ),
+        (
+            text.replace("strips = \"epochs/film/strips.csv\"", ""),
+            "archive[1].pos",
+        ),
+        (
+            text.replace(
+                "strips = \"epochs/film/strips.csv\"",
+                "strips = \"epochs/film/strips.csv\"\npos = \"epochs/digital/pos.csv\"",
+            ),
+            "either pos or strips",
+        ),
+        (
+            text.replace("date = \"1985\"", "date = \"2012\""),
+            "archive[1].date",
+        ),
+        (text.replace("date = \"1985\"", "date = \"85\""), "ISO 8601"),
+        (
+            text.replace("crs = \"EPSG:4547\"", "crs = \"EPSG:4326\""),
+            "crs",
+        ),
+        (
+            text.replace("control_interval_px = 250", "control_interval_px = 2500"),
+            "control_interval_px",
+        ),
+        (
+            text.replace("name = \"film-1985\"", "name = \"digital-2010\""),
+            "used twice",
+        ),
+    ];
+    for (bad, needle) in cases {
+        let e = load(dir.path(), &bad).unwrap_err();
+        assert!(e.contains(needle), "error {e:?} should name {needle:?}");
+        assert!(e.contains("project.toml"), "error names the file: {e}");
+    }
+}
