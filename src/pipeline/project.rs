@@ -271,7 +271,7 @@ impl Project {
                 format!("{} is outside (0, 1)", t.ncc_min),
             ));
         }
-        if !(t.lsm_agreement_px > 0.0) {
+        if t.lsm_agreement_px.is_nan() || t.lsm_agreement_px <= 0.0 {
             return Err(key_err(
                 "thresholds.lsm_agreement_px",
                 "must be positive".into(),
@@ -283,7 +283,7 @@ impl Project {
                 format!("{} must be odd and ≥ 11", t.chip_size_px),
             ));
         }
-        if !(self.outputs.ortho_gsd_factor > 0.0) {
+        if self.outputs.ortho_gsd_factor.is_nan() || self.outputs.ortho_gsd_factor <= 0.0 {
             return Err(key_err(
                 "outputs.ortho_gsd_factor",
                 "must be positive".into(),
