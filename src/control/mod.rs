@@ -3,6 +3,7 @@
 //! no POS exists).
 
 pub mod dcp;
+pub mod predict;
 pub mod strips;
 
 pub use dcp::{DcpError, DcpIndex, DcpPackage, Manifest};
