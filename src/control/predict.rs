@@ -161,10 +161,10 @@ pub fn transfer(
     Ok(geometry::project(source.camera, source.pose, &x)?.pixel)
 }
 
-/// Local affine approximation of [`transfer`] around a target pixel: `source ≈ A·[dx, dy]ᵀ
-/// + s`, with (dx, dy) the offset from `target_pixel`. Its determinant is the area ratio
-/// (source pixels per target pixel), which tells the pyramid level to resample from, and
-/// it is the initial affine of least-squares matching.
+/// Local affine approximation of [`transfer`] around a target pixel, mapping the offset
+/// (dx, dy) from `target_pixel` to a source pixel: `[A | s]·(dx, dy, 1)ᵀ`. Its determinant
+/// is the area ratio (source pixels per target pixel), which tells the pyramid level to
+/// resample from; it is also the initial affine of least-squares matching.
 pub fn transfer_affine(
     target: View,
     source: View,
