@@ -12,7 +12,7 @@ want_bench=0
 
 # GDAL/PROJ for rasters and CRSs, libclang for bindgen, gdal-bin for gdalinfo in tests,
 # chromium to render the HTML report in tests.
-packages=(build-essential pkg-config libgdal-dev libproj-dev libclang-dev clang gdal-bin proj-bin python3-venv python3-dev)
+packages=(build-essential pkg-config libgdal-dev libproj-dev libclang-dev clang gdal-bin proj-bin python3-venv python3-dev chromium)
 (( want_bench )) && packages+=(libusb-1.0-0 libgomp1)
 missing=()
 for p in "${packages[@]}"; do
