@@ -1,6 +1,7 @@
-//! The workflow. For now: the geometry self-check that `cloudcontrol demo` runs until the
-//! synthetic block and the full five-step workflow land.
+//! The workflow: the project file, restartable stages, the accuracy report, and the
+//! `demo` that runs on built-in data.
 
 pub mod demo;
 pub mod project;
 pub mod report;
+pub mod stages;
