@@ -25,6 +25,9 @@ typedef enum CcpStatus {
 // Opaque camera handle; create with `ccp_camera_new_frame`, release with `ccp_camera_free`.
 typedef struct CcpCamera CcpCamera;
 
+// Opaque handle of an opened (verified) DCP package with its spatial index.
+typedef struct CcpDcp CcpDcp;
+
 // Exterior orientation: `rotation` is the row-major world→camera matrix R and `center`
 // the projection centre C, so that X_cam = R·(X − C) (x right, y down, z forward).
 typedef struct CcpPose {
@@ -83,6 +86,47 @@ enum CcpStatus ccp_back_project(const struct CcpCamera *camera,
                                 size_t n_pixels,
                                 double *out_directions,
                                 size_t out_len);
+
+// Opens and verifies a DCP package folder (manifest, CRS, every chip's checksum).
+enum CcpStatus ccp_dcp_open(const char *path, struct CcpDcp **out_dcp);
+
+// Releases a DCP handle; NULL is ignored.
+void ccp_dcp_free(struct CcpDcp *dcp);
+
+// Number of control points of the package.
+enum CcpStatus ccp_dcp_point_count(const struct CcpDcp *dcp, size_t *out_count);
+
+// Copies the control points' world coordinates (x, y, z interleaved, `out_len` ≥ 3·count)
+// and their σ (same layout) when `out_sigma` is not NULL.
+enum CcpStatus ccp_dcp_points(const struct CcpDcp *dcp,
+                              double *out_xyz,
+                              double *out_sigma,
+                              size_t out_len);
+
+// Indices of the control points inside a polygon (world x, y interleaved, ≥ 3 vertices).
+// Writes at most `capacity` indices and the number found to `*out_count`; when
+// `*out_count` > `capacity` the call fails with CCP_STATUS_BUFFER_TOO_SMALL.
+enum CcpStatus ccp_dcp_query_polygon(const struct CcpDcp *dcp,
+                                     const double *polygon,
+                                     size_t n_vertices,
+                                     uint64_t *out_indices,
+                                     size_t capacity,
+                                     size_t *out_count);
+
+// Predicts object points in a photo with approximate orientation: pixels (x, y
+// interleaved, `out_len` ≥ 2·n) and their 2×2 covariances (row-major, `cov_len` ≥ 4·n)
+// propagated from `eo_covariance` (6×6 row-major; rotation vector rad, then centre m) and
+// the points' σ (x, y, z interleaved, may be NULL for exact points).
+enum CcpStatus ccp_predict(const struct CcpCamera *camera,
+                           const struct CcpPose *pose,
+                           const double *eo_covariance,
+                           const double *points,
+                           const double *point_sigma,
+                           size_t n_points,
+                           double *out_pixels,
+                           size_t out_len,
+                           double *out_covariance,
+                           size_t cov_len);
 
 #ifdef __cplusplus
 }  // extern "C"

@@ -326,9 +326,17 @@ impl DcpPackage {
     /// and checksum of every listed file. Nothing is written.
     pub fn open(dir: &Path) -> Result<Self> {
         let mpath = dir.join(MANIFEST);
-        let bytes = std::fs::read(&mpath).map_err(|e| DcpError::Io {
-            path: mpath.clone(),
-            source: e,
+        if !dir.is_dir() {
+            return Err(invalid(dir, "is not a folder"));
+        }
+        let bytes = std::fs::read(&mpath).map_err(|e| match e.kind() {
+            std::io::ErrorKind::NotFound => {
+                invalid(dir, format!("has no {MANIFEST}: not a DCP package"))
+            }
+            _ => DcpError::Io {
+                path: mpath.clone(),
+                source: e,
+            },
         })?;
         let manifest: Manifest =
             serde_json::from_slice(&bytes).map_err(|e| invalid(dir, format!("{MANIFEST}: {e}")))?;

@@ -11,8 +11,10 @@
 #![allow(clippy::missing_safety_doc)] // the contract above applies to every entry point
 
 mod camera;
+mod control;
 
 pub use camera::*;
+pub use control::*;
 
 use std::cell::RefCell;
 use std::ffi::{c_char, CString};

@@ -1,6 +1,8 @@
 //! The `cloudcontrol` command line: argument parsing, progress and output only; the work
 //! is done by the library.
 
+mod dcp;
+
 use clap::{Parser, Subcommand};
 use std::path::PathBuf;
 use std::process::ExitCode;
@@ -35,6 +37,9 @@ enum Command {
         #[arg(long, default_value = "cloudcontrol_demo")]
         out: PathBuf,
     },
+    /// Digital Control Photo packages: verify, summarise, merge.
+    #[command(subcommand)]
+    Dcp(dcp::DcpCommand),
     /// Print the library version.
     Version,
 }
@@ -66,6 +71,13 @@ fn main() -> ExitCode {
             println!("cloudcontrol {}", cloudcontrol::VERSION);
             ExitCode::SUCCESS
         }
+        Command::Dcp(cmd) => match dcp::run(cmd, cli.json) {
+            Ok(()) => ExitCode::SUCCESS,
+            Err(e) => {
+                eprintln!("cloudcontrol dcp: {e}");
+                ExitCode::from(2)
+            }
+        },
         Command::Demo { out } => match cloudcontrol::pipeline::demo::run(&out) {
             Ok(s) => {
                 if cli.json {
