@@ -35,5 +35,7 @@ fi
 (( want_bench )) && .venv/bin/python -m pip install -q -r benches/requirements.txt
 .venv/bin/python -m pip install -q -e bindings/python
 
-cargo build --release
+# --all-targets: the test build then reuses these artefacts (dev-dependencies change feature
+# unification, so a plain build followed by `cargo test` would compile the graph twice).
+cargo build --release --all-targets
 echo "setup: done (binary: target/release/cloudcontrol, library: target/release/libcloudcontrol.so)"
