@@ -4,33 +4,9 @@
 //! nadir, and the uncertainty is stated so that patch prediction can size its windows.
 
 use crate::block::PosPrior;
+pub use crate::formats::pos::{FlightAxis, StripEnds};
 use crate::geometry::{matrix_from_opk, GeometryError, Pose};
 use nalgebra::Vector3;
-use serde::{Deserialize, Serialize};
-
-/// Which image axis points along the flight direction.
-#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize, Default)]
-#[serde(rename_all = "snake_case")]
-pub enum FlightAxis {
-    /// Image x (the fiducial x axis): the classic film-camera convention.
-    #[default]
-    ImageX,
-    /// Image up (towards row 0): common for digital frame cameras.
-    ImageUp,
-}
-
-/// A strip given by its end points.
-#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
-pub struct StripEnds {
-    pub name: String,
-    /// Photo names in flight order (first to last).
-    pub photos: Vec<String>,
-    /// Projection centres of the first and last photo (block-local).
-    pub first: [f64; 3],
-    pub last: [f64; 3],
-    #[serde(default)]
-    pub flight_axis: FlightAxis,
-}
 
 /// Kappa of a nadir photo whose `axis` points along the horizontal direction `d`.
 pub fn kappa_from_direction(d: [f64; 2], axis: FlightAxis) -> f64 {

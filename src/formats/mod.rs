@@ -2,6 +2,7 @@
 //! photogrammetric exchange formats. Readers and writers only; no photogrammetry here.
 
 pub mod crs;
+pub mod pos;
 pub mod raster;
 
 use std::path::{Path, PathBuf};
