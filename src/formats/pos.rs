@@ -195,7 +195,9 @@ pub fn write_pos(path: &Path, records: &[PosRecord]) -> Result<()> {
 pub fn read_strips(path: &Path, flight_axis: FlightAxis) -> Result<Vec<StripEnds>> {
     let rows = rows(path)?;
     check_header(path, &rows[0].1, &["strip", "photo", "x", "y", "z"], &[])?;
-    let mut strips: Vec<(String, Vec<(String, Option<[f64; 3]>, usize)>)> = Vec::new();
+    // (photo, centre if given, line) per strip, in file order.
+    type Row = (String, Option<[f64; 3]>, usize);
+    let mut strips: Vec<(String, Vec<Row>)> = Vec::new();
     for (line, r) in &rows[1..] {
         if r.len() != 5 {
             return Err(FormatError::invalid(
