@@ -1,0 +1,366 @@
+//! Cloud control points (seed 000 §2.2 (4), seed 001 §4): from a reference block oriented
+//! against the LiDAR, pick points that are well textured (interest operator), lie on
+//! planar, stable ground (LiDAR coplanarity and class), and are spread evenly over every
+//! photo; give them object coordinates from the LiDAR plane and image coordinates in every
+//! reference photo that sees them; then cut the chips of a DCP package.
+
+use super::dcp::{
+    Accuracy, ChipRef, DcpMeasurement, DcpPhoto, DcpPoint, EpochInfo, Manifest, PointQuality,
+};
+use crate::block::{Block, PhotoId};
+use crate::geometry::{self, Dem, Result as GResult};
+use image::DynamicImage;
+use nalgebra::Vector3;
+use std::collections::BTreeMap;
+
+/// A local plane of the control surface (LiDAR) around a ground position.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct SurfacePlane {
+    /// A point on the plane (block-local).
+    pub point: Vector3<f64>,
+    pub normal: Vector3<f64>,
+    /// λmin/Σλ of the neighbourhood: 0 for a perfect plane, 1/3 for isotropic scatter.
+    pub coplanarity: f64,
+    /// Ground (stable) or not: roofs and trees change between epochs (seed 001 §4).
+    pub stable: bool,
+}
+
+/// The control surface: local planes of the LiDAR. Implemented by the LiDAR index; a DEM
+/// serves for tests and for surfaces without classification.
+pub trait ControlSurface {
+    fn plane_near(&self, x: f64, y: f64) -> Option<SurfacePlane>;
+}
+
+impl ControlSurface for Dem {
+    /// PCA of a 5×5 patch of DEM samples within ±2 m, as a LiDAR neighbourhood would be.
+    fn plane_near(&self, x: f64, y: f64) -> Option<SurfacePlane> {
+        let step = 1.0;
+        let mut pts = Vec::with_capacity(25);
+        for i in -2..=2 {
+            for j in -2..=2 {
+                let (px, py) = (x + i as f64 * step, y + j as f64 * step);
+                pts.push(Vector3::new(px, py, self.height_at(px, py)?));
+            }
+        }
+        let mean = pts.iter().sum::<Vector3<f64>>() / pts.len() as f64;
+        let cov = pts
+            .iter()
+            .map(|p| (p - mean) * (p - mean).transpose())
+            .sum::<nalgebra::Matrix3<f64>>()
+            / pts.len() as f64;
+        let eig = nalgebra::SymmetricEigen::new(cov);
+        let (imin, _) = eig
+            .eigenvalues
+            .iter()
+            .enumerate()
+            .min_by(|a, b| a.1.total_cmp(b.1))?;
+        let mut n: Vector3<f64> = eig.eigenvectors.column(imin).into_owned();
+        if n.z < 0.0 {
+            n = -n;
+        }
+        let sum: f64 = eig.eigenvalues.iter().map(|v| v.max(0.0)).sum();
+        Some(SurfacePlane {
+            point: Vector3::new(x, y, self.height_at(x, y)?),
+            normal: n,
+            coplanarity: if sum > 0.0 {
+                eig.eigenvalues[imin].max(0.0) / sum
+            } else {
+                0.0
+            },
+            stable: true,
+        })
+    }
+}
+
+#[derive(Debug, Clone)]
+pub struct CloudOptions {
+    /// Grid spacing of control points in each photo (px): one point per cell at most.
+    pub interval_px: f64,
+    /// Largest accepted coplanarity of the LiDAR neighbourhood.
+    pub max_coplanarity: f64,
+    /// Least number of reference photos that must see a point.
+    pub min_photos: usize,
+    /// Border (px) kept free so that chips fit inside the photo.
+    pub border_px: f64,
+    /// Ray–plane iterations (the plane is re-fitted where the ray meets it).
+    pub iterations: usize,
+}
+
+impl Default for CloudOptions {
+    fn default() -> Self {
+        Self {
+            interval_px: 250.0,
+            max_coplanarity: 0.01,
+            min_photos: 2,
+            border_px: 32.0,
+            iterations: 5,
+        }
+    }
+}
+
+/// A selected cloud control point.
+#[derive(Debug, Clone, PartialEq)]
+pub struct CloudPoint {
+    /// Block-local object coordinates from the LiDAR plane.
+    pub position: Vector3<f64>,
+    pub normal: Vector3<f64>,
+    pub interest: f64,
+    pub coplanarity: f64,
+    /// Photo where the point was picked, then every photo that sees it, with pixels.
+    pub measurements: Vec<(PhotoId, [f64; 2])>,
+}
+
+/// Intersects a photo ray with the control surface: ray → plane near the current ground
+/// estimate → new estimate, until it settles (planes vary slowly on good control).
+fn ray_to_surface(
+    block: &Block,
+    photo: PhotoId,
+    pixel: [f64; 2],
+    surface: &dyn ControlSurface,
+    opts: &CloudOptions,
+) -> GResult<Option<(Vector3<f64>, SurfacePlane)>> {
+    let p = &block.photos[&photo];
+    let cam = &block.cameras[&p.camera].model;
+    let ray = geometry::back_project(cam, &p.pose, pixel)?;
+    // Start from the nadir height under the projection centre.
+    let Some(start) = surface.plane_near(p.pose.center.x, p.pose.center.y) else {
+        return Ok(None);
+    };
+    let mut t = (start.point.z - ray.origin.z) / ray.direction.z;
+    let mut last = None;
+    for _ in 0..opts.iterations.max(1) {
+        if t.is_nan() || t <= 0.0 {
+            return Ok(None);
+        }
+        let x = ray.at(t);
+        let Some(plane) = surface.plane_near(x.x, x.y) else {
+            return Ok(None);
+        };
+        let den = plane.normal.dot(&ray.direction);
+        if den.abs() < 1e-6 {
+            return Ok(None);
+        }
+        let t_new = plane.normal.dot(&(plane.point - ray.origin)) / den;
+        let converged = (t_new - t).abs() < 1e-4;
+        t = t_new;
+        last = Some(plane);
+        if converged {
+            break;
+        }
+    }
+    Ok(last.map(|pl| (ray.at(t), pl)))
+}
+
+/// An interest point: pixel and interest value.
+pub type Candidate = ([f64; 2], f64);
+
+/// Selects cloud control points. `interest` holds, per photo, candidate pixels with their
+/// interest values (e.g. Förstner points); the strongest acceptable candidate of each grid
+/// cell wins. Points found again from another photo (within half a cell on the ground) are
+/// merged, so each ground point appears once.
+pub fn select(
+    block: &Block,
+    surface: &dyn ControlSurface,
+    interest: &BTreeMap<PhotoId, Vec<Candidate>>,
+    opts: &CloudOptions,
+) -> GResult<Vec<CloudPoint>> {
+    let mut points: Vec<CloudPoint> = Vec::new();
+    for (&pid, candidates) in interest {
+        let Some(photo) = block.photos.get(&pid) else {
+            continue;
+        };
+        let cam = &block.cameras[&photo.camera].model;
+        let (w, h) = cam.image_size();
+        let gsd = photo.pose.center.z.abs().max(1.0) / cam.focal_px();
+        let mut by_cell: BTreeMap<(i64, i64), Vec<Candidate>> = BTreeMap::new();
+        for &(px, v) in candidates {
+            let inside = px[0] >= opts.border_px
+                && px[1] >= opts.border_px
+                && px[0] <= w as f64 - opts.border_px
+                && px[1] <= h as f64 - opts.border_px;
+            if inside {
+                let key = (
+                    (px[0] / opts.interval_px) as i64,
+                    (px[1] / opts.interval_px) as i64,
+                );
+                by_cell.entry(key).or_default().push((px, v));
+            }
+        }
+        // Within each cell, the strongest candidates first, until one is on good ground.
+        for (_, mut cands) in by_cell {
+            cands.sort_by(|a, b| b.1.total_cmp(&a.1));
+            for (px, v) in cands.into_iter().take(5) {
+                let Some((x, plane)) = ray_to_surface(block, pid, px, surface, opts)? else {
+                    continue;
+                };
+                if !plane.stable || plane.coplanarity > opts.max_coplanarity {
+                    continue;
+                }
+                let dup = points
+                    .iter()
+                    .any(|q| (q.position - x).xy().norm() < 0.5 * opts.interval_px * gsd);
+                if dup {
+                    break;
+                }
+                let measurements = visible_in(block, &x, opts.border_px);
+                if measurements.len() >= opts.min_photos {
+                    points.push(CloudPoint {
+                        position: x,
+                        normal: plane.normal,
+                        interest: v,
+                        coplanarity: plane.coplanarity,
+                        measurements,
+                    });
+                    break;
+                }
+            }
+        }
+    }
+    Ok(points)
+}
+
+/// Photos whose frame (less a border) contains the projection of `x`, with the pixels.
+pub fn visible_in(block: &Block, x: &Vector3<f64>, border: f64) -> Vec<(PhotoId, [f64; 2])> {
+    block
+        .photos
+        .values()
+        .filter_map(|p| {
+            let cam = &block.cameras.get(&p.camera)?.model;
+            let (w, h) = cam.image_size();
+            let px = geometry::project(cam, &p.pose, x).ok()?.pixel;
+            (px.x >= border
+                && px.y >= border
+                && px.x <= w as f64 - border
+                && px.y <= h as f64 - border)
+                .then_some((p.id, [px.x, px.y]))
+        })
+        .collect()
+}
+
+/// Metadata of an exported package.
+#[derive(Debug, Clone)]
+pub struct ExportInfo {
+    pub crs: String,
+    pub epoch: EpochInfo,
+    pub source: String,
+    pub gsd_m: f64,
+    pub accuracy: Accuracy,
+    /// Chip side (px, odd).
+    pub chip_size: u32,
+}
+
+/// Builds the manifest and cuts the chips of a DCP package from a block's photos.
+/// `image_of` loads a photo (greyscale chips are cut from it); points whose chip would
+/// leave a photo are measured in the other photos only.
+pub fn export(
+    block: &Block,
+    points: &[CloudPoint],
+    info: &ExportInfo,
+    mut image_of: impl FnMut(PhotoId) -> Result<DynamicImage, String>,
+) -> Result<(Manifest, BTreeMap<String, DynamicImage>), String> {
+    let origin = Vector3::from(block.origin);
+    let mut m = Manifest::new(
+        &info.crs,
+        info.epoch.clone(),
+        &info.source,
+        info.gsd_m,
+        info.accuracy,
+    );
+    let used: std::collections::BTreeSet<PhotoId> = points
+        .iter()
+        .flat_map(|p| p.measurements.iter().map(|m| m.0))
+        .collect();
+    for &pid in &used {
+        let p = &block.photos[&pid];
+        let r = p.pose.rotation;
+        let c = p.pose.center + origin;
+        m.photos.push(DcpPhoto {
+            id: pid,
+            name: p.name.clone(),
+            camera: block.cameras[&p.camera].model.clone(),
+            rotation: [
+                r[(0, 0)],
+                r[(0, 1)],
+                r[(0, 2)],
+                r[(1, 0)],
+                r[(1, 1)],
+                r[(1, 2)],
+                r[(2, 0)],
+                r[(2, 1)],
+                r[(2, 2)],
+            ],
+            center: [c.x, c.y, c.z],
+            date: p.date.clone(),
+        });
+    }
+    let half = info.chip_size / 2;
+    let mut chips = BTreeMap::new();
+    let mut images: BTreeMap<PhotoId, DynamicImage> = BTreeMap::new();
+    for (k, cp) in points.iter().enumerate() {
+        let id = k as u64 + 1;
+        let mut measurements = Vec::new();
+        for &(pid, px) in &cp.measurements {
+            if let std::collections::btree_map::Entry::Vacant(e) = images.entry(pid) {
+                e.insert(image_of(pid)?);
+            }
+            let img = &images[&pid];
+            let (cx, cy) = (px[0].floor() as i64, px[1].floor() as i64);
+            let (x0, y0) = (cx - half as i64, cy - half as i64);
+            if x0 < 0
+                || y0 < 0
+                || x0 + info.chip_size as i64 > img.width() as i64
+                || y0 + info.chip_size as i64 > img.height() as i64
+            {
+                continue;
+            }
+            let chip = img.crop_imm(x0 as u32, y0 as u32, info.chip_size, info.chip_size);
+            let chip = match chip {
+                DynamicImage::ImageLuma16(_) => chip,
+                DynamicImage::ImageLuma8(_) => chip,
+                other => DynamicImage::ImageLuma8(other.to_luma8()),
+            };
+            let file = format!("chips/{id}_{pid}.png");
+            chips.insert(file.clone(), chip);
+            measurements.push(DcpMeasurement {
+                photo: pid,
+                pixel: px,
+                chip: ChipRef {
+                    file,
+                    x0: x0 as u32,
+                    y0: y0 as u32,
+                    width: info.chip_size,
+                    height: info.chip_size,
+                },
+            });
+        }
+        if measurements.is_empty() {
+            continue;
+        }
+        let w = cp.position + origin;
+        m.points.push(DcpPoint {
+            id,
+            name: format!("CC{id}"),
+            xyz: [w.x, w.y, w.z],
+            sigma: [
+                info.accuracy.plan_m,
+                info.accuracy.plan_m,
+                info.accuracy.height_m,
+            ],
+            normal: Some([cp.normal.x, cp.normal.y, cp.normal.z]),
+            quality: PointQuality {
+                interest: cp.interest,
+                coplanarity: cp.coplanarity,
+                class: "ground".into(),
+            },
+            measurements,
+        });
+    }
+    // Photos that ended with no measurement are dropped to keep the package minimal.
+    let measured: std::collections::BTreeSet<u32> = m
+        .points
+        .iter()
+        .flat_map(|p| p.measurements.iter().map(|m| m.photo))
+        .collect();
+    m.photos.retain(|p| measured.contains(&p.id));
+    Ok((m, chips))
+}
