@@ -4,6 +4,7 @@
 
 pub mod cloud;
 pub mod dcp;
+pub mod orient;
 pub mod predict;
 pub mod strips;
 

@@ -1,0 +1,221 @@
+//! Iterative orientation of one archive photo from control patches (seed 001 §2 (5)):
+//! predict the DCP points in the photo from its approximate orientation, match the aligned
+//! patches inside search windows sized by the orientation's uncertainty, resect the photo
+//! once three or more patches match (with gross-error detection), and predict again with
+//! the refined orientation and its smaller covariance — until no new patch matches.
+//!
+//! Matching and resection are supplied by the caller (matching and adjust modules), so
+//! this loop is the strategy only, and is tested with exact stand-ins.
+
+use super::predict::{self, Prediction};
+use crate::geometry::{Camera, Pose};
+use nalgebra::{Matrix3, SMatrix, Vector2, Vector3};
+use serde::Serialize;
+
+/// A control point offered to the photo: object coordinates (block-local) with covariance,
+/// and an identifier the matcher understands (which chip, which package).
+#[derive(Debug, Clone)]
+pub struct ControlPatch {
+    pub id: u64,
+    pub position: Vector3<f64>,
+    pub covariance: Matrix3<f64>,
+}
+
+/// An accepted patch match in the photo.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct PatchMatch {
+    pub pixel: Vector2<f64>,
+    /// Standard deviation of the matched position (px), e.g. LSM's a-posteriori σ.
+    pub sigma_px: f64,
+    pub ncc: f64,
+}
+
+/// Finds a control patch in the photo: returns the match inside the search window centred
+/// on `prediction.pixel` with half sizes `half_size`, or `None` (no match / rejected).
+pub trait PatchMatcher {
+    fn find(
+        &mut self,
+        patch: &ControlPatch,
+        pose: &Pose,
+        prediction: &Prediction,
+        half_size: [f64; 2],
+    ) -> Option<PatchMatch>;
+}
+
+/// Result of a single-photo resection.
+#[derive(Debug, Clone)]
+pub struct Resection {
+    pub pose: Pose,
+    /// 6×6 covariance in the local parameterisation (rotation vector, centre).
+    pub covariance: SMatrix<f64, 6, 6>,
+    /// Per observation: kept (true) or rejected as a gross error.
+    pub inliers: Vec<bool>,
+}
+
+/// Single-photo resection with gross-error detection from object points and pixels.
+pub trait Resector {
+    fn resect(
+        &mut self,
+        camera: &Camera,
+        approximate: &Pose,
+        observations: &[(Vector3<f64>, Vector2<f64>, f64)],
+    ) -> Result<Resection, String>;
+}
+
+#[derive(Debug, Clone)]
+pub struct OrientOptions {
+    /// Search window half size in σ of the predicted position.
+    pub k_sigma: f64,
+    /// Smallest and largest window half size (px).
+    pub min_half_px: f64,
+    pub max_half_px: f64,
+    pub max_iterations: usize,
+    /// Patches needed for a resection.
+    pub min_matches: usize,
+}
+
+impl Default for OrientOptions {
+    fn default() -> Self {
+        Self {
+            k_sigma: 3.0,
+            min_half_px: 4.0,
+            max_half_px: 600.0,
+            max_iterations: 6,
+            min_matches: 3,
+        }
+    }
+}
+
+/// What happened in one round of prediction and matching.
+#[derive(Debug, Clone, Serialize, PartialEq)]
+pub struct IterationRecord {
+    pub iteration: usize,
+    pub predicted: usize,
+    pub matched: usize,
+    pub success_ratio: f64,
+    pub mean_window_px: f64,
+    pub resected: bool,
+    /// Matches rejected as gross errors by this round's resection.
+    pub rejected: usize,
+    /// Matches kept by the resection.
+    pub accepted: usize,
+}
+
+#[derive(Debug, Clone)]
+pub struct Oriented {
+    pub pose: Pose,
+    pub covariance: SMatrix<f64, 6, 6>,
+    /// Accepted matches (patch id, pixel, σ) used by the final resection.
+    pub matches: Vec<(u64, Vector2<f64>, f64)>,
+    pub iterations: Vec<IterationRecord>,
+    pub oriented: bool,
+}
+
+/// Orients one photo. Patches outside the image are skipped; a patch rejected by the
+/// resection is not offered again.
+pub fn orient_photo(
+    camera: &Camera,
+    approximate: &Pose,
+    covariance: &SMatrix<f64, 6, 6>,
+    patches: &[ControlPatch],
+    matcher: &mut dyn PatchMatcher,
+    resector: &mut dyn Resector,
+    opts: &OrientOptions,
+) -> Oriented {
+    let (w, h) = camera.image_size();
+    let mut pose = *approximate;
+    let mut cov = *covariance;
+    let mut oriented = false;
+    let mut records = Vec::new();
+    let mut banned = std::collections::BTreeSet::new();
+    let mut kept: Vec<(u64, Vector2<f64>, f64)> = Vec::new();
+    let mut previous_count = 0usize;
+    for iteration in 0..opts.max_iterations {
+        let mut found: Vec<(usize, PatchMatch)> = Vec::new();
+        let (mut predicted, mut window_sum) = (0usize, 0.0);
+        for (i, p) in patches.iter().enumerate() {
+            if banned.contains(&p.id) {
+                continue;
+            }
+            let Ok(pred) = predict::predict(camera, &pose, &cov, &p.position, &p.covariance) else {
+                continue;
+            };
+            if pred.pixel.x < 0.0
+                || pred.pixel.y < 0.0
+                || pred.pixel.x > w as f64
+                || pred.pixel.y > h as f64
+            {
+                continue;
+            }
+            let hs = pred.search_half_size(opts.k_sigma);
+            let half = [
+                hs[0].clamp(opts.min_half_px, opts.max_half_px),
+                hs[1].clamp(opts.min_half_px, opts.max_half_px),
+            ];
+            predicted += 1;
+            window_sum += 0.5 * (half[0] + half[1]);
+            if let Some(m) = matcher.find(p, &pose, &pred, half) {
+                found.push((i, m));
+            }
+        }
+        let mut record = IterationRecord {
+            iteration,
+            predicted,
+            matched: found.len(),
+            success_ratio: if predicted > 0 {
+                found.len() as f64 / predicted as f64
+            } else {
+                0.0
+            },
+            mean_window_px: if predicted > 0 {
+                window_sum / predicted as f64
+            } else {
+                0.0
+            },
+            resected: false,
+            rejected: 0,
+            accepted: 0,
+        };
+        if found.len() >= opts.min_matches {
+            let obs: Vec<(Vector3<f64>, Vector2<f64>, f64)> = found
+                .iter()
+                .map(|(i, m)| (patches[*i].position, m.pixel, m.sigma_px))
+                .collect();
+            if let Ok(r) = resector.resect(camera, &pose, &obs) {
+                record.resected = true;
+                record.rejected = r.inliers.iter().filter(|b| !**b).count();
+                for ((i, _), ok) in found.iter().zip(&r.inliers) {
+                    if !ok {
+                        banned.insert(patches[*i].id);
+                    }
+                }
+                kept = found
+                    .iter()
+                    .zip(&r.inliers)
+                    .filter(|(_, ok)| **ok)
+                    .map(|((i, m), _)| (patches[*i].id, m.pixel, m.sigma_px))
+                    .collect();
+                record.accepted = kept.len();
+                pose = r.pose;
+                cov = r.covariance;
+                oriented = true;
+            }
+        }
+        records.push(record);
+        // Stop when a round brings no new accepted match.
+        if oriented && kept.len() <= previous_count {
+            break;
+        }
+        previous_count = kept.len();
+        if !oriented && iteration > 0 {
+            break;
+        }
+    }
+    Oriented {
+        pose,
+        covariance: cov,
+        matches: kept,
+        iterations: records,
+        oriented,
+    }
+}
