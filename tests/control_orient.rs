@@ -55,8 +55,7 @@ impl Resector for GnResector {
                 let n = inl.iter().filter(|b| **b).count();
                 let mut a = DMatrix::zeros(2 * n, 6);
                 let mut r = DVector::zeros(2 * n);
-                let mut k = 0;
-                for ((x, px, s), _) in obs.iter().zip(&inl).filter(|(_, b)| **b) {
+                for (k, ((x, px, s), _)) in obs.iter().zip(&inl).filter(|(_, b)| **b).enumerate() {
                     let (p, j) = geometry::project_with_jacobians(cam, &pose, x)
                         .map_err(|e| e.to_string())?;
                     for row in 0..2 {
@@ -65,7 +64,6 @@ impl Resector for GnResector {
                         }
                         r[2 * k + row] = (px[row] - p.pixel[row]) / s;
                     }
-                    k += 1;
                 }
                 let n_mat = a.transpose() * &a;
                 let d = n_mat
