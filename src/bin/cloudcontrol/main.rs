@@ -5,6 +5,8 @@ use clap::{Parser, Subcommand};
 use std::path::PathBuf;
 use std::process::ExitCode;
 
+mod synth;
+
 #[derive(Parser)]
 #[command(
     name = "cloudcontrol",
@@ -35,6 +37,10 @@ enum Command {
         #[arg(long, default_value = "cloudcontrol_demo")]
         out: PathBuf,
     },
+    /// Write a synthetic aerial block with ground truth.
+    ///
+    /// Example: cloudcontrol synth --out block --preset small --seed 7
+    Synth(synth::SynthArgs),
     /// Print the library version.
     Version,
 }
@@ -66,6 +72,7 @@ fn main() -> ExitCode {
             println!("cloudcontrol {}", cloudcontrol::VERSION);
             ExitCode::SUCCESS
         }
+        Command::Synth(args) => synth::run(args, cli.json, cli.quiet),
         Command::Demo { out } => match cloudcontrol::pipeline::demo::run(&out) {
             Ok(s) => {
                 if cli.json {
