@@ -257,6 +257,22 @@ fn sub_seed(seed: u64, stream: u64) -> ChaCha8Rng {
     rng
 }
 
+/// The preset's scene extent (block-local [xmin, ymin, xmax, ymax]).
+pub fn scene_extent(preset: Preset) -> [f64; 4] {
+    preset.params().area
+}
+
+/// The LiDAR strips and points (block-local) that [`generate`] writes for `config`, with
+/// `scene` = `Scene::generate(config.seed, scene_extent(config.preset))`.
+pub fn simulate_lidar(
+    config: &SynthConfig,
+    scene: &Scene,
+) -> (Vec<lidar::LidarStrip>, Vec<lidar::LidarPoint>) {
+    let p = config.preset.params();
+    let mut rng = sub_seed(config.seed, 1);
+    lidar::simulate(scene, p.area, p.lidar_density, &mut rng)
+}
+
 /// Generates a complete synthetic block into `out_dir`.
 pub fn generate(config: &SynthConfig, out_dir: &Path) -> Result<SynthManifest, SynthError> {
     let start = Instant::now();
@@ -291,8 +307,7 @@ pub fn generate(config: &SynthConfig, out_dir: &Path) -> Result<SynthManifest, S
     stage(&mut stats, "scene");
 
     // LiDAR of the present scene.
-    let mut rng = sub_seed(config.seed, 1);
-    let (strips, points) = lidar::simulate(&scene, p.area, p.lidar_density, &mut rng);
+    let (strips, points) = simulate_lidar(config, &scene);
     let tiles = lidar::write_tiles(
         &points,
         ORIGIN,

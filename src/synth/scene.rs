@@ -225,8 +225,40 @@ impl Scene {
                 level,
             });
         }
-        let n_buildings = (area / 1500.0) as usize;
+        // Surveyed targets first: buildings and trees then keep clear of them.
+        // Checkpoint targets on open ground, spread over the area.
+        let n_targets = ((area / 6000.0) as usize).clamp(8, 400);
         let mut tries = 0;
+        while scene.targets.len() < n_targets && tries < n_targets * 400 {
+            tries += 1;
+            let c = [
+                rng.gen_range(extent[0] + 12.0..extent[2] - 12.0),
+                rng.gen_range(extent[1] + 12.0..extent[3] - 12.0),
+            ];
+            if scene.road_distance(c[0], c[1]) < 6.0 || !scene.is_free(c, 6.0) {
+                continue;
+            }
+            // Surveyors pick open, level ground away from other targets.
+            let slope = (scene.ground(c[0] + 3.0, c[1]) - scene.ground(c[0] - 3.0, c[1]))
+                .abs()
+                .max((scene.ground(c[0], c[1] + 3.0) - scene.ground(c[0], c[1] - 3.0)).abs())
+                / 6.0;
+            if slope > 0.12
+                || scene
+                    .targets
+                    .iter()
+                    .any(|t| (t.center[0] - c[0]).hypot(t.center[1] - c[1]) < 20.0)
+            {
+                continue;
+            }
+            let z = scene.ground(c[0], c[1]);
+            scene.targets.push(Target {
+                id: format!("CP{:03}", scene.targets.len() + 1),
+                center: [c[0], c[1], z],
+            });
+        }
+        let n_buildings = (area / 1500.0) as usize;
+        tries = 0;
         while scene.buildings.len() < n_buildings && tries < n_buildings * 30 {
             tries += 1;
             if let Some(b) = scene.random_building(&mut rng, scene.buildings.len() as u32) {
@@ -260,37 +292,6 @@ impl Scene {
             });
         }
         scene.rebuild_grid();
-        // Checkpoint targets on open ground, spread over the area.
-        let n_targets = ((area / 6000.0) as usize).clamp(8, 400);
-        tries = 0;
-        while scene.targets.len() < n_targets && tries < n_targets * 400 {
-            tries += 1;
-            let c = [
-                rng.gen_range(extent[0] + 12.0..extent[2] - 12.0),
-                rng.gen_range(extent[1] + 12.0..extent[3] - 12.0),
-            ];
-            if scene.road_distance(c[0], c[1]) < 6.0 || !scene.is_free(c, 9.0) {
-                continue;
-            }
-            // Surveyors pick open, level ground away from other targets.
-            let slope = (scene.ground(c[0] + 3.0, c[1]) - scene.ground(c[0] - 3.0, c[1]))
-                .abs()
-                .max((scene.ground(c[0], c[1] + 3.0) - scene.ground(c[0], c[1] - 3.0)).abs())
-                / 6.0;
-            if slope > 0.12
-                || scene
-                    .targets
-                    .iter()
-                    .any(|t| (t.center[0] - c[0]).hypot(t.center[1] - c[1]) < 20.0)
-            {
-                continue;
-            }
-            let z = scene.ground(c[0], c[1]);
-            scene.targets.push(Target {
-                id: format!("CP{:03}", scene.targets.len() + 1),
-                center: [c[0], c[1], z],
-            });
-        }
         scene
     }
 
