@@ -232,7 +232,7 @@ pub(crate) fn generate_epoch(
         bbox[2] + 20.0,
         bbox[3] + 20.0,
     ];
-    let caster = RayCaster::new(scene, bbox, 4.0);
+    let caster = RayCaster::new(scene, bbox, 1.0);
 
     let mut cp_rows = Vec::new();
     let mut eo = String::from(

@@ -135,7 +135,7 @@ pub fn simulate(
                     gps_time,
                 });
             }
-            count += 1;
+            count += n_ret as u64;
         }
         strips.push(LidarStrip {
             point_source_id: (s + 1) as u16,

@@ -57,11 +57,14 @@ pub struct Building {
     pub eave: f64,
     pub roof: Roof,
     pub albedo: f64,
+    /// (sin, cos) of `angle`, cached for the per-ray footprint test.
+    #[serde(skip)]
+    axis: [f64; 2],
 }
 
 impl Building {
     fn local(&self, x: f64, y: f64) -> (f64, f64) {
-        let (s, c) = self.angle.sin_cos();
+        let [s, c] = self.axis;
         let dx = x - self.center[0];
         let dy = y - self.center[1];
         (c * dx + s * dy, -s * dx + c * dy)
@@ -342,6 +345,7 @@ impl Scene {
             eave: rng.gen_range(3.0..15.0),
             roof,
             albedo: rng.gen_range(0.25..0.8),
+            axis: [angle.sin(), angle.cos()],
         })
     }
 
