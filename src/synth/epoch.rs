@@ -117,8 +117,16 @@ pub(crate) fn generate_epoch(
     // Camera and flight geometry.
     let (w, h, geo, true_frame, nominal_frame) = match spec.kind {
         Kind::Frame => {
-            let (w, h) = p.frame_size;
-            let f = p.frame_focal_px;
+            // The archive was flown with an earlier, smaller digital camera.
+            let (w, h, f) = if spec.change > 0.0 {
+                (
+                    p.frame_size.0 * 2 / 3,
+                    p.frame_size.1 * 2 / 3,
+                    p.frame_focal_px * 2.0 / 3.0,
+                )
+            } else {
+                (p.frame_size.0, p.frame_size.1, p.frame_focal_px)
+            };
             let nominal = FrameCamera::pinhole(w, h, f);
             let truth = if spec.change > 0.0 {
                 // An archive camera whose calibration we do not have exactly.

@@ -212,15 +212,21 @@ impl Scene {
             });
         }
         let n_ponds = 1 + (area / 300_000.0) as usize;
-        for _ in 0..n_ponds {
+        let mut tries = 0;
+        while scene.ponds.len() < n_ponds && tries < 200 {
+            tries += 1;
             let c = [
                 rng.gen_range(extent[0] + 0.15 * w..extent[2] - 0.15 * w),
                 rng.gen_range(extent[1] + 0.15 * h..extent[3] - 0.15 * h),
             ];
-            if scene.road_distance(c[0], c[1]) < 30.0 {
+            let radius = rng.gen_range(8.0..18.0f64.min(0.12 * w.min(h)).max(8.5));
+            if scene.road_distance(c[0], c[1]) < radius + 8.0
+                || scene.ponds.iter().any(|p| {
+                    (p.center[0] - c[0]).hypot(p.center[1] - c[1]) < p.radius + radius + 20.0
+                })
+            {
                 continue;
             }
-            let radius = rng.gen_range(12.0..22.0);
             let level = scene.terrain(c[0], c[1]) - 1.0;
             scene.ponds.push(Pond {
                 center: c,
@@ -229,9 +235,8 @@ impl Scene {
             });
         }
         // Surveyed targets first: buildings and trees then keep clear of them.
-        // Checkpoint targets on open ground, spread over the area.
         let n_targets = ((area / 6000.0) as usize).clamp(8, 400);
-        let mut tries = 0;
+        tries = 0;
         while scene.targets.len() < n_targets && tries < n_targets * 400 {
             tries += 1;
             let c = [
@@ -636,7 +641,7 @@ impl Scene {
                             let du = (u - (iu as f64 + 0.5) * 4.0)
                                 .abs()
                                 .max((v - (iv as f64 + 0.5) * 4.0).abs());
-                            a = a * (1.0 - 0.7 * noise::coverage(du - 0.7, fp));
+                            a *= 1.0 - 0.7 * noise::coverage(du - 0.7, fp);
                         }
                     }
                 }
@@ -787,4 +792,115 @@ fn segment_distance(r: &Road, x: f64, y: f64) -> (f64, f64, f64) {
     let ex = px - along * ux;
     let ey = py - along * uy;
     ((ex * ex + ey * ey).sqrt(), along, across)
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::synth::render::RayCaster;
+    use nalgebra::Vector3;
+
+    const EXTENT: [f64; 4] = [-150.0, -110.0, 150.0, 110.0];
+
+    #[test]
+    fn scene_is_a_pure_function_of_the_seed() {
+        let a = Scene::generate(7, EXTENT);
+        let b = Scene::generate(7, EXTENT);
+        let c = Scene::generate(8, EXTENT);
+        assert_eq!(a.buildings, b.buildings);
+        assert_eq!(a.targets, b.targets);
+        assert_ne!(a.buildings, c.buildings);
+        for k in 0..500 {
+            let (x, y) = (-149.0 + 0.597 * k as f64, -100.0 + 0.41 * k as f64);
+            assert_eq!(a.height_at(x, y).to_bits(), b.height_at(x, y).to_bits());
+            assert_eq!(
+                a.albedo(x, y, &a.sample(x, y), a.height_at(x, y), 0.1)
+                    .to_bits(),
+                b.albedo(x, y, &b.sample(x, y), b.height_at(x, y), 0.1)
+                    .to_bits()
+            );
+        }
+    }
+
+    #[test]
+    fn surface_holds_every_class_and_never_lies_below_the_ground() {
+        let s = Scene::generate(3, EXTENT);
+        let mut seen = std::collections::BTreeSet::new();
+        for i in 0..600 {
+            for j in 0..440 {
+                let (x, y) = (-150.0 + 0.5 * i as f64, -110.0 + 0.5 * j as f64);
+                let sp = s.sample(x, y);
+                assert!(sp.height >= sp.ground);
+                assert_eq!(sp.height.to_bits(), s.height_at(x, y).to_bits());
+                seen.insert(format!("{:?}", sp.class));
+            }
+        }
+        for c in ["Field", "Road", "Water", "Building", "Vegetation", "Target"] {
+            assert!(seen.contains(c), "{c} missing: {seen:?}");
+        }
+        assert!(s
+            .buildings
+            .iter()
+            .any(|b| matches!(b.roof, Roof::Gable { .. })));
+        assert!(s.buildings.iter().any(|b| b.roof == Roof::Flat));
+    }
+
+    #[test]
+    fn gable_roof_rises_from_eaves_to_ridge() {
+        let s = Scene::generate(3, EXTENT);
+        let b = s
+            .buildings
+            .iter()
+            .find(|b| matches!(b.roof, Roof::Gable { .. }))
+            .unwrap();
+        let Roof::Gable { rise } = b.roof else {
+            unreachable!()
+        };
+        let at = |u: f64, v: f64| {
+            let [sn, cs] = b.axis;
+            (b.center[0] + cs * u - sn * v, b.center[1] + sn * u + cs * v)
+        };
+        let (x, y) = at(0.3, 0.0);
+        assert!((s.height_at(x, y) - (b.base + b.eave + rise)).abs() < 1e-9);
+        let (x, y) = at(0.3, b.half[1] * 0.999);
+        assert!((s.height_at(x, y) - (b.base + b.eave + rise * 0.001)).abs() < 1e-6);
+    }
+
+    #[test]
+    fn changed_epoch_differs_but_keeps_the_targets() {
+        let s = Scene::generate(3, EXTENT);
+        let old = s.changed(0.5, 1);
+        assert_eq!(old.targets, s.targets);
+        assert_ne!(old.buildings, s.buildings);
+        let same = s.changed(0.0, 1);
+        assert_eq!(same.buildings, s.buildings);
+    }
+
+    #[test]
+    fn ray_caster_hits_the_surface_and_sees_walls() {
+        let s = Scene::generate(3, EXTENT);
+        let caster = RayCaster::new(&s, [-200.0, -160.0, 200.0, 160.0], 1.0);
+        let o = Vector3::new(10.0, -20.0, 400.0);
+        let mut worst: f64 = 0.0;
+        for k in 0..400 {
+            let target = Vector3::new(-120.0 + 0.6 * k as f64, -90.0 + 0.45 * k as f64, 0.0);
+            let d = (Vector3::new(target.x, target.y, 0.0) - o).normalize();
+            let hit = caster.cast(&o, &d).expect("ray meets the surface");
+            // The hit lies on the surface (or on a wall below a roof edge).
+            let h = s.height_at(hit.point.x, hit.point.y);
+            if hit.surface.class != Class::Building || hit.point.z > h - 0.01 {
+                worst = worst.max((hit.point.z - h).abs());
+            }
+        }
+        assert!(worst < 1e-3, "hit off the surface by {worst} m");
+        // A low oblique ray towards a building's base hits its wall first.
+        let b = &s.buildings[0];
+        let base = Vector3::new(b.center[0], b.center[1], b.base + 0.5);
+        let o = base + Vector3::new(60.0, 0.0, 20.0);
+        let hit = caster.cast(&o, &(base - o).normalize()).unwrap();
+        assert!(
+            hit.t < (base - o).norm() - 0.5,
+            "the wall occludes the base"
+        );
+    }
 }
