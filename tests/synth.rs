@@ -298,3 +298,12 @@ fn invalid_change_fraction_is_rejected_with_a_clear_message() {
     let e = synth::generate(&c, dir.path()).unwrap_err().to_string();
     assert!(e.contains("change"), "{e}");
 }
+
+#[test]
+fn unwritable_output_folder_is_reported_with_its_path() {
+    let dir = tempfile::tempdir().unwrap();
+    let file = dir.path().join("not_a_folder");
+    std::fs::write(&file, b"x").unwrap();
+    let e = synth::generate(&config(1), &file).unwrap_err().to_string();
+    assert!(e.contains("not_a_folder"), "{e}");
+}
