@@ -62,3 +62,21 @@ fn small_preset_meets_its_budget_and_sizes() {
         assert!(!dir.path().join(&e.images_dir).join("../eo.csv").exists());
     }
 }
+
+/// The large preset's LiDAR size (≥ 20 M points) without rendering; ~1 GB and tens of
+/// seconds, so run on demand: `cargo test --release --test synth_small -- --ignored`.
+#[test]
+#[ignore]
+fn large_preset_has_at_least_20_million_lidar_points() {
+    let config = SynthConfig {
+        preset: Preset::Large,
+        seed: 1,
+        change: 0.5,
+        pos: PosQuality::Rough,
+        laz: false,
+    };
+    let scene = synth::Scene::generate(config.seed, synth::scene_extent(config.preset));
+    let (_, points) = synth::simulate_lidar(&config, &scene);
+    eprintln!("large preset LiDAR: {} points", points.len());
+    assert!(points.len() >= 20_000_000, "{}", points.len());
+}
