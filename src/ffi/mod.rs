@@ -6,6 +6,8 @@
 mod camera;
 
 pub use camera::*;
+mod synth;
+pub use synth::*;
 
 use std::cell::RefCell;
 use std::ffi::{c_char, CString};

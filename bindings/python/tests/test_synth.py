@@ -88,3 +88,16 @@ def test_crs_is_read_by_gdal(blocks, tmp_path):
     assert "EPSG:4547" in out, out
     # laspy also flags the WKT bit in the global encoding.
     assert las.header.global_encoding.wkt
+
+
+def test_binding_writes_the_same_block_as_the_cli(blocks, tmp_path):
+    from cloudcontrol import synth
+    from cloudcontrol._ffi import CloudControlError
+
+    d, m = blocks["las"]
+    m2 = synth.generate(tmp_path / "ffi", preset="tiny", seed=5)
+    assert m2["files"] == m["files"]
+    with pytest.raises(CloudControlError, match="change"):
+        synth.generate(tmp_path / "bad", preset="tiny", change=float("nan"))
+    with pytest.raises(CloudControlError, match="change"):
+        synth.generate(tmp_path / "bad", preset="tiny", change=1.5)
