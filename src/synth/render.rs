@@ -85,6 +85,16 @@ impl<'a> RayCaster<'a> {
             let ry = sn.abs() * b.half[0] + cs.abs() * b.half[1];
             stamp(b.center[0], b.center[1], rx, ry, b.top());
         }
+        for p in &scene.ponds {
+            // Pond rims can be steeper than the terrain slope bound: march them finely.
+            stamp(
+                p.center[0],
+                p.center[1],
+                p.radius,
+                p.radius,
+                f64::NEG_INFINITY,
+            );
+        }
         for t in &scene.trees {
             stamp(
                 t.center[0],
@@ -137,6 +147,7 @@ impl<'a> RayCaster<'a> {
         // |d.z| + L·|d_xy| per unit t), which converge geometrically.
         let dt = (0.1 / horizontal).min(0.5 / -d.z);
         let closing = -d.z + self.lipschitz * horizontal;
+        let mut safe_until = 0.0f64;
         loop {
             let bx = next_boundary(i, step_i, self.x0, d.x);
             let by = next_boundary(j, step_j, self.y0, d.y);
@@ -155,12 +166,11 @@ impl<'a> RayCaster<'a> {
             let cell_max = self.max[cell];
             let z_exit = o.z + d.z * t_exit;
             if z_exit <= cell_max {
-                let mut a = t.max((o.z - cell_max) / -d.z);
-                let fa = self.gap(o, d, a);
-                if fa <= 0.0 {
-                    return Some(self.hit(o, d, a));
-                }
                 if self.objects[cell] {
+                    let mut a = t.max((o.z - cell_max) / -d.z);
+                    if self.gap(o, d, a) <= 0.0 {
+                        return Some(self.hit(o, d, a));
+                    }
                     while a < t_exit {
                         let b = (a + dt).min(t_exit);
                         if self.gap(o, d, b) <= 0.0 {
@@ -169,16 +179,25 @@ impl<'a> RayCaster<'a> {
                         a = b;
                     }
                 } else {
-                    let mut g = fa;
-                    for _ in 0..64 {
-                        if g < 1e-4 {
+                    // `safe_until` carries the last slope-bounded step across cells: the
+                    // ray is known to stay above the terrain up to there.
+                    let mut a = t.max((o.z - cell_max) / -d.z).max(safe_until);
+                    if a < t_exit {
+                        let mut g = self.gap(o, d, a);
+                        if g <= 0.0 {
                             return Some(self.hit(o, d, a));
                         }
-                        a += g / closing;
-                        if a >= t_exit {
-                            break;
+                        for _ in 0..64 {
+                            if g < 1e-4 {
+                                return Some(self.hit(o, d, a));
+                            }
+                            a += g / closing;
+                            safe_until = a;
+                            if a >= t_exit {
+                                break;
+                            }
+                            g = self.gap(o, d, a);
                         }
-                        g = self.gap(o, d, a);
                     }
                 }
             }
