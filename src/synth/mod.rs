@@ -273,6 +273,56 @@ pub fn simulate_lidar(
     lidar::simulate(scene, p.area, p.lidar_density, &mut rng)
 }
 
+/// Renders one 8-bit grey photo of `scene` (noise-free apart from sensor noise seeded by
+/// `seed`), for tests that need an image of a known world without writing a block. The
+/// height-bound grid covers the photo's footprint.
+pub fn render_photo(
+    scene: &Scene,
+    camera: &crate::geometry::Camera,
+    pose: &crate::geometry::Pose,
+    seed: u64,
+) -> Result<Vec<u8>, SynthError> {
+    let (w, h) = camera.image_size();
+    let (zlo, zhi) = scene.terrain_bounds();
+    let top = scene.object_top().max(zhi) + 1.0;
+    let mut bbox = [
+        f64::INFINITY,
+        f64::INFINITY,
+        f64::NEG_INFINITY,
+        f64::NEG_INFINITY,
+    ];
+    for (c, r) in [
+        (0.0, 0.0),
+        (w as f64, 0.0),
+        (0.0, h as f64),
+        (w as f64, h as f64),
+    ] {
+        let d = pose.direction_to_world(&camera.unproject([c, r])?);
+        if d.z >= -1e-6 {
+            return Err(SynthError::InvalidConfig(
+                "the photo sees the horizon; render_photo needs a downward-looking camera".into(),
+            ));
+        }
+        for z in [zlo - 5.0, top] {
+            let t = (z - pose.center.z) / d.z;
+            let (x, y) = (pose.center.x + t * d.x, pose.center.y + t * d.y);
+            bbox = [
+                bbox[0].min(x),
+                bbox[1].min(y),
+                bbox[2].max(x),
+                bbox[3].max(y),
+            ];
+        }
+    }
+    let caster = RayCaster::new(
+        scene,
+        [bbox[0] - 5.0, bbox[1] - 5.0, bbox[2] + 5.0, bbox[3] + 5.0],
+        1.0,
+    );
+    let radiance = render(&caster, camera, pose, 1, 0.4);
+    Ok(film::finish_digital(&radiance, w, h, seed, 1.0, 8.0, 1.5))
+}
+
 /// Generates a complete synthetic block into `out_dir`.
 pub fn generate(config: &SynthConfig, out_dir: &Path) -> Result<SynthManifest, SynthError> {
     let start = Instant::now();

@@ -877,6 +877,40 @@ mod tests {
     }
 
     #[test]
+    fn render_photo_shows_a_target_where_it_projects() {
+        use crate::geometry::{Camera, FrameCamera, Pose};
+        let s = Scene::generate(3, EXTENT);
+        let t = &s.targets[0];
+        let cam = Camera::Frame(FrameCamera::pinhole(200, 160, 900.0));
+        let pose = Pose::from_opk(
+            0.01,
+            -0.02,
+            0.3,
+            Vector3::new(t.center[0] + 3.0, t.center[1] - 2.0, t.center[2] + 90.0),
+        );
+        let img = crate::synth::render_photo(&s, &cam, &pose, 1).unwrap();
+        assert_eq!(img, crate::synth::render_photo(&s, &cam, &pose, 1).unwrap());
+        let px = cam
+            .project(&pose.to_camera(&Vector3::from(t.center)))
+            .unwrap();
+        let (mut sw, mut sx, mut sy) = (0.0, 0.0, 0.0);
+        let r = TARGET_DISC_RADIUS / 0.1 + 1.5;
+        for y in 0..160 {
+            for x in 0..200 {
+                let (cx, cy) = (x as f64 + 0.5, y as f64 + 0.5);
+                if (cx - px.x).hypot(cy - px.y) <= r {
+                    let v = (img[y * 200 + x] as f64 - 30.0).max(0.0);
+                    sw += v;
+                    sx += v * cx;
+                    sy += v * cy;
+                }
+            }
+        }
+        let err = (sx / sw - px.x).hypot(sy / sw - px.y);
+        assert!(err < 0.2, "target centroid {err} px from its projection");
+    }
+
+    #[test]
     fn ray_caster_hits_the_surface_and_sees_walls() {
         let s = Scene::generate(3, EXTENT);
         let caster = RayCaster::new(&s, [-200.0, -160.0, 200.0, 160.0], 1.0);
