@@ -13,6 +13,7 @@ pub mod ffi;
 pub mod formats;
 pub mod geometry;
 pub mod pipeline;
+pub mod synth;
 
 /// Library version (the crate version).
 pub const VERSION: &str = env!("CARGO_PKG_VERSION");

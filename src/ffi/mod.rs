@@ -15,6 +15,8 @@ mod control;
 
 pub use camera::*;
 pub use control::*;
+mod synth;
+pub use synth::*;
 
 use std::cell::RefCell;
 use std::ffi::{c_char, CString};

@@ -2,6 +2,7 @@
 //! is done by the library.
 
 mod dcp;
+mod synth;
 
 use clap::{Parser, Subcommand};
 use std::path::PathBuf;
@@ -40,6 +41,10 @@ enum Command {
     /// Digital Control Photo packages: verify, summarise, merge.
     #[command(subcommand)]
     Dcp(dcp::DcpCommand),
+    /// Write a synthetic aerial block with ground truth.
+    ///
+    /// Example: cloudcontrol synth --out block --preset small --seed 7
+    Synth(synth::SynthArgs),
     /// Print the library version.
     Version,
 }
@@ -78,6 +83,7 @@ fn main() -> ExitCode {
                 ExitCode::from(2)
             }
         },
+        Command::Synth(args) => synth::run(args, cli.json, cli.quiet),
         Command::Demo { out } => match cloudcontrol::pipeline::demo::run(&out) {
             Ok(s) => {
                 if cli.json {
