@@ -72,10 +72,16 @@ fn rows(path: &Path, header: &[&str], optional: &[&str]) -> Result<Vec<(usize, V
             ));
         }
         let f: Vec<String> = l.split(',').map(|s| s.trim().to_string()).collect();
-        if f.len() != n {
+        // Optional trailing columns may be left off row by row.
+        if f.len() < header.len() || f.len() > n {
             return Err(FormatError::invalid(
                 path,
-                format!("line {}: expected {n} fields, found {}", i + 1, f.len()),
+                format!(
+                    "line {}: expected {} to {n} fields, found {}",
+                    i + 1,
+                    header.len(),
+                    f.len()
+                ),
             ));
         }
         out.push((i + 1, f));
