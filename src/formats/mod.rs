@@ -4,6 +4,7 @@
 pub mod blocks_exchange;
 pub mod colmap;
 pub mod control_points;
+pub mod convert;
 pub mod crs;
 pub mod ortho;
 pub mod raster;

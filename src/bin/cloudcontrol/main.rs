@@ -1,6 +1,9 @@
 //! The `cloudcontrol` command line: argument parsing, progress and output only; the work
 //! is done by the library.
 
+mod convert;
+mod ortho;
+
 use clap::{Parser, Subcommand};
 use std::path::PathBuf;
 use std::process::ExitCode;
@@ -37,6 +40,8 @@ enum Command {
     },
     /// Print the library version.
     Version,
+    Convert(convert::Args),
+    Ortho(ortho::Args),
 }
 
 fn init_logging(quiet: bool, verbose: u8) {
@@ -62,6 +67,8 @@ fn main() -> ExitCode {
     let cli = Cli::parse();
     init_logging(cli.quiet, cli.verbose);
     match cli.command {
+        Command::Convert(a) => convert::run(a, cli.json, cli.quiet),
+        Command::Ortho(a) => ortho::run(a, cli.json, cli.quiet),
         Command::Version => {
             println!("cloudcontrol {}", cloudcontrol::VERSION);
             ExitCode::SUCCESS
