@@ -169,3 +169,21 @@ pub unsafe extern "C" fn ccp_dem_read(
         Ok(())
     })
 }
+
+/// Reads a block (COLMAP folder or BlocksExchange `.xml`) and reports its size in
+/// `counts_out[4]`: cameras, photos, points, observations.
+#[no_mangle]
+pub unsafe extern "C" fn ccp_block_summary(path: *const c_char, counts_out: *mut u64) -> CcpStatus {
+    guard(|| {
+        let p = c_path(path, "path")?;
+        let out = output(counts_out, 4, 4, "counts_out")?;
+        let b = crate::formats::convert::read_block(&p, None)?;
+        out.copy_from_slice(&[
+            b.cameras.len() as u64,
+            b.photos.len() as u64,
+            b.points.len() as u64,
+            b.num_observations() as u64,
+        ]);
+        Ok(())
+    })
+}

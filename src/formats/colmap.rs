@@ -400,6 +400,7 @@ pub fn read(dir: &Path) -> Result<Block> {
         }
     }
 
+    let mut points: Vec<ObjectPoint> = Vec::new();
     let mut sink = |id: u64,
                     xyz: [f64; 3],
                     rgb: [u8; 3],
@@ -427,30 +428,30 @@ pub fn read(dir: &Path) -> Result<Block> {
         if xyz.iter().any(|v| !v.is_finite()) {
             return Err(format!("point {id}: position is not finite"));
         }
-        if block
-            .points
-            .insert(
-                id,
-                ObjectPoint {
-                    id,
-                    name: String::new(),
-                    kind: PointKind::Tie,
-                    position: Vector3::from(xyz),
-                    sigma: None,
-                    color: rgb,
-                    observations,
-                },
-            )
-            .is_some()
-        {
-            return Err(format!("point id {id} appears twice"));
-        }
+        points.push(ObjectPoint {
+            id,
+            name: String::new(),
+            kind: PointKind::Tie,
+            position: Vector3::from(xyz),
+            sigma: None,
+            color: rgb,
+            observations,
+        });
         Ok(())
     };
     match pts_enc {
         Encoding::Binary => read_points_bin(&pts_path, &mut sink)?,
         Encoding::Text => read_points_txt(&pts_path, &mut sink)?,
     }
+    // Bulk-building the map from sorted ids is linear; files are usually sorted already.
+    points.sort_by_key(|p| p.id);
+    if let Some(w) = points.windows(2).find(|w| w[0].id == w[1].id) {
+        return Err(FormatError::invalid(
+            &pts_path,
+            format!("point id {} appears twice", w[0].id),
+        ));
+    }
+    block.points = points.into_iter().map(|p| (p.id, p)).collect();
 
     for im in images {
         let free: Vec<[f64; 2]> = im
@@ -511,14 +512,28 @@ pub fn read(dir: &Path) -> Result<Block> {
 struct Bin {
     r: BufReader<File>,
     path: PathBuf,
+    buf: Vec<u8>,
+    len: u64,
 }
 
 impl Bin {
     fn open(path: &Path) -> Result<Self> {
+        let r = open(path)?;
+        let len = r.get_ref().metadata().map(|m| m.len()).unwrap_or(u64::MAX);
         Ok(Self {
-            r: open(path)?,
+            r,
             path: path.to_path_buf(),
+            buf: Vec::new(),
+            len,
         })
+    }
+    /// `n` bytes in one read (whole arrays of fixed-size items), in a reused buffer.
+    fn chunk(&mut self, n: usize, what: &dyn Fn() -> String) -> Result<&[u8]> {
+        self.buf.resize(n, 0);
+        if let Err(e) = self.r.read_exact(&mut self.buf) {
+            return Err(self.fail(e, what));
+        }
+        Ok(&self.buf)
     }
     fn fail(&self, e: std::io::Error, what: &dyn Fn() -> String) -> FormatError {
         if e.kind() == std::io::ErrorKind::UnexpectedEof {
@@ -578,7 +593,7 @@ impl Bin {
     /// A count, refused when it could not fit in the rest of the file (corrupt header).
     fn count(&mut self, min_record: u64, what: &dyn Fn() -> String) -> Result<u64> {
         let n = self.u64(what)?;
-        let len = self.r.get_ref().metadata().map(|m| m.len()).unwrap_or(u64::MAX);
+        let len = self.len;
         if n.saturating_mul(min_record) > len {
             return Err(FormatError::invalid(
                 &self.path,
@@ -653,12 +668,11 @@ fn read_images_bin(path: &Path) -> Result<Vec<Image>> {
         let camera = b.u32(&ctx)?;
         let name = b.cstring(&ctx)?;
         let np = b.count(24, &ctx)?;
-        let mut points2d = Vec::with_capacity(np as usize);
-        for _ in 0..np {
-            let xy = b.f64s::<2>(&ctx)?;
-            let pid = b.u64(&ctx)?;
-            points2d.push((xy, pid));
-        }
+        let points2d = b
+            .chunk(np as usize * 24, &ctx)?
+            .chunks_exact(24)
+            .map(|c| ([le_f64(&c[0..8]), le_f64(&c[8..16])], le_u64(&c[16..24])))
+            .collect();
         let pose = pose_from_qt(q, t)
             .map_err(|m| FormatError::invalid(path, format!("image {id} ({name}): {m}")))?;
         out.push(Image {
@@ -682,19 +696,41 @@ fn read_points_bin(path: &Path, sink: &mut PointSink) -> Result<()> {
     let mut track = Vec::new();
     for i in 0..n {
         let ctx = || format!("point record {i}");
-        let id = b.u64(&ctx)?;
+        // id, x y z, r g b, error, track length: one fixed 51-byte head.
+        let h = b.chunk(51, &ctx)?;
+        let id = le_u64(&h[0..8]);
+        let xyz = [le_f64(&h[8..16]), le_f64(&h[16..24]), le_f64(&h[24..32])];
+        let rgb = [h[32], h[33], h[34]];
+        let len = le_u64(&h[43..51]);
         let ctx = || format!("point {id}");
-        let xyz = b.f64s::<3>(&ctx)?;
-        let rgb = [b.u8(&ctx)?, b.u8(&ctx)?, b.u8(&ctx)?];
-        let _error = b.f64(&ctx)?;
-        let len = b.count(8, &ctx)?;
-        track.clear();
-        for _ in 0..len {
-            track.push((b.u32(&ctx)?, b.u32(&ctx)?));
+        if len.saturating_mul(8) > b.len {
+            return Err(FormatError::invalid(
+                path,
+                format!("point {id}: track length {len} cannot fit in the file (corrupt or truncated)"),
+            ));
         }
+        track.clear();
+        track.extend(
+            b.chunk(len as usize * 8, &ctx)?
+                .chunks_exact(8)
+                .map(|c| (le_u32(&c[0..4]), le_u32(&c[4..8]))),
+        );
         sink(id, xyz, rgb, &track).map_err(|m| FormatError::invalid(path, m))?;
     }
     b.expect_end()
+}
+
+#[inline]
+fn le_f64(b: &[u8]) -> f64 {
+    f64::from_le_bytes(b.try_into().expect("8 bytes"))
+}
+#[inline]
+fn le_u64(b: &[u8]) -> u64 {
+    u64::from_le_bytes(b.try_into().expect("8 bytes"))
+}
+#[inline]
+fn le_u32(b: &[u8]) -> u32 {
+    u32::from_le_bytes(b.try_into().expect("4 bytes"))
 }
 
 fn read_rigs_bin(path: &Path) -> Result<HashMap<u32, RigSensors>> {
@@ -1197,11 +1233,13 @@ pub fn write(dir: &Path, block: &Block, opts: &WriteOptions) -> Result<()> {
                     .and_then(|_| w.write_all(&[0]))
                     .map_err(|e| FormatError::io(&path, e))?;
                 b!(&path, w, pts.len() as u64);
+                let mut rec: Vec<u8> = Vec::with_capacity(pts.len() * 24);
                 for (xy, pid) in pts {
-                    b!(&path, w, xy[0]);
-                    b!(&path, w, xy[1]);
-                    b!(&path, w, pid);
+                    rec.extend_from_slice(&xy[0].to_le_bytes());
+                    rec.extend_from_slice(&xy[1].to_le_bytes());
+                    rec.extend_from_slice(&pid.to_le_bytes());
                 }
+                w.write_all(&rec).map_err(|e| FormatError::io(&path, e))?;
             }
         }
         finish(&path, w)
@@ -1209,6 +1247,13 @@ pub fn write(dir: &Path, block: &Block, opts: &WriteOptions) -> Result<()> {
 
     // points3D
     let path = file("points3D");
+    // COLMAP's ERROR column: recomputed from the block, in parallel (deterministic: one
+    // value per point, collected in order).
+    let all: Vec<&ObjectPoint> = block.points.values().collect();
+    let errors: Vec<f64> = {
+        use rayon::prelude::*;
+        all.par_iter().map(|p| mean_error(p, block, &models)).collect()
+    };
     write_atomically(&path, |tmp| {
         let mut w = writer(tmp)?;
         if text {
@@ -1217,9 +1262,9 @@ pub fn write(dir: &Path, block: &Block, opts: &WriteOptions) -> Result<()> {
             b!(&path, w, block.points.len() as u64);
         }
         let mut k = 0usize;
-        for (id, p) in &block.points {
-            let err = mean_error(p, block, &models);
-            let x = &p.position;
+        let mut rec: Vec<u8> = Vec::with_capacity(256);
+        for (p, err) in all.iter().zip(&errors) {
+            let (id, x) = (p.id, &p.position);
             if text {
                 w!(&path, w, "{id} {} {} {} {} {} {} {err}", x.x, x.y, x.z, p.color[0], p.color[1], p.color[2]);
                 for o in &p.observations {
@@ -1228,18 +1273,20 @@ pub fn write(dir: &Path, block: &Block, opts: &WriteOptions) -> Result<()> {
                 }
                 w!(&path, w, "\n");
             } else {
-                b!(&path, w, *id);
+                rec.clear();
+                rec.extend_from_slice(&id.to_le_bytes());
                 for v in [x.x, x.y, x.z] {
-                    b!(&path, w, v);
+                    rec.extend_from_slice(&v.to_le_bytes());
                 }
-                w.write_all(&p.color).map_err(|e| FormatError::io(&path, e))?;
-                b!(&path, w, err);
-                b!(&path, w, p.observations.len() as u64);
+                rec.extend_from_slice(&p.color);
+                rec.extend_from_slice(&err.to_le_bytes());
+                rec.extend_from_slice(&(p.observations.len() as u64).to_le_bytes());
                 for o in &p.observations {
-                    b!(&path, w, o.photo);
-                    b!(&path, w, l2d.idx[k]);
+                    rec.extend_from_slice(&o.photo.to_le_bytes());
+                    rec.extend_from_slice(&l2d.idx[k].to_le_bytes());
                     k += 1;
                 }
+                w.write_all(&rec).map_err(|e| FormatError::io(&path, e))?;
             }
         }
         finish(&path, w)

@@ -23,6 +23,8 @@ lib.ccp_dem_write.argtypes = [_cs, _sz, _sz, _dp, _fp, _sz, _cs]
 lib.ccp_dem_write.restype = ctypes.c_int
 lib.ccp_dem_read.argtypes = [_cs, ctypes.POINTER(_sz), ctypes.POINTER(_sz), _dp, _fp, _sz]
 lib.ccp_dem_read.restype = ctypes.c_int
+lib.ccp_block_summary.argtypes = [_cs, ctypes.POINTER(ctypes.c_uint64)]
+lib.ccp_block_summary.restype = ctypes.c_int
 
 
 def _b(path) -> bytes:
@@ -34,6 +36,13 @@ def convert(src, dst, *, text: bool = False, legacy: bool = False) -> None:
     (format by path). COLMAP output is binary unless ``text``, COLMAP 4 layout (with
     rigs/frames) unless ``legacy``."""
     check(lib.ccp_convert(_b(src), _b(dst), int(text), int(legacy)))
+
+
+def summary(path) -> dict:
+    """Reads a block (COLMAP folder or BlocksExchange .xml) and returns its size."""
+    c = (ctypes.c_uint64 * 4)()
+    check(lib.ccp_block_summary(_b(path), c))
+    return dict(zip(("cameras", "photos", "points", "observations"), map(int, c)))
 
 
 def orthophoto(block, dem, images_dir, out, *, gsd: float = 0.0, cog: bool = False) -> tuple[int, int]:
@@ -71,4 +80,4 @@ def read_dem(path) -> tuple[np.ndarray, np.ndarray]:
     return z, gt
 
 
-__all__ = ["convert", "orthophoto", "write_dem", "read_dem", "CloudControlError"]
+__all__ = ["convert", "summary", "orthophoto", "write_dem", "read_dem", "CloudControlError"]
