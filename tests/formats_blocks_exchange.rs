@@ -10,7 +10,9 @@ fn root() -> PathBuf {
     PathBuf::from(env!("CARGO_MANIFEST_DIR"))
 }
 fn synthetic() -> PathBuf {
-    root().join("formats/blocks-exchange/synthetic_historical_with_dcp/synthetic_historical_with_dcp.xml")
+    root().join(
+        "formats/blocks-exchange/synthetic_historical_with_dcp/synthetic_historical_with_dcp.xml",
+    )
 }
 
 /// Largest |projection − measurement| over all observations (points with a known height).
@@ -60,15 +62,25 @@ fn synthetic_block_matches_its_truth() {
     // Measurements (4 decimals in the file) equal the projections of the true points.
     let r = max_residual(&b);
     assert!(r < 2e-3, "max residual {r} px");
-    let kinds: Vec<_> = b.points.values().map(|p| (p.name.as_str(), p.kind)).collect();
+    let kinds: Vec<_> = b
+        .points
+        .values()
+        .map(|p| (p.name.as_str(), p.kind))
+        .collect();
     assert!(kinds.contains(&("CHK_field_corner", PointKind::Check)));
     assert!(kinds.contains(&("GCP_church_tower", PointKind::Control)));
     assert!(kinds.contains(&("tp1", PointKind::Tie)));
-    let hcp = b.points.values().find(|p| p.name == "HCP_road_cross").unwrap();
+    let hcp = b
+        .points
+        .values()
+        .find(|p| p.name == "HCP_road_cross")
+        .unwrap();
     assert!(hcp.sigma.unwrap()[2].is_infinite());
     // OPK photo 1: centre and matrix of truth.json.
-    let truth: serde_json::Value =
-        serde_json::from_str(&std::fs::read_to_string(synthetic().with_file_name("truth.json")).unwrap()).unwrap();
+    let truth: serde_json::Value = serde_json::from_str(
+        &std::fs::read_to_string(synthetic().with_file_name("truth.json")).unwrap(),
+    )
+    .unwrap();
     let m = &truth["photos"]["1"]["M_world_to_camaxes"];
     let r = b.photos[&1].pose.rotation;
     for i in 0..3 {
@@ -89,7 +101,10 @@ fn synthetic_block_equals_its_colmap_equivalent() {
     for (id, cam) in &c.cameras {
         let (p, q) = (cam.model.params(), b.cameras[id].model.params());
         for (x, y) in p.iter().zip(&q) {
-            assert!((x - y).abs() <= 1e-9 * x.abs().max(1.0), "camera {id}: {p:?} vs {q:?}");
+            assert!(
+                (x - y).abs() <= 1e-9 * x.abs().max(1.0),
+                "camera {id}: {p:?} vs {q:?}"
+            );
         }
     }
     for (id, ph) in &c.photos {
@@ -106,7 +121,14 @@ fn written_xml_reimports_equal() {
     let out = dir.path().join("out.xml");
     bx::write(&out, &b, &WriteOptions::default()).unwrap();
     let text = std::fs::read_to_string(&out).unwrap();
-    for tag in ["<BlocksExchange version=\"2.1\">", "<FocalLengthPixels>", "<CameraOrientation>XRightYDown</CameraOrientation>", "<M_00>", "<Category>Horizontal</Category>", "<CheckPoint>true</CheckPoint>"] {
+    for tag in [
+        "<BlocksExchange version=\"2.1\">",
+        "<FocalLengthPixels>",
+        "<CameraOrientation>XRightYDown</CameraOrientation>",
+        "<M_00>",
+        "<Category>Horizontal</Category>",
+        "<CheckPoint>true</CheckPoint>",
+    ] {
         assert!(text.contains(tag), "missing {tag}");
     }
     let back = bx::read(&out).unwrap();
@@ -116,7 +138,12 @@ fn written_xml_reimports_equal() {
         let q = &back.photos[k];
         assert_eq!(p.name, q.name);
         assert!((p.pose.rotation - q.pose.rotation).abs().max() < 1e-15);
-        assert!((b.to_world(&p.pose.center) - back.to_world(&q.pose.center)).abs().max() < 1e-9);
+        assert!(
+            (b.to_world(&p.pose.center) - back.to_world(&q.pose.center))
+                .abs()
+                .max()
+                < 1e-9
+        );
     }
     for (k, c) in &b.cameras {
         let (p, q) = (c.model.params(), back.cameras[k].model.params());
@@ -126,11 +153,21 @@ fn written_xml_reimports_equal() {
     }
     for (k, p) in &b.points {
         let q = &back.points[k];
-        assert_eq!((&p.name, p.kind, p.sigma, p.color), (&q.name, q.kind, q.sigma, q.color));
-        assert!((b.to_world(&p.position) - back.to_world(&q.position)).abs().max() < 1e-9);
+        assert_eq!(
+            (&p.name, p.kind, p.sigma, p.color),
+            (&q.name, q.kind, q.sigma, q.color)
+        );
+        assert!(
+            (b.to_world(&p.position) - back.to_world(&q.position))
+                .abs()
+                .max()
+                < 1e-9
+        );
         for (o, r) in p.observations.iter().zip(&q.observations) {
             assert_eq!(o.photo, r.photo);
-            assert!((o.pixel[0] - r.pixel[0]).abs() < 1e-9 && (o.pixel[1] - r.pixel[1]).abs() < 1e-9);
+            assert!(
+                (o.pixel[0] - r.pixel[0]).abs() < 1e-9 && (o.pixel[1] - r.pixel[1]).abs() < 1e-9
+            );
         }
     }
     assert!(max_residual(&back) < 2e-3);
@@ -138,7 +175,8 @@ fn written_xml_reimports_equal() {
 
 #[test]
 fn real_bulkphotos_sample_round_trips_at_the_xml_level() {
-    let path = root().join("formats/blocks-exchange/itwin_reality-capture_Orientations_bulkphotos_v3.2.xml");
+    let path = root()
+        .join("formats/blocks-exchange/itwin_reality-capture_Orientations_bulkphotos_v3.2.xml");
     let text = std::fs::read_to_string(&path).unwrap();
     let doc = Document::parse(&text, &path).unwrap();
     assert_eq!(doc.version(), "3.2");
@@ -147,12 +185,18 @@ fn real_bulkphotos_sample_round_trips_at_the_xml_level() {
     assert_eq!(doc, again);
     // A block needs cameras: BulkPhotos have none, and the error says so.
     let e = bx::read(&path).unwrap_err().to_string();
-    assert!(e.contains("BulkPhotos") && e.contains("Orientations_bulkphotos"), "{e}");
+    assert!(
+        e.contains("BulkPhotos") && e.contains("Orientations_bulkphotos"),
+        "{e}"
+    );
 }
 
 #[test]
 fn colmap_to_blocks_exchange_and_back_reproduces_projections() {
-    for sample in ["kapture_maupertuis_txt", "synthetic_from_blocksexchange_txt"] {
+    for sample in [
+        "kapture_maupertuis_txt",
+        "synthetic_from_blocksexchange_txt",
+    ] {
         let c = colmap::read(&root().join("formats/colmap").join(sample)).unwrap();
         let dir = tempfile::tempdir().unwrap();
         let xml = dir.path().join("block.xml");
@@ -174,8 +218,14 @@ fn colmap_to_blocks_exchange_and_back_reproduces_projections() {
         assert!(worst < 1e-6, "{sample}: {worst} px");
         // Measurements too.
         let (mo, mb): (Vec<_>, Vec<_>) = (
-            c.points.values().flat_map(|p| p.observations.iter().map(|o| o.pixel)).collect(),
-            back.points.values().flat_map(|p| p.observations.iter().map(|o| o.pixel)).collect(),
+            c.points
+                .values()
+                .flat_map(|p| p.observations.iter().map(|o| o.pixel))
+                .collect(),
+            back.points
+                .values()
+                .flat_map(|p| p.observations.iter().map(|o| o.pixel))
+                .collect(),
         );
         for (a, b) in mo.iter().zip(&mb) {
             assert!((a[0] - b[0]).abs() < 1e-9 && (a[1] - b[1]).abs() < 1e-9);
@@ -193,16 +243,43 @@ fn bad_input_names_file_and_element() {
         bx::read(&p).unwrap_err().to_string()
     };
     let e = case("malformed.xml", text.replace("</Photogroups>", ""));
-    assert!(e.contains("malformed.xml") && e.contains("not valid BlocksExchange XML"), "{e}");
-    let e = case("nopath.xml", text.replace("<ImagePath>dcp/2021_0871.tif</ImagePath>", ""));
-    assert!(e.contains("nopath.xml") && e.contains("Photo Id 101") && e.contains("ImagePath is missing"), "{e}");
+    assert!(
+        e.contains("malformed.xml") && e.contains("not valid BlocksExchange XML"),
+        "{e}"
+    );
+    let e = case(
+        "nopath.xml",
+        text.replace("<ImagePath>dcp/2021_0871.tif</ImagePath>", ""),
+    );
+    assert!(
+        e.contains("nopath.xml")
+            && e.contains("Photo Id 101")
+            && e.contains("ImagePath is missing"),
+        "{e}"
+    );
     let e = case("srs.xml", text.replace("EPSG:25833", "EPSG:999999"));
     assert!(e.contains("srs.xml") && e.contains("EPSG:999999"), "{e}");
-    let e = case("model.xml", text.replacen("<CameraModelType>Perspective", "<CameraModelType>Fisheye", 1));
-    assert!(e.contains("model.xml") && e.contains("Fisheye") && e.contains("RC30"), "{e}");
-    let e = case("photo.xml", text.replace("<PhotoId>102</PhotoId>", "<PhotoId>777</PhotoId>"));
+    let e = case(
+        "model.xml",
+        text.replacen(
+            "<CameraModelType>Perspective",
+            "<CameraModelType>Fisheye",
+            1,
+        ),
+    );
+    assert!(
+        e.contains("model.xml") && e.contains("Fisheye") && e.contains("RC30"),
+        "{e}"
+    );
+    let e = case(
+        "photo.xml",
+        text.replace("<PhotoId>102</PhotoId>", "<PhotoId>777</PhotoId>"),
+    );
     assert!(e.contains("GCP_church_tower") && e.contains("777"), "{e}");
-    let e = case("hpr.xml", text.replacen("<Omega>0.350000</Omega>", "<Heading>1</Heading>", 1));
+    let e = case(
+        "hpr.xml",
+        text.replacen("<Omega>0.350000</Omega>", "<Heading>1</Heading>", 1),
+    );
     assert!(e.contains("Photo Id 1") && e.contains("Heading"), "{e}");
 }
 

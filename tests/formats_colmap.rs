@@ -39,7 +39,11 @@ fn max_diff(a: &Block, b: &Block) -> f64 {
         assert_eq!(p.observations.len(), q.observations.len(), "point {k}");
         for (o, r) in p.observations.iter().zip(&q.observations) {
             assert_eq!(o.photo, r.photo);
-            d = d.max((o.pixel[0] - r.pixel[0]).abs().max((o.pixel[1] - r.pixel[1]).abs()));
+            d = d.max(
+                (o.pixel[0] - r.pixel[0])
+                    .abs()
+                    .max((o.pixel[1] - r.pixel[1]).abs()),
+            );
         }
     }
     assert_eq!(a.keypoints, b.keypoints);
@@ -55,7 +59,11 @@ fn legacy_text_and_colmap4_binary_and_text_agree() {
     let bin = colmap::read(&sample("kapture_maupertuis_colmap4_bin")).unwrap();
     let txt = colmap::read(&sample("kapture_maupertuis_colmap4_txt")).unwrap();
     // pycolmap re-normalises quaternions; the text files hold 6 significant digits.
-    assert!(max_diff(&legacy, &bin) < 1e-6, "{}", max_diff(&legacy, &bin));
+    assert!(
+        max_diff(&legacy, &bin) < 1e-6,
+        "{}",
+        max_diff(&legacy, &bin)
+    );
     assert!(max_diff(&bin, &txt) < 1e-12);
     // Mean track length as printed in the header of points3D.txt.
     let mean = legacy.num_observations() as f64 / legacy.points.len() as f64;
@@ -78,7 +86,10 @@ fn write_read_roundtrip_is_exact_in_every_encoding_and_layout() {
                 assert_eq!(p, &back.points[k]);
             }
             assert_eq!(block.cameras, back.cameras);
-            assert_eq!(out.join("rigs.bin").exists(), layout == Layout::Rigs && encoding == Encoding::Binary);
+            assert_eq!(
+                out.join("rigs.bin").exists(),
+                layout == Layout::Rigs && encoding == Encoding::Binary
+            );
         }
     }
 }
@@ -106,27 +117,48 @@ fn side_file_carries_crs_origin_and_control_points() {
 #[test]
 fn truncated_binary_model_is_refused_naming_file_and_record() {
     let dir = tempfile::tempdir().unwrap();
-    for f in ["cameras.bin", "images.bin", "points3D.bin", "rigs.bin", "frames.bin"] {
-        std::fs::copy(sample("kapture_maupertuis_colmap4_bin").join(f), dir.path().join(f)).unwrap();
+    for f in [
+        "cameras.bin",
+        "images.bin",
+        "points3D.bin",
+        "rigs.bin",
+        "frames.bin",
+    ] {
+        std::fs::copy(
+            sample("kapture_maupertuis_colmap4_bin").join(f),
+            dir.path().join(f),
+        )
+        .unwrap();
     }
     let p = dir.path().join("points3D.bin");
     let bytes = std::fs::read(&p).unwrap();
     std::fs::write(&p, &bytes[..bytes.len() / 2]).unwrap();
     let e = colmap::read(dir.path()).unwrap_err().to_string();
-    assert!(e.contains("points3D.bin") && e.contains("truncated") && e.contains("point"), "{e}");
+    assert!(
+        e.contains("points3D.bin") && e.contains("truncated") && e.contains("point"),
+        "{e}"
+    );
 
     let p = dir.path().join("images.bin");
     let bytes = std::fs::read(&p).unwrap();
     std::fs::write(&p, &bytes[..1000]).unwrap();
     let e = colmap::read(dir.path()).unwrap_err().to_string();
-    assert!(e.contains("images.bin") && e.contains("truncated") && e.contains("image"), "{e}");
+    assert!(
+        e.contains("images.bin") && e.contains("truncated") && e.contains("image"),
+        "{e}"
+    );
 }
 
 #[test]
 fn unsupported_model_and_malformed_text_are_named() {
     // kapture's t265 export: OPENCV_FISHEYE cameras, comma-separated fields.
-    let e = colmap::read(&sample("kapture_t265_txt")).unwrap_err().to_string();
-    assert!(e.contains("cameras.txt") && e.contains("OPENCV_FISHEYE") && e.contains("camera 1"), "{e}");
+    let e = colmap::read(&sample("kapture_t265_txt"))
+        .unwrap_err()
+        .to_string();
+    assert!(
+        e.contains("cameras.txt") && e.contains("OPENCV_FISHEYE") && e.contains("camera 1"),
+        "{e}"
+    );
 
     let dir = tempfile::tempdir().unwrap();
     for f in ["cameras.txt", "images.txt", "points3D.txt"] {
@@ -134,7 +166,10 @@ fn unsupported_model_and_malformed_text_are_named() {
     }
     std::fs::write(dir.path().join("cameras.txt"), "1 FOOCAM 100 100 1 2 3\n").unwrap();
     let e = colmap::read(dir.path()).unwrap_err().to_string();
-    assert!(e.contains("cameras.txt") && e.contains("line 1") && e.contains("FOOCAM"), "{e}");
+    assert!(
+        e.contains("cameras.txt") && e.contains("line 1") && e.contains("FOOCAM"),
+        "{e}"
+    );
     std::fs::remove_file(dir.path().join("images.txt")).unwrap();
     let e = colmap::read(dir.path()).unwrap_err().to_string();
     assert!(e.contains("images.bin / images.txt"), "{e}");
@@ -147,16 +182,71 @@ fn every_supported_model_round_trips() {
     let base = FrameCamera::pinhole(4000, 3000, 3500.0);
     let variants = [
         (base.clone(), "SIMPLE_PINHOLE"),
-        (FrameCamera { fy: 3501.0, ..base.clone() }, "PINHOLE"),
-        (FrameCamera { distortion: Brown { k1: -0.1, ..Default::default() }, ..base.clone() }, "SIMPLE_RADIAL"),
-        (FrameCamera { distortion: Brown { k1: -0.1, k2: 0.02, ..Default::default() }, ..base.clone() }, "RADIAL"),
-        (FrameCamera { distortion: Brown { k1: -0.1, p1: 1e-4, ..Default::default() }, ..base.clone() }, "OPENCV"),
-        (FrameCamera { distortion: Brown { k1: -0.1, k2: 0.01, k3: 0.001, p1: 1e-4, p2: -2e-4 }, ..base.clone() }, "FULL_OPENCV"),
+        (
+            FrameCamera {
+                fy: 3501.0,
+                ..base.clone()
+            },
+            "PINHOLE",
+        ),
+        (
+            FrameCamera {
+                distortion: Brown {
+                    k1: -0.1,
+                    ..Default::default()
+                },
+                ..base.clone()
+            },
+            "SIMPLE_RADIAL",
+        ),
+        (
+            FrameCamera {
+                distortion: Brown {
+                    k1: -0.1,
+                    k2: 0.02,
+                    ..Default::default()
+                },
+                ..base.clone()
+            },
+            "RADIAL",
+        ),
+        (
+            FrameCamera {
+                distortion: Brown {
+                    k1: -0.1,
+                    p1: 1e-4,
+                    ..Default::default()
+                },
+                ..base.clone()
+            },
+            "OPENCV",
+        ),
+        (
+            FrameCamera {
+                distortion: Brown {
+                    k1: -0.1,
+                    k2: 0.01,
+                    k3: 0.001,
+                    p1: 1e-4,
+                    p2: -2e-4,
+                },
+                ..base.clone()
+            },
+            "FULL_OPENCV",
+        ),
     ];
     let dir = tempfile::tempdir().unwrap();
     for (cam, name) in variants {
         block.cameras.get_mut(&1).unwrap().model = Camera::Frame(cam.clone());
-        colmap::write(dir.path(), &block, &WriteOptions { encoding: Encoding::Text, layout: Layout::Legacy }).unwrap();
+        colmap::write(
+            dir.path(),
+            &block,
+            &WriteOptions {
+                encoding: Encoding::Text,
+                layout: Layout::Legacy,
+            },
+        )
+        .unwrap();
         let text = std::fs::read_to_string(dir.path().join("cameras.txt")).unwrap();
         assert!(text.contains(&format!("1 {name} ")), "{text}");
         let back = colmap::read(dir.path()).unwrap();

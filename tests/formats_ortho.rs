@@ -4,7 +4,9 @@
 use cloudcontrol::block::{Block, BlockCamera, Photo};
 use cloudcontrol::formats::crs::Crs;
 use cloudcontrol::formats::ortho::{write_orthophoto, OrthoOptions, RgbImage};
-use cloudcontrol::geometry::{back_project, rotation_from_vector, Brown, Camera, Dem, FrameCamera, Pose, Ray};
+use cloudcontrol::geometry::{
+    back_project, rotation_from_vector, Brown, Camera, Dem, FrameCamera, Pose, Ray,
+};
 use gdal::{Dataset, Metadata};
 use nalgebra::{Matrix3, Vector3};
 use std::collections::BTreeMap;
@@ -34,14 +36,21 @@ fn terrain(x: f64, y: f64) -> f64 {
 }
 
 fn texture(x: f64, y: f64) -> [u8; 3] {
-    if MARKERS.iter().any(|m| (x - m.0).powi(2) + (y - m.1).powi(2) <= MARKER_RADIUS.powi(2)) {
+    if MARKERS
+        .iter()
+        .any(|m| (x - m.0).powi(2) + (y - m.1).powi(2) <= MARKER_RADIUS.powi(2))
+    {
         return [10, 10, 10];
     }
     if building(x, y) {
         return [250, 80, 80];
     }
     let v = 0.5 + 0.25 * (x / 3.1).sin() * (y / 2.3).cos() + 0.2 * ((x + y) / 11.0).sin();
-    [(90.0 + 120.0 * v) as u8, (110.0 + 100.0 * v) as u8, (80.0 + 90.0 * v) as u8]
+    [
+        (90.0 + 120.0 * v) as u8,
+        (110.0 + 100.0 * v) as u8,
+        (80.0 + 90.0 * v) as u8,
+    ]
 }
 
 fn scene() -> (Block, Dem, BTreeMap<u32, RgbImage>) {
@@ -50,30 +59,65 @@ fn scene() -> (Block, Dem, BTreeMap<u32, RgbImage>) {
     block.crs = Some("EPSG:32650".into());
     block.origin = [E0, N0, 0.0];
     let cam = FrameCamera {
-        distortion: Brown { k1: -0.04, k2: 0.01, ..Default::default() },
+        distortion: Brown {
+            k1: -0.04,
+            k2: 0.01,
+            ..Default::default()
+        },
         cx: 251.3,
         cy: 248.9,
         ..FrameCamera::pinhole(500, 500, 520.0)
     };
-    block.cameras.insert(1, BlockCamera { id: 1, name: "cam".into(), model: Camera::Frame(cam.clone()), free_params: vec![] });
+    block.cameras.insert(
+        1,
+        BlockCamera {
+            id: 1,
+            name: "cam".into(),
+            model: Camera::Frame(cam.clone()),
+            free_params: vec![],
+        },
+    );
     let nadir = Matrix3::from_diagonal(&Vector3::new(1.0, -1.0, -1.0));
-    let centres = [(-70.0, 0.0, 450.0, [0.01, -0.02, 0.03]), (70.0, 5.0, 455.0, [-0.015, 0.01, -0.02])];
+    let centres = [
+        (-70.0, 0.0, 450.0, [0.01, -0.02, 0.03]),
+        (70.0, 5.0, 455.0, [-0.015, 0.01, -0.02]),
+    ];
     let mut images = BTreeMap::new();
     for (i, (x, y, z, w)) in centres.iter().enumerate() {
         let id = i as u32 + 1;
-        let pose = Pose::new(rotation_from_vector(&Vector3::from(*w)) * nadir, Vector3::new(*x, *y, *z));
+        let pose = Pose::new(
+            rotation_from_vector(&Vector3::from(*w)) * nadir,
+            Vector3::new(*x, *y, *z),
+        );
         let camera = Camera::Frame(cam.clone());
         let mut data = Vec::with_capacity(500 * 500 * 3);
         for r in 0..500 {
             for c in 0..500 {
                 let ray = back_project(&camera, &pose, [c as f64 + 0.5, r as f64 + 0.5]).unwrap();
-                let world = Ray { origin: block.to_world(&ray.origin), direction: ray.direction };
-                let rgb = dem.intersect(&world).map(|p| texture(p.x, p.y)).unwrap_or([0, 0, 0]);
+                let world = Ray {
+                    origin: block.to_world(&ray.origin),
+                    direction: ray.direction,
+                };
+                let rgb = dem
+                    .intersect(&world)
+                    .map(|p| texture(p.x, p.y))
+                    .unwrap_or([0, 0, 0]);
                 data.extend_from_slice(&rgb);
             }
         }
         images.insert(id, RgbImage::new(500, 500, data).unwrap());
-        block.photos.insert(id, Photo { id, name: format!("p{id}.tif"), camera: 1, pose, oriented: true, prior: None, date: None });
+        block.photos.insert(
+            id,
+            Photo {
+                id,
+                name: format!("p{id}.tif"),
+                camera: 1,
+                pose,
+                oriented: true,
+                prior: None,
+                date: None,
+            },
+        );
     }
     (block, dem, images)
 }
@@ -87,7 +131,14 @@ fn find_marker(ds: &Dataset, near: (f64, f64), radius: f64) -> Option<(f64, f64,
     let c1 = (((near.0 + radius - gt[0]) / gt[1]).ceil() as usize).min(w);
     let r1 = (((near.1 - radius - gt[3]) / gt[5]).ceil() as usize).min(h);
     let (ww, hh) = (c1 - c0, r1 - r0);
-    let band = |b| ds.rasterband(b).unwrap().read_as::<u8>((c0 as isize, r0 as isize), (ww, hh), (ww, hh), None).unwrap().into_shape_and_vec().1;
+    let band = |b| {
+        ds.rasterband(b)
+            .unwrap()
+            .read_as::<u8>((c0 as isize, r0 as isize), (ww, hh), (ww, hh), None)
+            .unwrap()
+            .into_shape_and_vec()
+            .1
+    };
     let (red, alpha) = (band(1), band(4));
     let (mut sx, mut sy, mut n) = (0.0, 0.0, 0usize);
     for r in 0..hh {
@@ -118,14 +169,21 @@ fn orthophoto_places_markers_within_one_ground_pixel_and_handles_occlusion() {
     let out = dir.path().join("ortho.tif");
     let report = write_orthophoto(&out, &block, &dem, &images, &crs, &opts).unwrap();
     assert_eq!(report.per_photo.len(), 2);
-    assert!(report.occluded_fallbacks > 0, "the building hides ground from photo 2");
+    assert!(
+        report.occluded_fallbacks > 0,
+        "the building hides ground from photo 2"
+    );
     let ds = Dataset::open(&out).unwrap();
     let expected_area = std::f64::consts::PI * MARKER_RADIUS.powi(2) / (gsd * gsd);
     let mut worst: f64 = 0.0;
     for m in MARKERS {
-        let (x, y, n) = find_marker(&ds, m, 6.0).unwrap_or_else(|| panic!("marker {m:?} not found"));
+        let (x, y, n) =
+            find_marker(&ds, m, 6.0).unwrap_or_else(|| panic!("marker {m:?} not found"));
         let e = ((x - m.0).powi(2) + (y - m.1).powi(2)).sqrt() / gsd;
-        assert!((n as f64 - expected_area).abs() < 0.35 * expected_area, "marker {m:?}: {n} px vs {expected_area:.0}");
+        assert!(
+            (n as f64 - expected_area).abs() < 0.35 * expected_area,
+            "marker {m:?}: {n} px vs {expected_area:.0}"
+        );
         worst = worst.max(e);
     }
     eprintln!("worst marker error: {worst:.3} ground pixels");
@@ -133,21 +191,52 @@ fn orthophoto_places_markers_within_one_ground_pixel_and_handles_occlusion() {
 
     // Without the visibility test the hidden marker is painted with the building's wall/roof.
     let naive = dir.path().join("naive.tif");
-    write_orthophoto(&naive, &block, &dem, &images, &crs, &OrthoOptions { occlusion: false, ..opts.clone() }).unwrap();
+    write_orthophoto(
+        &naive,
+        &block,
+        &dem,
+        &images,
+        &crs,
+        &OrthoOptions {
+            occlusion: false,
+            ..opts.clone()
+        },
+    )
+    .unwrap();
     let ds2 = Dataset::open(&naive).unwrap();
     let hidden = MARKERS[5];
     let ok = find_marker(&ds2, hidden, 6.0)
-        .map(|(x, y, n)| ((x - hidden.0).powi(2) + (y - hidden.1).powi(2)).sqrt() / gsd < 1.0 && (n as f64) > 0.65 * expected_area)
+        .map(|(x, y, n)| {
+            ((x - hidden.0).powi(2) + (y - hidden.1).powi(2)).sqrt() / gsd < 1.0
+                && (n as f64) > 0.65 * expected_area
+        })
         .unwrap_or(false);
-    assert!(!ok, "without occlusion handling the hidden marker should be damaged");
+    assert!(
+        !ok,
+        "without occlusion handling the hidden marker should be damaged"
+    );
 
     // Relief displacement: rectified on a flat plane instead of the DEM, the hilltop marker moves.
     let flat = Dem::from_fn(E0 - 200.0, N0 + 200.0, 2.0, 200, 200, |_, _| 100.0).unwrap();
     let flat_out = dir.path().join("flat.tif");
-    write_orthophoto(&flat_out, &block, &flat, &images, &crs, &OrthoOptions { occlusion: false, ..opts.clone() }).unwrap();
+    write_orthophoto(
+        &flat_out,
+        &block,
+        &flat,
+        &images,
+        &crs,
+        &OrthoOptions {
+            occlusion: false,
+            ..opts.clone()
+        },
+    )
+    .unwrap();
     let (x, y, _) = find_marker(&Dataset::open(&flat_out).unwrap(), MARKERS[0], 12.0).unwrap();
     let shift = ((x - MARKERS[0].0).powi(2) + (y - MARKERS[0].1).powi(2)).sqrt() / gsd;
-    assert!(shift > 3.0, "flat-plane rectification should displace the hilltop marker (shift {shift} px)");
+    assert!(
+        shift > 3.0,
+        "flat-plane rectification should displace the hilltop marker (shift {shift} px)"
+    );
 
     // GeoTIFF metadata.
     let gt = ds.geo_transform().unwrap();
@@ -181,7 +270,19 @@ fn cloud_optimised_output_and_bad_input() {
 
     let mut wrong = images.clone();
     wrong.insert(1, RgbImage::new(10, 10, vec![0; 300]).unwrap());
-    let e = write_orthophoto(&dir.path().join("bad.tif"), &block, &dem, &wrong, &crs, &opts).unwrap_err().to_string();
-    assert!(e.contains("bad.tif") && e.contains("photo 1") && e.contains("10×10"), "{e}");
+    let e = write_orthophoto(
+        &dir.path().join("bad.tif"),
+        &block,
+        &dem,
+        &wrong,
+        &crs,
+        &opts,
+    )
+    .unwrap_err()
+    .to_string();
+    assert!(
+        e.contains("bad.tif") && e.contains("photo 1") && e.contains("10×10"),
+        "{e}"
+    );
     assert!(!dir.path().join("bad.tif").exists());
 }

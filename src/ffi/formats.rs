@@ -34,6 +34,9 @@ unsafe fn c_path(p: *const c_char, name: &str) -> FfiResult<PathBuf> {
 /// Converts a block: `input` and `output` are a COLMAP model folder or a BlocksExchange
 /// `.xml` (by extension). COLMAP output is binary unless `text` ≠ 0, in COLMAP 4's 5-file
 /// layout unless `legacy` ≠ 0.
+///
+/// # Safety
+/// Pointer arguments must be null or valid for the lengths given; strings NUL-terminated.
 #[no_mangle]
 pub unsafe extern "C" fn ccp_convert(
     input: *const c_char,
@@ -59,6 +62,9 @@ pub unsafe extern "C" fn ccp_convert(
 /// `images_dir` is the folder the photo names are relative to; `gsd` ≤ 0 picks the photos'
 /// median ground pixel; `cog` ≠ 0 writes a cloud-optimised GeoTIFF. On success
 /// `width_out`/`height_out` (either may be null) receive the raster size.
+///
+/// # Safety
+/// Pointer arguments must be null or valid for the lengths given; strings NUL-terminated.
 #[no_mangle]
 pub unsafe extern "C" fn ccp_orthophoto(
     block: *const c_char,
@@ -96,6 +102,9 @@ pub unsafe extern "C" fn ccp_orthophoto(
 
 /// Writes a DEM GeoTIFF (float32, tiled, nodata for NaN) from `width × height` row-major
 /// heights, a north-up GDAL geotransform `geotransform[6]` and a CRS (`EPSG:n` or WKT).
+///
+/// # Safety
+/// Pointer arguments must be null or valid for the lengths given; strings NUL-terminated.
 #[no_mangle]
 pub unsafe extern "C" fn ccp_dem_write(
     path: *const c_char,
@@ -135,6 +144,9 @@ pub unsafe extern "C" fn ccp_dem_write(
 /// and `geotransform_out[6]` are always filled; when `heights` is null or
 /// `heights_len < width·height` the call returns CCP_STATUS_BUFFER_TOO_SMALL, so call it
 /// once with `heights = NULL` to learn the size.
+///
+/// # Safety
+/// Pointer arguments must be null or valid for the lengths given; strings NUL-terminated.
 #[no_mangle]
 pub unsafe extern "C" fn ccp_dem_read(
     path: *const c_char,
@@ -172,6 +184,9 @@ pub unsafe extern "C" fn ccp_dem_read(
 
 /// Reads a block (COLMAP folder or BlocksExchange `.xml`) and reports its size in
 /// `counts_out[4]`: cameras, photos, points, observations.
+///
+/// # Safety
+/// Pointer arguments must be null or valid for the lengths given; strings NUL-terminated.
 #[no_mangle]
 pub unsafe extern "C" fn ccp_block_summary(path: *const c_char, counts_out: *mut u64) -> CcpStatus {
     guard(|| {

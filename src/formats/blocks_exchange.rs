@@ -70,15 +70,27 @@ struct XSrs {
 struct XBlock {
     #[serde(rename = "Name", default, skip_serializing_if = "Option::is_none")]
     name: Option<String>,
-    #[serde(rename = "Description", default, skip_serializing_if = "Option::is_none")]
+    #[serde(
+        rename = "Description",
+        default,
+        skip_serializing_if = "Option::is_none"
+    )]
     description: Option<String>,
     #[serde(rename = "Type", default, skip_serializing_if = "Option::is_none")]
     kind: Option<String>,
     #[serde(rename = "SRSId", default, skip_serializing_if = "Option::is_none")]
     srs_id: Option<i64>,
-    #[serde(rename = "Photogroups", default, skip_serializing_if = "Option::is_none")]
+    #[serde(
+        rename = "Photogroups",
+        default,
+        skip_serializing_if = "Option::is_none"
+    )]
     photogroups: Option<XPhotogroups>,
-    #[serde(rename = "BulkPhotos", default, skip_serializing_if = "Option::is_none")]
+    #[serde(
+        rename = "BulkPhotos",
+        default,
+        skip_serializing_if = "Option::is_none"
+    )]
     bulk_photos: Option<XBulkPhotos>,
     #[serde(
         rename = "ControlPoints",
@@ -126,11 +138,19 @@ struct XPhotogroup {
         skip_serializing_if = "Option::is_none"
     )]
     camera_model_type: Option<String>,
-    #[serde(rename = "SensorSize", default, skip_serializing_if = "Option::is_none")]
+    #[serde(
+        rename = "SensorSize",
+        default,
+        skip_serializing_if = "Option::is_none"
+    )]
     sensor_size: Option<f64>,
     #[serde(rename = "PixelSize", default, skip_serializing_if = "Option::is_none")]
     pixel_size: Option<f64>,
-    #[serde(rename = "FocalLength", default, skip_serializing_if = "Option::is_none")]
+    #[serde(
+        rename = "FocalLength",
+        default,
+        skip_serializing_if = "Option::is_none"
+    )]
     focal_length: Option<f64>,
     #[serde(
         rename = "FocalLengthPixels",
@@ -150,9 +170,17 @@ struct XPhotogroup {
         skip_serializing_if = "Option::is_none"
     )]
     principal_point: Option<XImagePoint>,
-    #[serde(rename = "Distortion", default, skip_serializing_if = "Option::is_none")]
+    #[serde(
+        rename = "Distortion",
+        default,
+        skip_serializing_if = "Option::is_none"
+    )]
     distortion: Option<XDistortion>,
-    #[serde(rename = "AspectRatio", default, skip_serializing_if = "Option::is_none")]
+    #[serde(
+        rename = "AspectRatio",
+        default,
+        skip_serializing_if = "Option::is_none"
+    )]
     aspect_ratio: Option<f64>,
     #[serde(rename = "Skew", default, skip_serializing_if = "Option::is_none")]
     skew: Option<f64>,
@@ -283,7 +311,11 @@ struct XControlPoint {
     category: Option<String>,
     #[serde(rename = "Position", default, skip_serializing_if = "Option::is_none")]
     position: Option<XXyz>,
-    #[serde(rename = "CheckPoint", default, skip_serializing_if = "Option::is_none")]
+    #[serde(
+        rename = "CheckPoint",
+        default,
+        skip_serializing_if = "Option::is_none"
+    )]
     check_point: Option<bool>,
     #[serde(
         rename = "HorizontalAccuracy",
@@ -461,9 +493,13 @@ pub fn read_str(text: &str, path: &Path) -> Result<Block> {
         let group = read_photogroup(pg, &what).map_err(err)?;
         let camera_id = (gi + 1) as u32;
         for (pi, xp) in pg.photos.iter().enumerate() {
-            let (photo, center) =
-                read_photo(xp, camera_id, &group.o, &format!("{what}, Photo #{}", pi + 1))
-                    .map_err(err)?;
+            let (photo, center) = read_photo(
+                xp,
+                camera_id,
+                &group.o,
+                &format!("{what}, Photo #{}", pi + 1),
+            )
+            .map_err(err)?;
             photos.push((photo, center));
         }
         block.cameras.insert(
@@ -537,7 +573,9 @@ pub fn read_str(text: &str, path: &Path) -> Result<Block> {
             }
         };
         if pixel.iter().any(|v| !v.is_finite()) {
-            return Err(err(format!("{what}: Measurement in PhotoId {pid} is not finite")));
+            return Err(err(format!(
+                "{what}: Measurement in PhotoId {pid} is not finite"
+            )));
         }
         Ok(Observation {
             photo: pid,
@@ -562,13 +600,13 @@ pub fn read_str(text: &str, path: &Path) -> Result<Block> {
                 "{what}: SRSId {id} differs from the block's, which has no SRS to convert to"
             )));
         };
-        if !transformers.contains_key(&id) {
+        if let std::collections::hash_map::Entry::Vacant(slot) = transformers.entry(id) {
             let t = Transformer::new(
                 &Crs::parse(&def).map_err(|e| err(format!("{what}: {e}")))?,
                 &Crs::parse(target).map_err(|e| err(format!("Block: {e}")))?,
             )
             .map_err(|e| err(format!("{what}: {e}")))?;
-            transformers.insert(id, t);
+            slot.insert(t);
         }
         let q = transformers[&id]
             .transform_point([p.x, p.y, p.z])
@@ -625,7 +663,11 @@ pub fn read_str(text: &str, path: &Path) -> Result<Block> {
             };
             let xyz = if category == "Full" {
                 to_block(xyz, cp.srs_id.or(cps.srs_id), &what)?
-            } else if cp.srs_id.or(cps.srs_id).is_some_and(|i| Some(i) != xb.srs_id) {
+            } else if cp
+                .srs_id
+                .or(cps.srs_id)
+                .is_some_and(|i| Some(i) != xb.srs_id)
+            {
                 return Err(err(format!(
                     "{what}: a {category} control point in another SRS cannot be converted \
                      without all three coordinates"
@@ -756,8 +798,8 @@ fn read_photogroup(pg: &XPhotogroup, what: &str) -> std::result::Result<Group, S
         }
         (None, None, _) => {
             return Err(format!(
-                "{what}: no focal length (FocalLengthPixels, or FocalLength with SensorSize/PixelSize)"
-            ))
+            "{what}: no focal length (FocalLengthPixels, or FocalLength with SensorSize/PixelSize)"
+        ))
         }
     };
     if !(f.is_finite() && f > 0.0) {
@@ -782,7 +824,11 @@ fn read_photogroup(pg: &XPhotogroup, what: &str) -> std::result::Result<Group, S
                 })?;
                 centre + o2 * Vector2::new(xmm, ymm) / ps
             }
-            _ => return Err(format!("{what}: PrincipalPoint has neither x/y nor xmm/ymm")),
+            _ => {
+                return Err(format!(
+                    "{what}: PrincipalPoint has neither x/y nor xmm/ymm"
+                ))
+            }
         },
     };
     let d = pg.distortion.as_ref();
@@ -830,7 +876,9 @@ fn read_photo(
     if let Some(pose) = &xp.pose {
         if let Some(r) = &pose.rotation {
             let m = match (
-                [r.m00, r.m01, r.m02, r.m10, r.m11, r.m12, r.m20, r.m21, r.m22],
+                [
+                    r.m00, r.m01, r.m02, r.m10, r.m11, r.m12, r.m20, r.m21, r.m22,
+                ],
                 (r.omega, r.phi, r.kappa),
             ) {
                 (
@@ -873,10 +921,7 @@ fn read_photo(
             id,
             name,
             camera,
-            pose: Pose::new(
-                rotation.unwrap_or_else(Matrix3::identity),
-                Vector3::zeros(),
-            ),
+            pose: Pose::new(rotation.unwrap_or_else(Matrix3::identity), Vector3::zeros()),
             oriented,
             prior: None,
             date: xp.exif.as_ref().and_then(|e| e.date_time_original.clone()),
@@ -1084,7 +1129,9 @@ fn serialize_root(root: &XRoot) -> std::result::Result<String, String> {
     let mut ser = quick_xml::se::Serializer::new(&mut body);
     ser.indent(' ', 2);
     root.serialize(ser).map_err(|e| e.to_string())?;
-    Ok(format!("<?xml version=\"1.0\" encoding=\"utf-8\"?>\n{body}\n"))
+    Ok(format!(
+        "<?xml version=\"1.0\" encoding=\"utf-8\"?>\n{body}\n"
+    ))
 }
 
 /// A BlocksExchange document at the XML level (the elements this module knows), for

@@ -167,7 +167,9 @@ fn camera_from_colmap(
         }
     };
     if fx <= 0.0 || fy <= 0.0 {
-        return Err(format!("focal length must be positive (fx = {fx}, fy = {fy})"));
+        return Err(format!(
+            "focal length must be positive (fx = {fx}, fy = {fy})"
+        ));
     }
     Ok(FrameCamera {
         width,
@@ -706,7 +708,9 @@ fn read_points_bin(path: &Path, sink: &mut PointSink) -> Result<()> {
         if len.saturating_mul(8) > b.len {
             return Err(FormatError::invalid(
                 path,
-                format!("point {id}: track length {len} cannot fit in the file (corrupt or truncated)"),
+                format!(
+                    "point {id}: track length {len} cannot fit in the file (corrupt or truncated)"
+                ),
             ));
         }
         track.clear();
@@ -849,19 +853,17 @@ fn text_lines(
 ) -> Result<impl Iterator<Item = Result<(usize, String)>>> {
     let r = open(path)?;
     let p = path.to_path_buf();
-    Ok(r.lines()
-        .enumerate()
-        .filter_map(move |(i, l)| match l {
-            Err(e) => Some(Err(FormatError::io(&p, e))),
-            Ok(l) => {
-                let t = l.trim_start();
-                if t.starts_with('#') || (!keep_empty && t.trim().is_empty()) {
-                    None
-                } else {
-                    Some(Ok((i + 1, l)))
-                }
+    Ok(r.lines().enumerate().filter_map(move |(i, l)| match l {
+        Err(e) => Some(Err(FormatError::io(&p, e))),
+        Ok(l) => {
+            let t = l.trim_start();
+            if t.starts_with('#') || (!keep_empty && t.trim().is_empty()) {
+                None
+            } else {
+                Some(Ok((i + 1, l)))
             }
-        }))
+        }
+    }))
 }
 
 fn read_cameras_txt(path: &Path) -> Result<BTreeMap<CameraId, FrameCamera>> {
@@ -886,8 +888,8 @@ fn read_cameras_txt(path: &Path) -> Result<BTreeMap<CameraId, FrameCamera>> {
             *v = t.parse("PARAMS")?;
         }
         t.rest_is_empty()?;
-        let cam = camera_from_colmap(model, w, h, &p)
-            .map_err(|m| t.err(format!("camera {id}: {m}")))?;
+        let cam =
+            camera_from_colmap(model, w, h, &p).map_err(|m| t.err(format!("camera {id}: {m}")))?;
         if out.insert(id, cam).is_some() {
             return Err(t.err(format!("camera id {id} appears twice")));
         }
@@ -910,8 +912,7 @@ fn read_images_txt(path: &Path) -> Result<Vec<Image>> {
         let camera: u32 = t.parse("CAMERA_ID")?;
         let name = t.next_str("NAME")?.to_string();
         t.rest_is_empty()?;
-        let pose = pose_from_qt(q, tr)
-            .map_err(|m| t.err(format!("image {id} ({name}): {m}")))?;
+        let pose = pose_from_qt(q, tr).map_err(|m| t.err(format!("image {id} ({name}): {m}")))?;
         let mut points2d = Vec::new();
         match lines.next() {
             None => {
@@ -1087,11 +1088,7 @@ fn colmap_cameras(block: &Block) -> Result<BTreeMap<CameraId, FrameCamera>> {
 }
 
 /// Mean reprojection error of a point over its observations (COLMAP's ERROR column).
-fn mean_error(
-    p: &ObjectPoint,
-    block: &Block,
-    models: &BTreeMap<CameraId, Camera>,
-) -> f64 {
+fn mean_error(p: &ObjectPoint, block: &Block, models: &BTreeMap<CameraId, Camera>) -> f64 {
     let mut sum = 0.0;
     let mut n = 0usize;
     for o in &p.observations {
@@ -1162,11 +1159,14 @@ pub fn write(dir: &Path, block: &Block, opts: &WriteOptions) -> Result<()> {
     }
     macro_rules! b {
         ($path:expr, $w:expr, $v:expr) => {
-            $w.write_all(&$v.to_le_bytes()).map_err(|e| FormatError::io($path, e))?
+            $w.write_all(&$v.to_le_bytes())
+                .map_err(|e| FormatError::io($path, e))?
         };
     }
     let finish = |path: &Path, w: BufWriter<File>| -> Result<()> {
-        let f = w.into_inner().map_err(|e| FormatError::io(path, e.into_error()))?;
+        let f = w
+            .into_inner()
+            .map_err(|e| FormatError::io(path, e.into_error()))?;
         f.sync_all().map_err(|e| FormatError::io(path, e))
     };
 
@@ -1213,7 +1213,20 @@ pub fn write(dir: &Path, block: &Block, opts: &WriteOptions) -> Result<()> {
             let (q, t) = qt_from_pose(&ph.pose);
             let pts = &l2d.per_photo[id];
             if text {
-                w!(&path, w, "{id} {} {} {} {} {} {} {} {} {}\n", q[0], q[1], q[2], q[3], t[0], t[1], t[2], ph.camera, ph.name);
+                w!(
+                    &path,
+                    w,
+                    "{id} {} {} {} {} {} {} {} {} {}\n",
+                    q[0],
+                    q[1],
+                    q[2],
+                    q[3],
+                    t[0],
+                    t[1],
+                    t[2],
+                    ph.camera,
+                    ph.name
+                );
                 for (k, (xy, pid)) in pts.iter().enumerate() {
                     let sep = if k == 0 { "" } else { " " };
                     if *pid == INVALID_POINT3D {
@@ -1252,7 +1265,9 @@ pub fn write(dir: &Path, block: &Block, opts: &WriteOptions) -> Result<()> {
     let all: Vec<&ObjectPoint> = block.points.values().collect();
     let errors: Vec<f64> = {
         use rayon::prelude::*;
-        all.par_iter().map(|p| mean_error(p, block, &models)).collect()
+        all.par_iter()
+            .map(|p| mean_error(p, block, &models))
+            .collect()
     };
     write_atomically(&path, |tmp| {
         let mut w = writer(tmp)?;
@@ -1266,7 +1281,17 @@ pub fn write(dir: &Path, block: &Block, opts: &WriteOptions) -> Result<()> {
         for (p, err) in all.iter().zip(&errors) {
             let (id, x) = (p.id, &p.position);
             if text {
-                w!(&path, w, "{id} {} {} {} {} {} {} {err}", x.x, x.y, x.z, p.color[0], p.color[1], p.color[2]);
+                w!(
+                    &path,
+                    w,
+                    "{id} {} {} {} {} {} {} {err}",
+                    x.x,
+                    x.y,
+                    x.z,
+                    p.color[0],
+                    p.color[1],
+                    p.color[2]
+                );
                 for o in &p.observations {
                     w!(&path, w, " {} {}", o.photo, l2d.idx[k]);
                     k += 1;
@@ -1343,7 +1368,20 @@ pub fn write(dir: &Path, block: &Block, opts: &WriteOptions) -> Result<()> {
             for (id, ph) in &block.photos {
                 let (q, t) = qt_from_pose(&ph.pose);
                 if text {
-                    w!(&path, w, "{id} {} {} {} {} {} {} {} {} 1 CAMERA {} {id}\n", ph.camera, q[0], q[1], q[2], q[3], t[0], t[1], t[2], ph.camera);
+                    w!(
+                        &path,
+                        w,
+                        "{id} {} {} {} {} {} {} {} {} 1 CAMERA {} {id}\n",
+                        ph.camera,
+                        q[0],
+                        q[1],
+                        q[2],
+                        q[3],
+                        t[0],
+                        t[1],
+                        t[2],
+                        ph.camera
+                    );
                 } else {
                     b!(&path, w, *id);
                     b!(&path, w, ph.camera);

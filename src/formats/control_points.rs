@@ -47,10 +47,16 @@ fn rows(path: &Path, header: &[&str], optional: &[&str]) -> Result<Vec<(usize, V
     let (hno, h) = lines
         .next()
         .ok_or_else(|| FormatError::invalid(path, "empty file: no header line"))?;
-    let cols: Vec<String> = h.split(',').map(|s| s.trim().to_ascii_lowercase()).collect();
+    let cols: Vec<String> = h
+        .split(',')
+        .map(|s| s.trim().to_ascii_lowercase())
+        .collect();
     let ok = cols.len() >= header.len()
         && cols.len() <= header.len() + optional.len()
-        && cols.iter().zip(header.iter().chain(optional)).all(|(a, b)| a == b);
+        && cols
+            .iter()
+            .zip(header.iter().chain(optional))
+            .all(|(a, b)| a == b);
     if !ok {
         return Err(FormatError::invalid(
             path,
@@ -94,7 +100,10 @@ fn number(path: &Path, line: usize, field: &str, s: &str) -> Result<f64> {
         .ok()
         .filter(|v| v.is_finite())
         .ok_or_else(|| {
-            FormatError::invalid(path, format!("line {line}: {field} {s:?} is not a finite number"))
+            FormatError::invalid(
+                path,
+                format!("line {line}: {field} {s:?} is not a finite number"),
+            )
         })
 }
 
@@ -102,10 +111,17 @@ fn number(path: &Path, line: usize, field: &str, s: &str) -> Result<f64> {
 pub fn read_points(path: &Path) -> Result<Vec<SurveyedPoint>> {
     let mut seen = HashMap::new();
     let mut out = Vec::new();
-    for (line, f) in rows(path, &["id", "x", "y", "z", "sigma_xy", "sigma_z"], &["kind"])? {
+    for (line, f) in rows(
+        path,
+        &["id", "x", "y", "z", "sigma_xy", "sigma_z"],
+        &["kind"],
+    )? {
         let id = f[0].clone();
         if id.is_empty() {
-            return Err(FormatError::invalid(path, format!("line {line}: id is empty")));
+            return Err(FormatError::invalid(
+                path,
+                format!("line {line}: id is empty"),
+            ));
         }
         if let Some(prev) = seen.insert(id.clone(), line) {
             return Err(FormatError::invalid(
@@ -114,7 +130,14 @@ pub fn read_points(path: &Path) -> Result<Vec<SurveyedPoint>> {
             ));
         }
         let v: Vec<f64> = (1..6)
-            .map(|i| number(path, line, ["x", "y", "z", "sigma_xy", "sigma_z"][i - 1], &f[i]))
+            .map(|i| {
+                number(
+                    path,
+                    line,
+                    ["x", "y", "z", "sigma_xy", "sigma_z"][i - 1],
+                    &f[i],
+                )
+            })
             .collect::<Result<_>>()?;
         if v[3] <= 0.0 || v[4] <= 0.0 {
             return Err(FormatError::invalid(
@@ -173,7 +196,11 @@ pub fn read_measurements(path: &Path) -> Result<Vec<Measurement>> {
 
 /// Converts surveyed points from `source` to the block's CRS and adds them to the block
 /// (a point whose name already exists is updated). Returns their ids in input order.
-pub fn add_points(block: &mut Block, points: &[SurveyedPoint], source: &Crs) -> Result<Vec<PointId>> {
+pub fn add_points(
+    block: &mut Block,
+    points: &[SurveyedPoint],
+    source: &Crs,
+) -> Result<Vec<PointId>> {
     let target_def = block.crs.clone().ok_or_else(|| FormatError::Crs {
         crs: "(none)".into(),
         message: "the block has no CRS to convert control points to; set a projected CRS first"
@@ -236,7 +263,11 @@ pub fn add_points(block: &mut Block, points: &[SurveyedPoint], source: &Crs) -> 
 
 /// Attaches image measurements to the block's named points; names the unknown point or
 /// image when one is missing. `path` names the measurement file in errors.
-pub fn add_measurements(block: &mut Block, measurements: &[Measurement], path: &Path) -> Result<()> {
+pub fn add_measurements(
+    block: &mut Block,
+    measurements: &[Measurement],
+    path: &Path,
+) -> Result<()> {
     let photos: HashMap<&str, u32> = block
         .photos
         .values()
@@ -253,7 +284,10 @@ pub fn add_measurements(block: &mut Block, measurements: &[Measurement], path: &
         let photo = *photos.get(m.image_name.as_str()).ok_or_else(|| {
             FormatError::invalid(
                 path,
-                format!("point {}: image {:?} is not in the block", m.id, m.image_name),
+                format!(
+                    "point {}: image {:?} is not in the block",
+                    m.id, m.image_name
+                ),
             )
         })?;
         let point = *points.get(&m.id).ok_or_else(|| {
@@ -286,9 +320,20 @@ pub fn write_points(path: &Path, block: &Block) -> Result<()> {
         }
         let w = block.to_world(&p.position);
         let sg = p.sigma.unwrap_or([0.01; 3]);
-        let kind = if p.kind == PointKind::Check { "check" } else { "control" };
-        let name = if p.name.is_empty() { p.id.to_string() } else { p.name.clone() };
-        s.push_str(&format!("{name},{},{},{},{},{},{kind}\n", w.x, w.y, w.z, sg[0], sg[2]));
+        let kind = if p.kind == PointKind::Check {
+            "check"
+        } else {
+            "control"
+        };
+        let name = if p.name.is_empty() {
+            p.id.to_string()
+        } else {
+            p.name.clone()
+        };
+        s.push_str(&format!(
+            "{name},{},{},{},{},{},{kind}\n",
+            w.x, w.y, w.z, sg[0], sg[2]
+        ));
     }
     write_bytes_atomically(path, s.as_bytes())
 }

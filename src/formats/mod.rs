@@ -93,7 +93,9 @@ pub fn write_bytes_atomically(path: &Path, bytes: &[u8]) -> Result<()> {
 /// cameras (COLMAP, BlocksExchange in pixels). A film camera converts exactly when its
 /// scan interior orientation is a pure scale with y up (axis-aligned scan, no shear);
 /// any other scan needs resampling first, which is refused here rather than approximated.
-pub fn frame_equivalent(camera: &crate::geometry::Camera) -> std::result::Result<crate::geometry::FrameCamera, String> {
+pub fn frame_equivalent(
+    camera: &crate::geometry::Camera,
+) -> std::result::Result<crate::geometry::FrameCamera, String> {
     use crate::geometry::{Camera, FrameCamera};
     match camera {
         Camera::Frame(f) => Ok(f.clone()),

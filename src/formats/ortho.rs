@@ -134,6 +134,10 @@ pub struct OrthoReport {
 /// No-data value of the colour bands; valid pixels are lifted to at least 1.
 pub const ORTHO_NODATA: u8 = 0;
 
+/// One rendered cell: colour and the index of the view it came from (None: no photo
+/// sees it), and whether a nearer photo was skipped because the cell is hidden in it.
+type Cell = (Option<([u8; 3], usize)>, bool);
+
 struct View<'a> {
     id: PhotoId,
     camera: &'a Camera,
@@ -205,7 +209,10 @@ pub fn write_orthophoto(
             .cameras
             .get(&p.camera)
             .ok_or_else(|| {
-                FormatError::invalid(path, format!("photo {} has unknown camera {}", p.id, p.camera))
+                FormatError::invalid(
+                    path,
+                    format!("photo {} has unknown camera {}", p.id, p.camera),
+                )
             })?
             .model;
         let (w, h) = cam.image_size();
@@ -239,7 +246,10 @@ pub fn write_orthophoto(
         })?,
     };
     if !(gsd.is_finite() && gsd > 0.0) {
-        return Err(FormatError::invalid(path, format!("ground sampling distance {gsd} is not positive")));
+        return Err(FormatError::invalid(
+            path,
+            format!("ground sampling distance {gsd} is not positive"),
+        ));
     }
     let (x0, y0, x1, y1) = opts.extent.unwrap_or_else(|| dem.extent());
     // Snap the grid to multiples of the GSD so adjacent products align.
@@ -253,9 +263,13 @@ pub fn write_orthophoto(
         ));
     }
     let gt = GeoTransform::north_up(x0, y1, gsd);
-    let tile = if opts.tile >= 16 && opts.tile % 16 == 0 { opts.tile } else { 256 };
+    let tile = if opts.tile >= 16 && opts.tile % 16 == 0 {
+        opts.tile
+    } else {
+        256
+    };
 
-    let render_cell = |col: usize, row: usize| -> (Option<([u8; 3], usize)>, bool) {
+    let render_cell = |col: usize, row: usize| -> Cell {
         let (x, y) = gt.pixel_to_world(col as f64 + 0.5, row as f64 + 0.5);
         let Some(z) = dem.height_at(x, y) else {
             return (None, false);
@@ -327,7 +341,7 @@ pub fn write_orthophoto(
             let mut per_photo: BTreeMap<PhotoId, usize> = BTreeMap::new();
             for r0 in (0..height).step_by(tile) {
                 let rows = tile.min(height - r0);
-                let cells: Vec<(Option<([u8; 3], usize)>, bool)> = (0..rows * width)
+                let cells: Vec<Cell> = (0..rows * width)
                     .into_par_iter()
                     .map(|k| render_cell(k % width, r0 + k / width))
                     .collect();

@@ -41,7 +41,10 @@ pub fn run(a: Args, json: bool, quiet: bool) -> ExitCode {
         let parent = if a.block.is_dir() {
             a.block.clone()
         } else {
-            a.block.parent().map(|p| p.to_path_buf()).unwrap_or_default()
+            a.block
+                .parent()
+                .map(|p| p.to_path_buf())
+                .unwrap_or_default()
         };
         parent
     });
@@ -65,7 +68,10 @@ pub fn run(a: Args, json: bool, quiet: bool) -> ExitCode {
     match result {
         Ok(r) => {
             if json {
-                println!("{}", serde_json::to_string_pretty(&r).expect("report serialises"));
+                println!(
+                    "{}",
+                    serde_json::to_string_pretty(&r).expect("report serialises")
+                );
             } else if !quiet {
                 println!(
                     "{}: {}×{} px at {:.3} m, {} cells filled, {} taken from a farther photo because of occlusion",
