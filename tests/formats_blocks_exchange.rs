@@ -234,6 +234,23 @@ fn colmap_to_blocks_exchange_and_back_reproduces_projections() {
 }
 
 #[test]
+fn control_point_categories_survive_a_trip_through_colmap() {
+    let b = bx::read(&synthetic()).unwrap();
+    let dir = tempfile::tempdir().unwrap();
+    colmap::write(dir.path(), &b, &colmap::WriteOptions::default()).unwrap();
+    let c = colmap::read(dir.path()).unwrap();
+    assert_eq!(c.crs, b.crs);
+    assert_eq!(c.origin, b.origin);
+    for (k, p) in &b.points {
+        assert_eq!(
+            (&p.name, p.kind, p.sigma),
+            (&c.points[k].name, c.points[k].kind, c.points[k].sigma)
+        );
+    }
+    assert!(max_residual(&c) < 2e-3);
+}
+
+#[test]
 fn bad_input_names_file_and_element() {
     let dir = tempfile::tempdir().unwrap();
     let text = std::fs::read_to_string(synthetic()).unwrap();

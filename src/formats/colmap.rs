@@ -232,7 +232,9 @@ struct SidePoint {
     id: PointId,
     name: String,
     kind: PointKind,
-    sigma: Option<[f64; 3]>,
+    /// σ x, y, z (m); `null` for an unconstrained coordinate (σ = ∞, e.g. the height of a
+    /// horizontal control point), which JSON cannot write as a number.
+    sigma: Option<[Option<f64>; 3]>,
 }
 
 #[derive(Debug, Clone, Serialize, Deserialize)]
@@ -492,7 +494,7 @@ pub fn read(dir: &Path) -> Result<Block> {
             })?;
             p.name = sp.name;
             p.kind = sp.kind;
-            p.sigma = sp.sigma;
+            p.sigma = sp.sigma.map(|s| s.map(|v| v.unwrap_or(f64::INFINITY)));
         }
         for ph in sf.photos {
             if let Some(p) = block.photos.get_mut(&ph.id) {
@@ -1409,7 +1411,7 @@ pub fn write(dir: &Path, block: &Block, opts: &WriteOptions) -> Result<()> {
                 id: p.id,
                 name: p.name.clone(),
                 kind: p.kind,
-                sigma: p.sigma,
+                sigma: p.sigma.map(|s| s.map(|v| v.is_finite().then_some(v))),
             })
             .collect(),
         photos: block
