@@ -109,6 +109,10 @@ pub struct Block {
     pub cameras: BTreeMap<CameraId, BlockCamera>,
     pub photos: BTreeMap<PhotoId, Photo>,
     pub points: BTreeMap<PointId, ObjectPoint>,
+    /// Image points not (yet) linked to an object point, per photo (pixels): detected
+    /// keypoints that formats such as COLMAP carry alongside the tracks.
+    #[serde(default)]
+    pub keypoints: BTreeMap<PhotoId, Vec<[f64; 2]>>,
 }
 
 /// Errors of block consistency checks.

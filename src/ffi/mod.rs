@@ -12,10 +12,12 @@
 
 mod camera;
 mod control;
+mod formats;
+mod synth;
 
 pub use camera::*;
 pub use control::*;
-mod synth;
+pub use formats::*;
 pub use synth::*;
 
 use std::cell::RefCell;

@@ -1,7 +1,12 @@
 //! Format adapters: coordinate reference systems (GDAL/PROJ), GeoTIFF rasters, and the
 //! photogrammetric exchange formats. Readers and writers only; no photogrammetry here.
 
+pub mod blocks_exchange;
+pub mod colmap;
+pub mod control_points;
+pub mod convert;
 pub mod crs;
+pub mod ortho;
 pub mod pos;
 pub mod raster;
 
@@ -93,4 +98,46 @@ pub fn write_bytes_atomically(path: &Path, bytes: &[u8]) -> Result<()> {
     write_atomically(path, |tmp| {
         std::fs::write(tmp, bytes).map_err(|e| FormatError::io(path, e))
     })
+}
+
+/// The pixel-unit frame camera equivalent to a camera, for formats that only know frame
+/// cameras (COLMAP, BlocksExchange in pixels). A film camera converts exactly when its
+/// scan interior orientation is a pure scale with y up (axis-aligned scan, no shear);
+/// any other scan needs resampling first, which is refused here rather than approximated.
+pub fn frame_equivalent(
+    camera: &crate::geometry::Camera,
+) -> std::result::Result<crate::geometry::FrameCamera, String> {
+    use crate::geometry::{Camera, FrameCamera};
+    match camera {
+        Camera::Frame(f) => Ok(f.clone()),
+        Camera::Film(c) => {
+            let a = &c.interior.pixel_to_mm;
+            let scale = a[(0, 0)].abs().max(a[(1, 1)].abs());
+            let tol = 1e-12 * scale;
+            if a[(0, 1)].abs() > tol
+                || a[(1, 0)].abs() > tol
+                || a[(2, 0)] != 0.0
+                || a[(2, 1)] != 0.0
+                || a[(2, 2)] != 1.0
+                || a[(0, 0)] <= 0.0
+                || a[(1, 1)] >= 0.0
+            {
+                return Err(
+                    "film camera whose scan interior orientation is not an axis-aligned scale \
+                     (x right, y up) has no exact frame-camera equivalent; resample the scan first"
+                        .into(),
+                );
+            }
+            let (sx, sy) = (a[(0, 0)], -a[(1, 1)]);
+            Ok(FrameCamera {
+                width: c.width,
+                height: c.height,
+                fx: c.focal_mm / sx,
+                fy: c.focal_mm / sy,
+                cx: (c.principal_point_mm[0] - a[(0, 2)]) / sx,
+                cy: (a[(1, 2)] - c.principal_point_mm[1]) / sy,
+                distortion: c.distortion,
+            })
+        }
+    }
 }

@@ -1,7 +1,9 @@
 //! The `cloudcontrol` command line: argument parsing, progress and output only; the work
 //! is done by the library.
 
+mod convert;
 mod dcp;
+mod ortho;
 mod synth;
 
 use clap::{Parser, Subcommand};
@@ -47,6 +49,8 @@ enum Command {
     Synth(synth::SynthArgs),
     /// Print the library version.
     Version,
+    Convert(convert::Args),
+    Ortho(ortho::Args),
 }
 
 fn init_logging(quiet: bool, verbose: u8) {
@@ -72,6 +76,8 @@ fn main() -> ExitCode {
     let cli = Cli::parse();
     init_logging(cli.quiet, cli.verbose);
     match cli.command {
+        Command::Convert(a) => convert::run(a, cli.json, cli.quiet),
+        Command::Ortho(a) => ortho::run(a, cli.json, cli.quiet),
         Command::Version => {
             println!("cloudcontrol {}", cloudcontrol::VERSION);
             ExitCode::SUCCESS
