@@ -809,6 +809,12 @@ fn finish(
                     if h == g || !d.is_finite() || d <= 0.0 {
                         continue;
                     }
+                    // fx and fy are one physical focal length for square pixels: their
+                    // mutual correlation says nothing about the block geometry.
+                    let pair = st.free[*b].get(h.wrapping_sub(st.offset[*b])).copied();
+                    if matches!((k, pair), (0, Some(1)) | (1, Some(0))) {
+                        continue;
+                    }
                     let rho = (qh / (qkk * d).sqrt()).abs();
                     if rho > best.0 {
                         best = (rho, name_of(h));
@@ -816,11 +822,8 @@ fn finish(
                 }
                 // Multiple correlation with all other camera-side unknowns.
                 let multiple = (1.0 - 1.0 / (qkk * sdiag[g])).max(0.0).sqrt();
-                let (corr, with) = if multiple > best.0 {
-                    (multiple, "all exterior/interior unknowns jointly".to_string())
-                } else {
-                    best
-                };
+                tracing::debug!(multiple, pairwise = best.0, "self-calibration correlation");
+                let (corr, with) = best;
                 let determinable = corr < opts.max_correlation;
                 if !determinable {
                     tracing::warn!(
