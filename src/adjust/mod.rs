@@ -98,7 +98,7 @@ impl Default for AdjustOptions {
             rejection: Rejection::Threshold(3.0),
             max_rounds: 10,
             max_iterations: 50,
-            function_tolerance: 1e-9,
+            function_tolerance: 1e-6,
             parameter_tolerance: 1e-10,
             max_correlation: 0.98,
             covariance: true,

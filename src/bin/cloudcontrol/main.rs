@@ -1,6 +1,8 @@
 //! The `cloudcontrol` command line: argument parsing, progress and output only; the work
 //! is done by the library.
 
+mod adjust;
+
 use clap::{Parser, Subcommand};
 use std::path::PathBuf;
 use std::process::ExitCode;
@@ -37,6 +39,10 @@ enum Command {
     },
     /// Print the library version.
     Version,
+    /// Robust bundle adjustment of a COLMAP model with control, check points and LiDAR planes.
+    Adjust(adjust::AdjustArgs),
+    /// Single-photo resection from control points.
+    Resect(adjust::ResectArgs),
 }
 
 fn init_logging(quiet: bool, verbose: u8) {
@@ -66,6 +72,8 @@ fn main() -> ExitCode {
             println!("cloudcontrol {}", cloudcontrol::VERSION);
             ExitCode::SUCCESS
         }
+        Command::Adjust(a) => print_result("adjust", adjust::run_adjust(&a), cli.quiet),
+        Command::Resect(a) => print_result("resect", adjust::run_resect(&a), cli.quiet),
         Command::Demo { out } => match cloudcontrol::pipeline::demo::run(&out) {
             Ok(s) => {
                 if cli.json {
@@ -102,5 +110,25 @@ fn main() -> ExitCode {
                 ExitCode::from(1)
             }
         },
+    }
+}
+
+fn print_result(what: &str, r: Result<serde_json::Value, String>, quiet: bool) -> ExitCode {
+    match r {
+        Ok(v) => {
+            if !quiet {
+                let mut v = v;
+                if let Some(o) = v.as_object_mut() {
+                    o.remove("residuals");
+                    o.remove("photo_precision");
+                }
+                println!("{}", serde_json::to_string_pretty(&v).expect("json"));
+            }
+            ExitCode::SUCCESS
+        }
+        Err(e) => {
+            eprintln!("cloudcontrol {what}: {e}");
+            ExitCode::from(1)
+        }
     }
 }
