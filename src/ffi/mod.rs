@@ -3,8 +3,10 @@
 //! validates its arguments, calls the library and maps errors to a status. No panic
 //! crosses the boundary (each entry point runs under `catch_unwind`).
 
+mod adjust;
 mod camera;
 
+pub use adjust::*;
 pub use camera::*;
 
 use std::cell::RefCell;
