@@ -1,10 +1,7 @@
 //! Bundle adjustment on synthetic aerial blocks with known truth.
 
-use cloudcontrol::adjust::synthetic::{generate, terrain, terrain_normal, SyntheticOptions};
-use cloudcontrol::adjust::{
-    adjust, AdjustError, AdjustOptions, Loss, ObservationRef, PlaneConstraint, PlaneRefitter,
-    Rejection,
-};
+use cloudcontrol::adjust::synthetic::{generate, SyntheticOptions};
+use cloudcontrol::adjust::{adjust, AdjustOptions, Loss, ObservationRef, Rejection};
 use cloudcontrol::block::{Block, PointId, PointKind};
 use nalgebra::Vector3;
 use rand::{Rng, SeedableRng};
@@ -57,7 +54,10 @@ fn recovers_the_truth_and_sigma0_on_a_100_photo_block() {
     }
     let ratio = (chi / n).sqrt();
     eprintln!("RMS of centre error / σ: {ratio:.3}");
-    assert!(ratio > 0.5 && ratio < 2.0, "errors are not at the noise level: {ratio}");
+    assert!(
+        ratio > 0.5 && ratio < 2.0,
+        "errors are not at the noise level: {ratio}"
+    );
     assert!(ce < 0.5, "centre RMS {ce} m");
     assert!(re < 5e-4, "rotation RMS {re} rad");
     // Few false rejections without gross errors.
@@ -99,12 +99,23 @@ fn robust_path_finds_gross_errors_in_image_and_control_points() {
                 let m: f64 = rng.gen_range(5.0..30.0);
                 ob.pixel[0] += m * a.cos();
                 ob.pixel[1] += m * a.sin();
-                bad.insert(format!("{:?}", ObservationRef::Image { point: pt.id, photo: ob.photo }));
+                bad.insert(format!(
+                    "{:?}",
+                    ObservationRef::Image {
+                        point: pt.id,
+                        photo: ob.photo
+                    }
+                ));
             }
         }
     }
     // 30 % of the control points get 1–5 m errors in their surveyed coordinates.
-    let ctrl: Vec<PointId> = b.points.values().filter(|p| p.kind == PointKind::Control).map(|p| p.id).collect();
+    let ctrl: Vec<PointId> = b
+        .points
+        .values()
+        .filter(|p| p.kind == PointKind::Control)
+        .map(|p| p.id)
+        .collect();
     for (k, id) in ctrl.iter().enumerate() {
         if k % 10 < 3 {
             let p = b.points.get_mut(id).unwrap();
@@ -120,7 +131,12 @@ fn robust_path_finds_gross_errors_in_image_and_control_points() {
         ..Default::default()
     };
     let rep = adjust(&mut b, &[], None, &opts).unwrap();
-    let found: BTreeSet<String> = rep.rejected.list.iter().map(|r| format!("{:?}", r.observation)).collect();
+    let found: BTreeSet<String> = rep
+        .rejected
+        .list
+        .iter()
+        .map(|r| format!("{:?}", r.observation))
+        .collect();
     let hits = found.intersection(&bad).count();
     let false_rej = found.len() - hits;
     let n_good = n_image + ctrl.len() - bad.len();
@@ -130,7 +146,18 @@ fn robust_path_finds_gross_errors_in_image_and_control_points() {
         bad.len(), hits, 100.0 * hits as f64 / bad.len() as f64, false_rej,
         100.0 * false_rej as f64 / n_good as f64, rep.sigma0, ce, re, rep.rounds, rep.time_s
     );
-    let bad_points: BTreeSet<String> = bad.iter().filter_map(|b| b.split("point: ").nth(1).map(|x| x.split(',').next().unwrap().trim_end_matches(" }").to_string())).collect();
+    let bad_points: BTreeSet<String> = bad
+        .iter()
+        .filter_map(|b| {
+            b.split("point: ").nth(1).map(|x| {
+                x.split(',')
+                    .next()
+                    .unwrap()
+                    .trim_end_matches(" }")
+                    .to_string()
+            })
+        })
+        .collect();
     let mut same_point = 0;
     let mut rounds = std::collections::BTreeMap::new();
     for r in &rep.rejected.list {
@@ -138,12 +165,21 @@ fn robust_path_finds_gross_errors_in_image_and_control_points() {
         if !bad.contains(&key) {
             *rounds.entry(r.round).or_insert(0) += 1;
             if let ObservationRef::Image { point, .. } = r.observation {
-                if bad_points.contains(&point.to_string()) { same_point += 1; }
+                if bad_points.contains(&point.to_string()) {
+                    same_point += 1;
+                }
             }
         }
     }
-    eprintln!("false rejections sharing a point with a gross error: {same_point}; per round {rounds:?}");
-    let ctrl_hits = rep.rejected.list.iter().filter(|r| matches!(r.observation, ObservationRef::ControlPrior { .. })).count();
+    eprintln!(
+        "false rejections sharing a point with a gross error: {same_point}; per round {rounds:?}"
+    );
+    let ctrl_hits = rep
+        .rejected
+        .list
+        .iter()
+        .filter(|r| matches!(r.observation, ObservationRef::ControlPrior { .. }))
+        .count();
     eprintln!("control priors rejected: {ctrl_hits}");
     assert!(hits as f64 >= 0.95 * bad.len() as f64);
     assert!((false_rej as f64) < 0.01 * n_good as f64);

@@ -12,7 +12,11 @@ fn calib_block(relief: f64) -> (cloudcontrol::adjust::synthetic::SyntheticBlock,
         photos_per_strip: 15,
         tie_points: 12_000,
         relief_m: relief,
-        distortion: Brown { k1: -0.05, k2: 0.01, ..Default::default() },
+        distortion: Brown {
+            k1: -0.05,
+            k2: 0.01,
+            ..Default::default()
+        },
         control_grid: (4, 3),
         check_points: 0,
         seed: 5,
@@ -32,17 +36,28 @@ fn run_selfcal(relief: f64) -> (f64, f64, Vec<cloudcontrol::adjust::CalibrationR
     p[4] = 0.0;
     p[5] = 0.0;
     cam.model.set_params(&p).unwrap();
-    cam.free_params = ["fx", "fy", "cx", "cy", "k1", "k2"].iter().map(|s| s.to_string()).collect();
+    cam.free_params = ["fx", "fy", "cx", "cy", "k1", "k2"]
+        .iter()
+        .map(|s| s.to_string())
+        .collect();
     let rep = adjust(&mut b, &[], None, &AdjustOptions::default()).unwrap();
-    let Camera::Frame(c) = &b.cameras[&1].model else { unreachable!() };
+    let Camera::Frame(c) = &b.cameras[&1].model else {
+        unreachable!()
+    };
     let f_err = (0.5 * (c.fx + c.fy) / f_true - 1.0).abs();
     let k1_err = (c.distortion.k1 / -0.05 - 1.0).abs();
     eprintln!(
         "relief {relief} m: f error {:.4} %, k1 error {:.2} %, σ0 {:.3}, {:.1} s",
-        100.0 * f_err, 100.0 * k1_err, rep.sigma0, rep.time_s
+        100.0 * f_err,
+        100.0 * k1_err,
+        rep.sigma0,
+        rep.time_s
     );
     for c in &rep.calibration {
-        eprintln!("  {} = {:.6} ± {:.2e}  corr {:.4} ({}) {}", c.param, c.value, c.sigma, c.max_correlation, c.correlated_with, c.determinable);
+        eprintln!(
+            "  {} = {:.6} ± {:.2e}  corr {:.4} ({}) {}",
+            c.param, c.value, c.sigma, c.max_correlation, c.correlated_with, c.determinable
+        );
     }
     (f_err, k1_err, rep.calibration)
 }
@@ -53,10 +68,17 @@ fn self_calibration_recovers_f_and_k1_with_relief_and_flags_a_flat_block() {
     let (f_err, k1_err, cal) = run_selfcal(250.0);
     assert!(f_err < 5e-4, "f error {f_err}");
     assert!(k1_err < 0.05, "k1 error {k1_err}");
-    assert!(cal.iter().filter(|c| c.param == "fx" || c.param == "k1").all(|c| c.determinable));
+    assert!(cal
+        .iter()
+        .filter(|c| c.param == "fx" || c.param == "k1")
+        .all(|c| c.determinable));
     // Flat terrain, nadir photos: f and the flying height are not separable.
     let fx = cal_flat.iter().find(|c| c.param == "fx").unwrap();
-    assert!(!fx.determinable, "f must be flagged on a flat block (corr {})", fx.max_correlation);
+    assert!(
+        !fx.determinable,
+        "f must be flagged on a flat block (corr {})",
+        fx.max_correlation
+    );
 }
 
 /// Re-fits each tie point's plane at its current plan position from the (known) terrain,
@@ -81,13 +103,24 @@ impl PlaneRefitter for TerrainPlanes {
 fn plane_at(relief: f64, id: PointId, x: f64, y: f64) -> PlaneConstraint {
     let p = Vector3::new(x, y, terrain(relief, x, y));
     let n = terrain_normal(relief, x, y);
-    PlaneConstraint { point: id, normal: [n.x, n.y, n.z], d: n.dot(&p), weight: 1.0 / (0.05f64 * 0.05) }
+    PlaneConstraint {
+        point: id,
+        normal: [n.x, n.y, n.z],
+        d: n.dot(&p),
+        weight: 1.0 / (0.05f64 * 0.05),
+    }
 }
 
 #[test]
 fn lidar_planes_alone_fix_the_datum() {
     let relief = 120.0;
-    let o = SyntheticOptions { relief_m: relief, tie_points: 20_000, check_points: 0, seed: 11, ..Default::default() };
+    let o = SyntheticOptions {
+        relief_m: relief,
+        tie_points: 20_000,
+        check_points: 0,
+        seed: 11,
+        ..Default::default()
+    };
     let syn = generate(&o);
     let mut b = syn.start.clone();
     // No control: the datum comes only from the LiDAR planes. The start is off by a
@@ -117,7 +150,11 @@ fn lidar_planes_alone_fix_the_datum() {
             plane_at(relief, *id, x.x, x.y)
         })
         .collect();
-    let mut refit = TerrainPlanes { relief, ids, calls: 0 };
+    let mut refit = TerrainPlanes {
+        relief,
+        ids,
+        calls: 0,
+    };
     let rep = adjust(&mut b, &planes, Some(&mut refit), &AdjustOptions::default()).unwrap();
     assert_eq!(rep.datum, "lidar_planes");
     let mut mean = Vector3::zeros();
@@ -132,7 +169,11 @@ fn lidar_planes_alone_fix_the_datum() {
     rms = (rms / n).sqrt();
     eprintln!(
         "datum from planes: mean centre offset {:.3?} m, RMS {:.3} m, {} refits, σ0 {:.3}, {:.1} s",
-        mean.as_slice(), rms, refit.calls, rep.sigma0, rep.time_s
+        mean.as_slice(),
+        rms,
+        refit.calls,
+        rep.sigma0,
+        rep.time_s
     );
     assert!(refit.calls >= 1);
     assert!(mean.norm() < 0.15, "datum offset {mean:?}");

@@ -1,7 +1,9 @@
 //! Single-photo resection and bad input of the adjustment.
 
 use cloudcontrol::adjust::synthetic::{generate, SyntheticOptions};
-use cloudcontrol::adjust::{adjust, resect, AdjustError, AdjustOptions, PlaneConstraint, ResectionOptions};
+use cloudcontrol::adjust::{
+    adjust, resect, AdjustError, AdjustOptions, PlaneConstraint, ResectionOptions,
+};
 use cloudcontrol::block::{Block, PointKind};
 use cloudcontrol::geometry::{project, Brown, Camera, FrameCamera, Pose};
 use nalgebra::Vector3;
@@ -21,7 +23,11 @@ fn small_block() -> Block {
 
 fn camera() -> Camera {
     Camera::Frame(FrameCamera {
-        distortion: Brown { k1: -0.03, p1: 1e-4, ..Default::default() },
+        distortion: Brown {
+            k1: -0.03,
+            p1: 1e-4,
+            ..Default::default()
+        },
         ..FrameCamera::pinhole(6000, 4000, 5000.0)
     })
 }
@@ -33,12 +39,21 @@ fn resection_case(n: usize, outliers: usize, seed: u64) -> (Pose, Vec<[f64; 2]>,
     let cam = camera();
     let (mut px, mut xs) = (Vec::new(), Vec::new());
     while px.len() < n {
-        let x = Vector3::new(rng.gen_range(0.0..1000.0), rng.gen_range(-200.0..800.0), rng.gen_range(-50.0..80.0));
-        let Ok(p) = project(&cam, &truth, &x) else { continue };
+        let x = Vector3::new(
+            rng.gen_range(0.0..1000.0),
+            rng.gen_range(-200.0..800.0),
+            rng.gen_range(-50.0..80.0),
+        );
+        let Ok(p) = project(&cam, &truth, &x) else {
+            continue;
+        };
         if p.pixel.x < 0.0 || p.pixel.y < 0.0 || p.pixel.x > 6000.0 || p.pixel.y > 4000.0 {
             continue;
         }
-        let mut q = [p.pixel.x + rng.gen_range(-0.5..0.5), p.pixel.y + rng.gen_range(-0.5..0.5)];
+        let mut q = [
+            p.pixel.x + rng.gen_range(-0.5..0.5),
+            p.pixel.y + rng.gen_range(-0.5..0.5),
+        ];
         if px.len() < outliers {
             let a: f64 = rng.gen_range(0.0..std::f64::consts::TAU);
             let m: f64 = rng.gen_range(20.0..200.0);
@@ -53,15 +68,30 @@ fn resection_case(n: usize, outliers: usize, seed: u64) -> (Pose, Vec<[f64; 2]>,
 
 fn pose_error(a: &Pose, b: &Pose) -> (f64, f64) {
     let m = a.rotation * b.rotation.transpose();
-    ((a.center - b.center).norm(), ((m.trace() - 1.0) / 2.0).clamp(-1.0, 1.0).acos())
+    (
+        (a.center - b.center).norm(),
+        ((m.trace() - 1.0) / 2.0).clamp(-1.0, 1.0).acos(),
+    )
 }
 
 #[test]
 fn resection_recovers_the_pose_from_3_to_50_points_with_up_to_half_outliers() {
     let cam = camera();
-    for (n, out, lmeds) in [(3, 0, false), (4, 0, false), (8, 3, false), (20, 10, false), (50, 25, false), (50, 20, true), (12, 5, true), (12, 6, false)] {
+    for (n, out, lmeds) in [
+        (3, 0, false),
+        (4, 0, false),
+        (8, 3, false),
+        (20, 10, false),
+        (50, 25, false),
+        (50, 20, true),
+        (12, 5, true),
+        (12, 6, false),
+    ] {
         let (truth, px, xs) = resection_case(n, out, n as u64 * 7 + out as u64);
-        let opts = ResectionOptions { lmeds, ..Default::default() };
+        let opts = ResectionOptions {
+            lmeds,
+            ..Default::default()
+        };
         let r = resect(&cam, &px, &xs, 0.3, &opts).unwrap();
         let (ce, re) = pose_error(&r.pose, &truth);
         eprintln!("n {n} outliers {out} lmeds {lmeds}: centre {ce:.3} m, rotation {re:.2e} rad, inliers {}", r.num_inliers);
@@ -75,7 +105,10 @@ fn resection_recovers_the_pose_from_3_to_50_points_with_up_to_half_outliers() {
         }
         if n - out > 3 {
             let s = (r.covariance[3][3] + r.covariance[4][4] + r.covariance[5][5]).sqrt();
-            assert!(s > 0.0 && ce < 6.0 * s.max(0.05), "centre error {ce} vs σ {s}");
+            assert!(
+                s > 0.0 && ce < 6.0 * s.max(0.05),
+                "centre error {ce} vs σ {s}"
+            );
         }
     }
 }
@@ -85,8 +118,13 @@ fn resection_rejects_bad_input() {
     let cam = camera();
     let (_, px, xs) = resection_case(6, 0, 3);
     let o = ResectionOptions::default();
-    assert!(matches!(resect(&cam, &px[..2], &xs[..2], 0.3, &o), Err(AdjustError::TooFewObservations(_))));
-    let line: Vec<[f64; 3]> = (0..5).map(|i| [i as f64 * 10.0, i as f64 * 5.0, 0.0]).collect();
+    assert!(matches!(
+        resect(&cam, &px[..2], &xs[..2], 0.3, &o),
+        Err(AdjustError::TooFewObservations(_))
+    ));
+    let line: Vec<[f64; 3]> = (0..5)
+        .map(|i| [i as f64 * 10.0, i as f64 * 5.0, 0.0])
+        .collect();
     let e = resect(&cam, &px[..5], &line, 0.3, &o).unwrap_err();
     assert!(e.to_string().contains("collinear"), "{e}");
     let mut bad = px.clone();
@@ -107,7 +145,10 @@ fn adjustment_rejects_bad_input_with_named_items() {
         p.observations.retain(|o| o.photo == keep);
     }
     let e = adjust(&mut b, &[], None, &opts).unwrap_err();
-    assert!(matches!(e, AdjustError::Degenerate(_)) && e.to_string().contains("resection"), "{e}");
+    assert!(
+        matches!(e, AdjustError::Degenerate(_)) && e.to_string().contains("resection"),
+        "{e}"
+    );
     // NaN pixel.
     let mut b = small_block();
     let id = *b.points.keys().next().unwrap();
@@ -116,9 +157,17 @@ fn adjustment_rejects_bad_input_with_named_items() {
     assert!(e.to_string().contains(&format!("point {id}")), "{e}");
     // Unknown point of a plane.
     let mut b = small_block();
-    let pl = PlaneConstraint { point: 9_999_999, normal: [0.0, 0.0, 1.0], d: 0.0, weight: 1.0 };
+    let pl = PlaneConstraint {
+        point: 9_999_999,
+        normal: [0.0, 0.0, 1.0],
+        d: 0.0,
+        weight: 1.0,
+    };
     let e = adjust(&mut b, &[pl], None, &opts).unwrap_err();
-    assert!(matches!(e, AdjustError::UnknownId { .. }) && e.to_string().contains("9999999"), "{e}");
+    assert!(
+        matches!(e, AdjustError::UnknownId { .. }) && e.to_string().contains("9999999"),
+        "{e}"
+    );
     // Unknown self-calibration parameter.
     let mut b = small_block();
     b.cameras.get_mut(&1).unwrap().free_params = vec!["focal".into()];
@@ -126,10 +175,13 @@ fn adjustment_rejects_bad_input_with_named_items() {
     assert!(e.to_string().contains("focal"), "{e}");
     // Collinear control as the only datum.
     let mut b = small_block();
-    let mut k = 0;
-    for p in b.points.values_mut().filter(|p| p.kind == PointKind::Control) {
+    for (k, p) in b
+        .points
+        .values_mut()
+        .filter(|p| p.kind == PointKind::Control)
+        .enumerate()
+    {
         p.position = Vector3::new(k as f64 * 100.0, 50.0, 10.0);
-        k += 1;
     }
     let e = adjust(&mut b, &[], None, &opts).unwrap_err();
     assert!(e.to_string().contains("collinear"), "{e}");
@@ -149,11 +201,21 @@ fn adjustment_rejects_bad_input_with_named_items() {
         let _ = seen;
     }
     let e = adjust(&mut b, &[], None, &opts).unwrap_err();
-    assert!(matches!(e, AdjustError::TooFewObservations(_)) && e.to_string().contains(&format!("photo {last}")), "{e}");
+    assert!(
+        matches!(e, AdjustError::TooFewObservations(_))
+            && e.to_string().contains(&format!("photo {last}")),
+        "{e}"
+    );
     // Bad option.
     let mut b = small_block();
-    let o = AdjustOptions { rejection: cloudcontrol::adjust::Rejection::Threshold(f64::NAN), ..Default::default() };
-    assert!(matches!(adjust(&mut b, &[], None, &o), Err(AdjustError::InvalidOption { .. })));
+    let o = AdjustOptions {
+        rejection: cloudcontrol::adjust::Rejection::Threshold(f64::NAN),
+        ..Default::default()
+    };
+    assert!(matches!(
+        adjust(&mut b, &[], None, &o),
+        Err(AdjustError::InvalidOption { .. })
+    ));
 }
 
 #[test]
@@ -167,7 +229,10 @@ fn free_network_and_determinism_across_thread_counts() {
     }
     let run = |threads: usize| {
         let mut bb = b.clone();
-        let pool = rayon::ThreadPoolBuilder::new().num_threads(threads).build().unwrap();
+        let pool = rayon::ThreadPoolBuilder::new()
+            .num_threads(threads)
+            .build()
+            .unwrap();
         let rep = pool.install(|| adjust(&mut bb, &[], None, &AdjustOptions::default()).unwrap());
         (bb, rep)
     };
@@ -177,7 +242,10 @@ fn free_network_and_determinism_across_thread_counts() {
     assert!(r1.sigma0 > 0.4 && r1.sigma0 < 0.6, "σ0 {}", r1.sigma0);
     assert_eq!(r1.sigma0.to_bits(), r2.sigma0.to_bits());
     for (id, p) in &b1.photos {
-        assert_eq!(p.pose, b2.photos[id].pose, "photo {id} differs between 1 and 2 threads");
+        assert_eq!(
+            p.pose, b2.photos[id].pose,
+            "photo {id} differs between 1 and 2 threads"
+        );
     }
     let _ = b.points.len();
     b.photos.clear();

@@ -194,7 +194,6 @@ pub(crate) fn image_rmse(res: &[ResidualBlock], ev: &Evaluated) -> f64 {
     }
 }
 
-
 /// Robust σ0 for the rejection test: 1.4826 × the median of |v|/√r over all active
 /// residual components. Unbiased for Gaussian errors and unaffected by the gross errors
 /// still in the solution, so the k·σ0 threshold neither cascades nor starts too wide.

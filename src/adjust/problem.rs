@@ -38,7 +38,10 @@ fn check_options(o: &AdjustOptions) -> Result<(), AdjustError> {
     };
     match o.loss {
         Loss::Huber(c) | Loss::Cauchy(c) if !(c.is_finite() && c > 0.0) => {
-            return bad("loss", format!("scale must be positive and finite, got {c}"))
+            return bad(
+                "loss",
+                format!("scale must be positive and finite, got {c}"),
+            )
         }
         _ => {}
     }
@@ -58,7 +61,10 @@ fn check_options(o: &AdjustOptions) -> Result<(), AdjustError> {
         );
     }
     if !(o.max_correlation > 0.0 && o.max_correlation <= 1.0) {
-        return bad("max_correlation", format!("must be in (0, 1], got {}", o.max_correlation));
+        return bad(
+            "max_correlation",
+            format!("must be in (0, 1], got {}", o.max_correlation),
+        );
     }
     Ok(())
 }
@@ -114,21 +120,27 @@ fn build(block: &Block, planes: &[PlaneConstraint]) -> Result<Problem, AdjustErr
     let photo_index: BTreeMap<PhotoId, usize> =
         photo_ids.iter().enumerate().map(|(i, &p)| (p, i)).collect();
     let camera_ids: Vec<u32> = block.cameras.keys().copied().collect();
-    let camera_index: BTreeMap<u32, usize> =
-        camera_ids.iter().enumerate().map(|(i, &c)| (c, i)).collect();
+    let camera_index: BTreeMap<u32, usize> = camera_ids
+        .iter()
+        .enumerate()
+        .map(|(i, &c)| (c, i))
+        .collect();
     let mut camera_free = Vec::new();
     for c in block.cameras.values() {
         let names = c.model.param_names();
         let mut free = Vec::new();
         for n in &c.free_params {
-            let k = names.iter().position(|m| m == n).ok_or_else(|| AdjustError::UnknownId {
-                what: format!(
-                    "interior parameter of camera {} (known: {})",
-                    c.id,
-                    names.join(", ")
-                ),
-                id: n.clone(),
-            })?;
+            let k = names
+                .iter()
+                .position(|m| m == n)
+                .ok_or_else(|| AdjustError::UnknownId {
+                    what: format!(
+                        "interior parameter of camera {} (known: {})",
+                        c.id,
+                        names.join(", ")
+                    ),
+                    id: n.clone(),
+                })?;
             free.push(k);
         }
         free.sort_unstable();
@@ -216,7 +228,8 @@ fn build(block: &Block, planes: &[PlaneConstraint]) -> Result<Problem, AdjustErr
     for (i, ph) in block.photos.values().enumerate() {
         let Some(prior) = &ph.prior else { continue };
         let s = Vector3::from(prior.center_sigma);
-        if !(prior.center.iter().all(|v| v.is_finite()) && s.iter().all(|v| v.is_finite() && *v > 0.0))
+        if !(prior.center.iter().all(|v| v.is_finite())
+            && s.iter().all(|v| v.is_finite() && *v > 0.0))
         {
             return Err(AdjustError::InvalidBlock(format!(
                 "POS prior of photo {} ({}): centre and σ must be finite, σ positive",
@@ -406,19 +419,26 @@ pub fn adjust(
     };
     let mut rejected: Vec<Rejected> = Vec::new();
     let mut iterations = 0;
-    let mut converged = false;
+    let mut converged;
     let mut refits = 0;
     let mut readmitted = false;
     let mut round = 0;
     loop {
         round += 1;
-        let st = Structure::new(&pb.res, pb.photo_ids.len(), n_points, &pb.photo_free, &pb.camera_free);
+        let st = Structure::new(
+            &pb.res,
+            pb.photo_ids.len(),
+            n_points,
+            &pb.photo_free,
+            &pb.camera_free,
+        );
         let out = solver::levenberg_marquardt(&st, &pb.res, &mut pb.state, opts.loss, &lm);
         iterations += out.iterations;
         converged = out.converged;
         tracing::info!(
             round,
             iterations = out.iterations,
+            initial_cost = out.initial_cost,
             cost = out.final_cost,
             "adjustment round"
         );
@@ -471,8 +491,16 @@ pub fn adjust(
             break;
         }
     }
-    let st = Structure::new(&pb.res, pb.photo_ids.len(), n_points, &pb.photo_free, &pb.camera_free);
-    let report = finish(block, &pb, &st, opts, rejected, iterations, round, converged, t0)?;
+    let st = Structure::new(
+        &pb.res,
+        pb.photo_ids.len(),
+        n_points,
+        &pb.photo_free,
+        &pb.camera_free,
+    );
+    let report = finish(
+        block, &pb, &st, opts, rejected, iterations, round, converged, t0,
+    )?;
     Ok(report)
 }
 
@@ -507,16 +535,16 @@ fn select_rejections(
         return Vec::new();
     }
     let std: Vec<Option<(f64, f64)>> = unit.iter().map(|u| u.map(|(r, w)| (r, w / s0))).collect();
-    let reason = |w: f64, kind: &str| {
-        format!("{kind}: standardised residual {w:.2} > {k} (σ0 = {s0:.3})")
-    };
+    let reason =
+        |w: f64, kind: &str| format!("{kind}: standardised residual {w:.2} > {k} (σ0 = {s0:.3})");
     let mut out = Vec::new();
     // A control point's surveyed position is tested against its intersection from its
     // own rays (with the current orientations): a strong prior absorbs its gross error
     // into the image residuals, which would otherwise be rejected instead of the prior.
     let mut tested_points = std::collections::BTreeSet::new();
     for (i, r) in pb.res.iter().enumerate() {
-        let (Kind::PointPrior { value, sigma }, Some(p), true) = (&r.kind, r.point, r.active) else {
+        let (Kind::PointPrior { value, sigma }, Some(p), true) = (&r.kind, r.point, r.active)
+        else {
             continue;
         };
         let mut v = nalgebra::Matrix3::zeros();
@@ -605,7 +633,9 @@ fn localize(pb: &Problem, st: &Structure, p: usize) -> Option<usize> {
     }
     let ray = |j: usize| {
         let r = &pb.res[j];
-        let Kind::Image { pixel, sigma } = r.kind else { unreachable!() };
+        let Kind::Image { pixel, sigma } = r.kind else {
+            unreachable!()
+        };
         (
             &pb.state.cameras[r.camera.expect("camera")],
             &pb.state.poses[r.photo.expect("photo")],
@@ -615,8 +645,14 @@ fn localize(pb: &Problem, st: &Structure, p: usize) -> Option<usize> {
     };
     let mut best: Option<(usize, f64)> = None;
     for &skip in &rays {
-        let others: Vec<_> = rays.iter().filter(|&&j| j != skip).map(|&j| ray(j)).collect();
-        let Some(x) = intersect(&others) else { continue };
+        let others: Vec<_> = rays
+            .iter()
+            .filter(|&&j| j != skip)
+            .map(|&j| ray(j))
+            .collect();
+        let Some(x) = intersect(&others) else {
+            continue;
+        };
         let ssr: f64 = others
             .iter()
             .map(|(c, pose, px, s)| {
@@ -639,7 +675,13 @@ fn readmit(pb: &mut Problem, rejected: &mut Vec<Rejected>, opts: &AdjustOptions)
         return false;
     };
     let n_points = pb.point_ids.len();
-    let st = Structure::new(&pb.res, pb.photo_ids.len(), n_points, &pb.photo_free, &pb.camera_free);
+    let st = Structure::new(
+        &pb.res,
+        pb.photo_ids.len(),
+        n_points,
+        &pb.photo_free,
+        &pb.camera_free,
+    );
     let ev = solver::evaluate(&pb.res, &pb.state, opts.loss);
     let pts = solver::point_systems(&st, &pb.res, &ev, 0.0);
     let s0 = precision::robust_sigma0(&ev, &precision::standardized(&pb.res, &ev, &pts, 1.0));
@@ -665,9 +707,9 @@ fn readmit(pb: &mut Problem, rejected: &mut Vec<Rejected>, opts: &AdjustOptions)
             .map(|e| (0..e.dim).all(|c| e.r[c].abs() < k * s0))
             .unwrap_or(false);
         // Only when the point is still in the solution.
-        let alive = blk.point.is_none_or(|p| {
-            pb.res.iter().any(|r| r.active && r.point == Some(p))
-        });
+        let alive = blk
+            .point
+            .is_none_or(|p| pb.res.iter().any(|r| r.active && r.point == Some(p)));
         if ok && alive {
             pb.res[i].active = true;
             any = true;
@@ -733,9 +775,7 @@ fn finish(
     let mut cache = solver::SymbolicCache::default();
     let factor = solver::factorize(st, &rows, &mut cache);
     let var0 = if s0.is_finite() { s0 * s0 } else { 1.0 };
-    let cof = factor
-        .as_ref()
-        .map(|f| cofactors(st, f, opts.covariance));
+    let cof = factor.as_ref().map(|f| cofactors(st, f, opts.covariance));
     if factor.is_none() {
         tracing::warn!("the reduced camera system is singular at the solution: no precision");
     }
@@ -770,7 +810,11 @@ fn finish(
             name: block.photos[&pid].name.clone(),
             sigma_rotation_rad: sr,
             sigma_center_m: sc,
-            rmse_px: if n > 0 { (s / (2 * n) as f64).sqrt() } else { 0.0 },
+            rmse_px: if n > 0 {
+                (s / (2 * n) as f64).sqrt()
+            } else {
+                0.0
+            },
             observations: n,
         });
     }
@@ -790,8 +834,16 @@ fn finish(
                 let n = ["rx", "ry", "rz", "cx", "cy", "cz"][k];
                 format!("photo {} {n}", pb.photo_ids[b])
             } else {
-                let ci = st.camera_block.iter().position(|x| *x == Some(b)).expect("camera");
-                format!("camera {} {}", pb.camera_ids[ci], pb.state.cameras[ci].param_names()[k])
+                let ci = st
+                    .camera_block
+                    .iter()
+                    .position(|x| *x == Some(b))
+                    .expect("camera");
+                format!(
+                    "camera {} {}",
+                    pb.camera_ids[ci],
+                    pb.state.cameras[ci].param_names()[k]
+                )
             }
         };
         for (ci, cb) in st.camera_block.iter().enumerate() {
@@ -914,7 +966,10 @@ pub(crate) fn check_points(block: &Block) -> Option<CheckSummary> {
             })
             .collect();
         let Some(x) = intersect(&rays) else {
-            tracing::warn!(point = pt.id, "check point cannot be intersected (fewer than two usable rays)");
+            tracing::warn!(
+                point = pt.id,
+                "check point cannot be intersected (fewer than two usable rays)"
+            );
             continue;
         };
         let e = x - pt.position;
@@ -929,7 +984,12 @@ pub(crate) fn check_points(block: &Block) -> Option<CheckSummary> {
         return None;
     }
     let n = pts.len() as f64;
-    let plan = (pts.iter().map(|p| p.error[0].powi(2) + p.error[1].powi(2)).sum::<f64>() / n).sqrt();
+    let plan = (pts
+        .iter()
+        .map(|p| p.error[0].powi(2) + p.error[1].powi(2))
+        .sum::<f64>()
+        / n)
+        .sqrt();
     let height = (pts.iter().map(|p| p.error[2].powi(2)).sum::<f64>() / n).sqrt();
     let max = pts
         .iter()

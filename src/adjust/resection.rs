@@ -103,7 +103,10 @@ fn quartic_roots(c: [f64; 5]) -> Vec<f64> {
 }
 
 /// Rigid transform Y = R X + t from three or more point pairs (Kabsch).
-fn absolute_orientation(x: &[Vector3<f64>], y: &[Vector3<f64>]) -> Option<(Matrix3<f64>, Vector3<f64>)> {
+fn absolute_orientation(
+    x: &[Vector3<f64>],
+    y: &[Vector3<f64>],
+) -> Option<(Matrix3<f64>, Vector3<f64>)> {
     let n = x.len() as f64;
     let cx = x.iter().sum::<Vector3<f64>>() / n;
     let cy = y.iter().sum::<Vector3<f64>>() / n;
@@ -200,7 +203,11 @@ fn reprojection_sq(camera: &Camera, pose: &Pose, c: &Corr) -> f64 {
 
 /// Levenberg–Marquardt on the six EO parameters; returns the pose, AᵀA and iterations.
 fn refine_pose(camera: &Camera, start: &Pose, cs: &[&Corr]) -> (Pose, Matrix6<f64>, usize) {
-    let cost = |p: &Pose| cs.iter().map(|c| reprojection_sq(camera, p, c)).sum::<f64>();
+    let cost = |p: &Pose| {
+        cs.iter()
+            .map(|c| reprojection_sq(camera, p, c))
+            .sum::<f64>()
+    };
     let mut pose = *start;
     let mut f = cost(&pose);
     let mut lambda = 1e-3;
@@ -314,9 +321,9 @@ pub fn resect(
                 what: format!("control point {i} (pixel or coordinates)"),
             });
         }
-        let bearing = camera
-            .unproject(*px)
-            .map_err(|e| AdjustError::InvalidBlock(format!("control point {i}: pixel {px:?}: {e}")))?;
+        let bearing = camera.unproject(*px).map_err(|e| {
+            AdjustError::InvalidBlock(format!("control point {i}: pixel {px:?}: {e}"))
+        })?;
         cs.push(Corr {
             pixel: Vector2::new(px[0], px[1]),
             bearing,
@@ -346,13 +353,23 @@ pub fn resect(
         let refs: Vec<&Corr> = cs.iter().collect();
         let sols = p3p(&refs);
         let score = |p: &Pose| match &opts.approximate {
-            Some(a) => rotation_angle(&p.rotation, &a.rotation) + (p.center - a.center).norm() * 1e-3,
-            None => 1.0 + p.rotation.row(2).transpose().dot(&Vector3::new(0.0, 0.0, 1.0)),
+            Some(a) => {
+                rotation_angle(&p.rotation, &a.rotation) + (p.center - a.center).norm() * 1e-3
+            }
+            None => {
+                1.0 + p
+                    .rotation
+                    .row(2)
+                    .transpose()
+                    .dot(&Vector3::new(0.0, 0.0, 1.0))
+            }
         };
         let best = sols
             .into_iter()
             .min_by(|a, b| score(a).total_cmp(&score(b)))
-            .ok_or_else(|| AdjustError::Degenerate("P3P has no solution for the three control points".into()))?;
+            .ok_or_else(|| {
+                AdjustError::Degenerate("P3P has no solution for the three control points".into())
+            })?;
         (best, vec![true; 3])
     } else {
         let ro = RobustOptions {
@@ -372,9 +389,14 @@ pub fn resect(
     };
     // Refinement with the full camera model and data snooping on the inliers.
     let mut iterations = 0;
-    let mut n_mat = Matrix6::zeros();
+    let mut n_mat;
     loop {
-        let used: Vec<&Corr> = cs.iter().zip(&inl).filter(|(_, b)| **b).map(|(c, _)| c).collect();
+        let used: Vec<&Corr> = cs
+            .iter()
+            .zip(&inl)
+            .filter(|(_, b)| **b)
+            .map(|(c, _)| c)
+            .collect();
         if used.len() < 3 {
             return Err(AdjustError::TooFewObservations(format!(
                 "only {} control points remain after gross-error removal",
@@ -416,7 +438,12 @@ pub fn resect(
             _ => break,
         }
     }
-    let used: Vec<&Corr> = cs.iter().zip(&inl).filter(|(_, b)| **b).map(|(c, _)| c).collect();
+    let used: Vec<&Corr> = cs
+        .iter()
+        .zip(&inl)
+        .filter(|(_, b)| **b)
+        .map(|(c, _)| c)
+        .collect();
     let ssr: f64 = used.iter().map(|c| reprojection_sq(camera, &pose, c)).sum();
     let red = 2 * used.len() as i64 - 6;
     let sigma0 = if red > 0 {
@@ -424,7 +451,12 @@ pub fn resect(
     } else {
         f64::NAN
     };
-    let scale = if sigma0.is_finite() { sigma0 * sigma0 } else { 1.0 } * sigma_px * sigma_px;
+    let scale = if sigma0.is_finite() {
+        sigma0 * sigma0
+    } else {
+        1.0
+    } * sigma_px
+        * sigma_px;
     let q = n_mat
         .try_inverse()
         .ok_or_else(|| AdjustError::Singular("resection normal equations".into()))?
@@ -476,8 +508,14 @@ mod tests {
         assert!(!sols.is_empty());
         let best = sols
             .iter()
-            .map(|p| (p.center - truth.center).norm() + rotation_angle(&p.rotation, &truth.rotation))
+            .map(|p| {
+                (p.center - truth.center).norm() + rotation_angle(&p.rotation, &truth.rotation)
+            })
             .fold(f64::INFINITY, f64::min);
-        assert!(best < 1e-6, "closest P3P solution is {best} away; {} solutions", sols.len());
+        assert!(
+            best < 1e-6,
+            "closest P3P solution is {best} away; {} solutions",
+            sols.len()
+        );
     }
 }

@@ -301,11 +301,7 @@ pub(crate) struct SymbolicCache {
     pub symbolic: Option<SymbolicLlt<usize>>,
 }
 
-pub(crate) fn factorize(
-    st: &Structure,
-    rows: &[Row],
-    cache: &mut SymbolicCache,
-) -> Option<Factor> {
+pub(crate) fn factorize(st: &Structure, rows: &[Row], cache: &mut SymbolicCache) -> Option<Factor> {
     let n = st.n;
     if n == 0 {
         return None;
@@ -396,7 +392,10 @@ pub(crate) fn apply(
     let mut s = state.clone();
     for (i, pose) in s.poses.iter_mut().enumerate() {
         let d = &dblocks[i];
-        *pose = pose.perturbed(&Vector3::new(d[0], d[1], d[2]), &Vector3::new(d[3], d[4], d[5]));
+        *pose = pose.perturbed(
+            &Vector3::new(d[0], d[1], d[2]),
+            &Vector3::new(d[3], d[4], d[5]),
+        );
     }
     for (c, cam) in s.cameras.iter_mut().enumerate() {
         if let Some(b) = st.camera_block[c] {
@@ -477,7 +476,12 @@ pub(crate) fn levenberg_marquardt(
             }
             lambda *= 10.0;
         }
-        tracing::debug!(iterations, cost = ev.cost, lambda, "bundle adjustment iteration");
+        tracing::debug!(
+            iterations,
+            cost = ev.cost,
+            lambda,
+            "bundle adjustment iteration"
+        );
         if !accepted {
             // No step lowers the cost any more: we are at the minimum to machine precision.
             converged = true;

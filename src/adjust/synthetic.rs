@@ -3,7 +3,7 @@
 //! sinusoidal terrain, tie points seen in every photo whose frame they fall in, control
 //! and check points on a grid, Gaussian image noise, and an approximate starting block.
 
-use crate::block::{Block, BlockCamera, Observation, ObjectPoint, Photo, PointKind};
+use crate::block::{Block, BlockCamera, ObjectPoint, Observation, Photo, PointKind};
 use crate::geometry::{project, rotation_from_vector, Brown, Camera, FrameCamera, Pose};
 use nalgebra::{Matrix3, Vector3};
 use rand::{Rng, SeedableRng};
@@ -76,7 +76,9 @@ pub struct SyntheticBlock {
 
 /// Terrain height of the synthetic scene.
 pub fn terrain(relief: f64, x: f64, y: f64) -> f64 {
-    relief * (0.6 * (x / 700.0).sin() * (y / 500.0).cos() + 0.4 * (x / 230.0 + 1.0).sin() * (y / 310.0 + 0.5).sin())
+    relief
+        * (0.6 * (x / 700.0).sin() * (y / 500.0).cos()
+            + 0.4 * (x / 230.0 + 1.0).sin() * (y / 310.0 + 0.5).sin())
 }
 
 /// Unit normal of the terrain at (x, y).
@@ -123,7 +125,11 @@ pub fn generate(o: &SyntheticOptions) -> SyntheticBlock {
             );
             // Return strips fly the other way (κ = 180°); a little roll, pitch and crab.
             let r0 = if s % 2 == 1 { flip * nadir } else { nadir };
-            let d = Vector3::new(att.sample(&mut rng), att.sample(&mut rng), att.sample(&mut rng));
+            let d = Vector3::new(
+                att.sample(&mut rng),
+                att.sample(&mut rng),
+                att.sample(&mut rng),
+            );
             truth.photos.insert(
                 id,
                 Photo {
@@ -148,7 +154,9 @@ pub fn generate(o: &SyntheticOptions) -> SyntheticBlock {
     let observe = |x: &Vector3<f64>, rng: &mut ChaCha8Rng| -> Vec<Observation> {
         let mut obs = Vec::new();
         for p in &photos {
-            let Ok(pr) = project(&camera, &p.pose, x) else { continue };
+            let Ok(pr) = project(&camera, &p.pose, x) else {
+                continue;
+            };
             let (u, v) = (pr.pixel.x, pr.pixel.y);
             if u < 20.0 || v < 20.0 || u > o.width as f64 - 20.0 || v > o.height as f64 - 20.0 {
                 continue;
@@ -193,7 +201,13 @@ pub fn generate(o: &SyntheticOptions) -> SyntheticBlock {
         made += 1;
     }
     let (gx, gy) = o.control_grid;
-    let mut add_gcp = |x: f64, y: f64, kind: PointKind, name: String, rng: &mut ChaCha8Rng, truth: &mut Block, pid: &mut u64| {
+    let add_gcp = |x: f64,
+                   y: f64,
+                   kind: PointKind,
+                   name: String,
+                   rng: &mut ChaCha8Rng,
+                   truth: &mut Block,
+                   pid: &mut u64| {
         let p = Vector3::new(x, y, terrain(o.relief_m, x, y));
         let obs = observe(&p, rng);
         if obs.is_empty() {
@@ -215,15 +229,39 @@ pub fn generate(o: &SyntheticOptions) -> SyntheticBlock {
     };
     for i in 0..gx {
         for j in 0..gy {
-            let x = if gx > 1 { i as f64 / (gx - 1) as f64 * x_max } else { 0.5 * x_max };
-            let y = if gy > 1 { j as f64 / (gy - 1) as f64 * y_max } else { 0.5 * y_max };
-            add_gcp(x, y, PointKind::Control, format!("GCP{i}{j}"), &mut rng, &mut truth, &mut pid);
+            let x = if gx > 1 {
+                i as f64 / (gx - 1) as f64 * x_max
+            } else {
+                0.5 * x_max
+            };
+            let y = if gy > 1 {
+                j as f64 / (gy - 1) as f64 * y_max
+            } else {
+                0.5 * y_max
+            };
+            add_gcp(
+                x,
+                y,
+                PointKind::Control,
+                format!("GCP{i}{j}"),
+                &mut rng,
+                &mut truth,
+                &mut pid,
+            );
         }
     }
     for k in 0..o.check_points {
         let x = rng.gen_range(0.1 * x_max..0.9 * x_max);
         let y = rng.gen_range(0.0..y_max.max(1.0));
-        add_gcp(x, y, PointKind::Check, format!("CHK{k}"), &mut rng, &mut truth, &mut pid);
+        add_gcp(
+            x,
+            y,
+            PointKind::Check,
+            format!("CHK{k}"),
+            &mut rng,
+            &mut truth,
+            &mut pid,
+        );
     }
     // Control/check observations carry the true coordinates; the starting block perturbs
     // only the unknowns.
@@ -232,14 +270,26 @@ pub fn generate(o: &SyntheticOptions) -> SyntheticBlock {
     let cn = Normal::new(0.0, o.perturb_center.max(1e-300)).expect("σ");
     let pn = Normal::new(0.0, o.perturb_points.max(1e-300)).expect("σ");
     for p in start.photos.values_mut() {
-        let d = Vector3::new(rn.sample(&mut rng), rn.sample(&mut rng), rn.sample(&mut rng));
-        let c = Vector3::new(cn.sample(&mut rng), cn.sample(&mut rng), cn.sample(&mut rng));
+        let d = Vector3::new(
+            rn.sample(&mut rng),
+            rn.sample(&mut rng),
+            rn.sample(&mut rng),
+        );
+        let c = Vector3::new(
+            cn.sample(&mut rng),
+            cn.sample(&mut rng),
+            cn.sample(&mut rng),
+        );
         p.pose = p.pose.perturbed(&d, &c);
         p.oriented = false;
     }
     for p in start.points.values_mut() {
         if p.kind == PointKind::Tie {
-            p.position += Vector3::new(pn.sample(&mut rng), pn.sample(&mut rng), pn.sample(&mut rng));
+            p.position += Vector3::new(
+                pn.sample(&mut rng),
+                pn.sample(&mut rng),
+                pn.sample(&mut rng),
+            );
         }
     }
     SyntheticBlock { truth, start }
