@@ -250,3 +250,82 @@ fn free_network_and_determinism_across_thread_counts() {
     let _ = b.points.len();
     b.photos.clear();
 }
+
+#[test]
+fn pos_priors_alone_fix_the_datum_and_data_snooping_runs() {
+    use cloudcontrol::block::PosPrior;
+    let o = SyntheticOptions {
+        strips: 2,
+        photos_per_strip: 8,
+        tie_points: 2000,
+        check_points: 0,
+        seed: 8,
+        ..Default::default()
+    };
+    let syn = generate(&o);
+    let mut b = syn.start.clone();
+    let mut rng = rand_chacha::ChaCha8Rng::seed_from_u64(2);
+    for p in b.points.values_mut() {
+        p.kind = PointKind::Tie;
+        p.sigma = None;
+    }
+    for (id, p) in b.photos.iter_mut() {
+        let t = &syn.truth.photos[id].pose;
+        let e = Vector3::new(
+            rng.gen_range(-0.05..0.05),
+            rng.gen_range(-0.05..0.05),
+            rng.gen_range(-0.05..0.05),
+        );
+        p.prior = Some(PosPrior {
+            center: t.center + e,
+            center_sigma: [0.05; 3],
+            rotation: Some(t.rotation),
+            rotation_sigma_rad: 1e-3,
+        });
+    }
+    let opts = AdjustOptions {
+        rejection: cloudcontrol::adjust::Rejection::DataSnooping(4.0),
+        ..Default::default()
+    };
+    let rep = adjust(&mut b, &[], None, &opts).unwrap();
+    assert_eq!(rep.datum, "pos");
+    let mut worst: f64 = 0.0;
+    for (id, p) in &b.photos {
+        worst = worst.max((p.pose.center - syn.truth.photos[id].pose.center).norm());
+    }
+    eprintln!(
+        "POS datum: worst centre error {worst:.3} m, σ0 {:.3}, {} rejected",
+        rep.sigma0, rep.rejected.count
+    );
+    assert!(worst < 0.15, "worst centre error {worst}");
+    // A-priori σ = 1 px, noise 0.5 px: snooping against σ = 1 rejects next to nothing.
+    assert!(rep.rejected.count < 5);
+}
+
+#[test]
+fn sparse_path_is_deterministic_across_thread_counts() {
+    let o = SyntheticOptions {
+        strips: 3,
+        photos_per_strip: 25,
+        tie_points: 5000,
+        check_points: 0,
+        seed: 13,
+        ..Default::default()
+    };
+    let b = generate(&o).start;
+    let run = |threads: usize| {
+        let mut bb = b.clone();
+        let pool = rayon::ThreadPoolBuilder::new()
+            .num_threads(threads)
+            .build()
+            .unwrap();
+        let rep = pool.install(|| adjust(&mut bb, &[], None, &AdjustOptions::default()).unwrap());
+        (bb, rep)
+    };
+    let (b1, r1) = run(1);
+    let (b2, r2) = run(2);
+    assert_eq!(r1.sigma0.to_bits(), r2.sigma0.to_bits());
+    for (id, p) in &b1.photos {
+        assert_eq!(p.pose, b2.photos[id].pose, "photo {id}");
+    }
+}
