@@ -261,8 +261,18 @@ pub(crate) fn reduced_rows(
                 };
                 let w1v = w1 * ps.vinv;
                 rhs += w1v * ps.g;
+                let photo1 = b1 < st.n_photos;
                 for (b2, w2) in ps.w.iter().filter(|(k, _)| *k >= b1) {
-                    blocks[slot(*b2)] -= w1v * w2.transpose();
+                    let blk = &mut blocks[slot(*b2)];
+                    if photo1 && *b2 < st.n_photos {
+                        // Photo–photo coupling: only the 6×6 exterior-orientation corner
+                        // is populated (the bulk of the reduced camera system).
+                        let m = w1v.fixed_rows::<6>(0) * w2.fixed_rows::<6>(0).transpose();
+                        let mut v = blk.fixed_view_mut::<6, 6>(0, 0);
+                        v -= m;
+                    } else {
+                        *blk -= w1v * w2.transpose();
+                    }
                 }
             }
             Row { blocks, rhs }
