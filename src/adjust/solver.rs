@@ -242,8 +242,16 @@ pub(crate) fn reduced_rows(
                 } else {
                     e.j_camera
                 };
-                blocks[0] += wt * j1.transpose() * j1;
-                rhs -= wt * j1.transpose() * e.r;
+                if b1 < st.n_photos {
+                    let j6 = j1.fixed_columns::<6>(0);
+                    let mut v = blocks[0].fixed_view_mut::<6, 6>(0, 0);
+                    v += wt * j6.transpose() * j6;
+                    let mut g = rhs.fixed_rows_mut::<6>(0);
+                    g -= wt * j6.transpose() * e.r;
+                } else {
+                    blocks[0] += wt * j1.transpose() * j1;
+                    rhs -= wt * j1.transpose() * e.r;
+                }
                 if let [Some(p), Some(c)] = blocks_of(r, &st.camera_block) {
                     if p == b1 && c > b1 {
                         blocks[slot(c)] += wt * j1.transpose() * e.j_camera;
@@ -459,9 +467,20 @@ pub(crate) fn levenberg_marquardt(
         iterations += 1;
         let mut accepted = false;
         while lambda < 1e12 {
+            let t = std::time::Instant::now();
             let pts = point_systems(st, res, &ev, lambda);
+            let t_points = t.elapsed().as_secs_f64();
             let rows = reduced_rows(st, res, &ev, &pts, lambda);
-            let Some(f) = factorize(st, &rows, &mut cache) else {
+            let t_rows = t.elapsed().as_secs_f64();
+            let factor = factorize(st, &rows, &mut cache);
+            tracing::debug!(
+                t_points,
+                t_rows = t_rows - t_points,
+                t_factor = t.elapsed().as_secs_f64() - t_rows,
+                n = st.n,
+                "normal equations"
+            );
+            let Some(f) = factor else {
                 lambda *= 10.0;
                 continue;
             };
@@ -472,7 +491,9 @@ pub(crate) fn levenberg_marquardt(
                 .chain(dp.iter().map(|v| v.amax() * 1e-3))
                 .fold(0.0f64, f64::max);
             let trial = apply(st, state, &db, &dp);
+            let t = std::time::Instant::now();
             let tev = evaluate(res, &trial, loss);
+            tracing::debug!(t_eval = t.elapsed().as_secs_f64(), "residuals and Jacobians");
             if tev.cost.is_finite() && tev.failed <= ev.failed && tev.cost <= ev.cost {
                 let rel = (ev.cost - tev.cost) / ev.cost.max(f64::MIN_POSITIVE);
                 *state = trial;

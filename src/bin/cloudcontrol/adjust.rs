@@ -55,6 +55,9 @@ pub struct AdjustArgs {
     /// Leave per-observation residuals out of the report.
     #[arg(long)]
     pub no_residuals: bool,
+    /// Skip the per-photo EO standard deviations (saves the multi-right-hand-side solve).
+    #[arg(long)]
+    pub no_covariance: bool,
 }
 
 #[derive(Args, Debug)]
@@ -610,6 +613,7 @@ pub fn run_adjust(a: &AdjustArgs) -> Result<serde_json::Value, String> {
         loss,
         rejection,
         max_iterations: a.max_iterations,
+        covariance: !a.no_covariance,
         ..Default::default()
     };
     let mut rep = adjust(&mut block, &planes, None, &opts).map_err(|e| e.to_string())?;
