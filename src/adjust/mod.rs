@@ -13,6 +13,7 @@ mod precision;
 mod problem;
 pub mod resection;
 mod residual;
+mod robust;
 mod solver;
 pub mod synthetic;
 

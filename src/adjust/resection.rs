@@ -340,7 +340,7 @@ pub fn resect(
     }
     let mut sv: Vec<f64> = m.singular_values().iter().copied().collect();
     sv.sort_by(|a, b| b.total_cmp(a));
-    if sv[0] <= 0.0 || sv[1] < 1e-6 * sv[0].max(1e-12) * 1e3 {
+    if sv[0] <= 0.0 || sv[1] < 1e-3 * sv[0] {
         return Err(AdjustError::Degenerate(format!(
             "the {} control points are collinear (or coincide); a resection needs three not on a line",
             cs.len()

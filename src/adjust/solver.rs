@@ -493,7 +493,10 @@ pub(crate) fn levenberg_marquardt(
             let trial = apply(st, state, &db, &dp);
             let t = std::time::Instant::now();
             let tev = evaluate(res, &trial, loss);
-            tracing::debug!(t_eval = t.elapsed().as_secs_f64(), "residuals and Jacobians");
+            tracing::debug!(
+                t_eval = t.elapsed().as_secs_f64(),
+                "residuals and Jacobians"
+            );
             if tev.cost.is_finite() && tev.failed <= ev.failed && tev.cost <= ev.cost {
                 let rel = (ev.cost - tev.cost) / ev.cost.max(f64::MIN_POSITIVE);
                 *state = trial;

@@ -705,3 +705,28 @@ pub fn run_resect(a: &ResectArgs) -> Result<serde_json::Value, String> {
     }
     Ok(v)
 }
+
+/// Prints the result JSON (without the bulky per-observation arrays) or the error.
+pub fn print_result(
+    what: &str,
+    r: Result<serde_json::Value, String>,
+    quiet: bool,
+) -> std::process::ExitCode {
+    match r {
+        Ok(v) => {
+            if !quiet {
+                let mut v = v;
+                if let Some(o) = v.as_object_mut() {
+                    o.remove("residuals");
+                    o.remove("photo_precision");
+                }
+                println!("{}", serde_json::to_string_pretty(&v).expect("json"));
+            }
+            std::process::ExitCode::SUCCESS
+        }
+        Err(e) => {
+            eprintln!("cloudcontrol {what}: {e}");
+            std::process::ExitCode::from(1)
+        }
+    }
+}

@@ -72,8 +72,8 @@ fn main() -> ExitCode {
             println!("cloudcontrol {}", cloudcontrol::VERSION);
             ExitCode::SUCCESS
         }
-        Command::Adjust(a) => print_result("adjust", adjust::run_adjust(&a), cli.quiet),
-        Command::Resect(a) => print_result("resect", adjust::run_resect(&a), cli.quiet),
+        Command::Adjust(a) => adjust::print_result("adjust", adjust::run_adjust(&a), cli.quiet),
+        Command::Resect(a) => adjust::print_result("resect", adjust::run_resect(&a), cli.quiet),
         Command::Demo { out } => match cloudcontrol::pipeline::demo::run(&out) {
             Ok(s) => {
                 if cli.json {
@@ -110,25 +110,5 @@ fn main() -> ExitCode {
                 ExitCode::from(1)
             }
         },
-    }
-}
-
-fn print_result(what: &str, r: Result<serde_json::Value, String>, quiet: bool) -> ExitCode {
-    match r {
-        Ok(v) => {
-            if !quiet {
-                let mut v = v;
-                if let Some(o) = v.as_object_mut() {
-                    o.remove("residuals");
-                    o.remove("photo_precision");
-                }
-                println!("{}", serde_json::to_string_pretty(&v).expect("json"));
-            }
-            ExitCode::SUCCESS
-        }
-        Err(e) => {
-            eprintln!("cloudcontrol {what}: {e}");
-            ExitCode::from(1)
-        }
     }
 }
