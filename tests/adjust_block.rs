@@ -125,67 +125,72 @@ fn robust_path_finds_gross_errors_in_image_and_control_points() {
             bad.insert(format!("{:?}", ObservationRef::ControlPrior { point: *id }));
         }
     }
-    let opts = AdjustOptions {
-        loss: Loss::Cauchy(2.0),
-        rejection: Rejection::Threshold(3.0),
-        ..Default::default()
-    };
-    let rep = adjust(&mut b, &[], None, &opts).unwrap();
-    let found: BTreeSet<String> = rep
-        .rejected
-        .list
-        .iter()
-        .map(|r| format!("{:?}", r.observation))
-        .collect();
-    let hits = found.intersection(&bad).count();
-    let false_rej = found.len() - hits;
-    let n_good = n_image + ctrl.len() - bad.len();
-    let (ce, re) = pose_errors(&b, &syn.truth);
-    eprintln!(
-        "{} injected, {} found ({:.1} %), {} false ({:.2} %), σ0 {:.3}, centre RMS {:.3} m, rot {:.1e}, {} rounds, {:.1} s",
-        bad.len(), hits, 100.0 * hits as f64 / bad.len() as f64, false_rej,
-        100.0 * false_rej as f64 / n_good as f64, rep.sigma0, ce, re, rep.rounds, rep.time_s
-    );
-    let bad_points: BTreeSet<String> = bad
-        .iter()
-        .filter_map(|b| {
-            b.split("point: ").nth(1).map(|x| {
-                x.split(',')
-                    .next()
-                    .unwrap()
-                    .trim_end_matches(" }")
-                    .to_string()
+    let injected = b.clone();
+    for loss in [Loss::Huber(2.0), Loss::Cauchy(2.0)] {
+        let mut b = injected.clone();
+        eprintln!("{loss:?}");
+        let opts = AdjustOptions {
+            loss,
+            rejection: Rejection::Threshold(3.0),
+            ..Default::default()
+        };
+        let rep = adjust(&mut b, &[], None, &opts).unwrap();
+        let found: BTreeSet<String> = rep
+            .rejected
+            .list
+            .iter()
+            .map(|r| format!("{:?}", r.observation))
+            .collect();
+        let hits = found.intersection(&bad).count();
+        let false_rej = found.len() - hits;
+        let n_good = n_image + ctrl.len() - bad.len();
+        let (ce, re) = pose_errors(&b, &syn.truth);
+        eprintln!(
+            "{} injected, {} found ({:.1} %), {} false ({:.2} %), σ0 {:.3}, centre RMS {:.3} m, rot {:.1e}, {} rounds, {:.1} s",
+            bad.len(), hits, 100.0 * hits as f64 / bad.len() as f64, false_rej,
+            100.0 * false_rej as f64 / n_good as f64, rep.sigma0, ce, re, rep.rounds, rep.time_s
+        );
+        let bad_points: BTreeSet<String> = bad
+            .iter()
+            .filter_map(|b| {
+                b.split("point: ").nth(1).map(|x| {
+                    x.split(',')
+                        .next()
+                        .unwrap()
+                        .trim_end_matches(" }")
+                        .to_string()
+                })
             })
-        })
-        .collect();
-    let mut same_point = 0;
-    let mut rounds = std::collections::BTreeMap::new();
-    for r in &rep.rejected.list {
-        let key = format!("{:?}", r.observation);
-        if !bad.contains(&key) {
-            *rounds.entry(r.round).or_insert(0) += 1;
-            if let ObservationRef::Image { point, .. } = r.observation {
-                if bad_points.contains(&point.to_string()) {
-                    same_point += 1;
+            .collect();
+        let mut same_point = 0;
+        let mut rounds = std::collections::BTreeMap::new();
+        for r in &rep.rejected.list {
+            let key = format!("{:?}", r.observation);
+            if !bad.contains(&key) {
+                *rounds.entry(r.round).or_insert(0) += 1;
+                if let ObservationRef::Image { point, .. } = r.observation {
+                    if bad_points.contains(&point.to_string()) {
+                        same_point += 1;
+                    }
                 }
             }
         }
-    }
-    eprintln!(
-        "false rejections sharing a point with a gross error: {same_point}; per round {rounds:?}"
-    );
-    let ctrl_hits = rep
-        .rejected
-        .list
-        .iter()
-        .filter(|r| matches!(r.observation, ObservationRef::ControlPrior { .. }))
-        .count();
-    eprintln!("control priors rejected: {ctrl_hits}");
-    assert!(hits as f64 >= 0.95 * bad.len() as f64);
-    assert!((false_rej as f64) < 0.01 * n_good as f64);
-    assert!((rep.sigma0 / 0.5 - 1.0).abs() < 0.15, "σ0 {}", rep.sigma0);
-    assert!(ce < 0.5 && re < 5e-4);
-    for r in &rep.rejected.list {
-        assert!(r.reason.contains("standardised residual"), "{}", r.reason);
+        eprintln!(
+            "false rejections sharing a point with a gross error: {same_point}; per round {rounds:?}"
+        );
+        let ctrl_hits = rep
+            .rejected
+            .list
+            .iter()
+            .filter(|r| matches!(r.observation, ObservationRef::ControlPrior { .. }))
+            .count();
+        eprintln!("control priors rejected: {ctrl_hits}");
+        assert!(hits as f64 >= 0.95 * bad.len() as f64);
+        assert!((false_rej as f64) < 0.01 * n_good as f64);
+        assert!((rep.sigma0 / 0.5 - 1.0).abs() < 0.15, "σ0 {}", rep.sigma0);
+        assert!(ce < 0.5 && re < 5e-4);
+        for r in &rep.rejected.list {
+            assert!(r.reason.contains("standardised residual"), "{}", r.reason);
+        }
     }
 }
