@@ -199,3 +199,64 @@ fn adjust_a_colmap_model_with_control_measurements_and_check_points() {
     assert!(!st.status.success());
     assert!(String::from_utf8_lossy(&st.stderr).contains("NOPE"));
 }
+
+#[test]
+fn resect_from_a_csv_with_outliers_in_world_coordinates() {
+    use cloudcontrol::geometry::{project, Camera, FrameCamera, Pose};
+    let cam = Camera::Frame(FrameCamera::pinhole(6000, 4000, 5000.0));
+    let world = Vector3::new(400_000.0, 2_500_000.0, 0.0);
+    let truth = Pose::from_opk(0.01, 0.02, 0.3, Vector3::new(20.0, -30.0, 1000.0));
+    let mut csv = String::from("x,y,X,Y,Z\n");
+    let mut n = 0;
+    for i in 0..6 {
+        for j in 0..4 {
+            let x = Vector3::new(
+                -400.0 + 160.0 * i as f64,
+                -250.0 + 170.0 * j as f64,
+                10.0 * ((i * j) % 5) as f64,
+            );
+            let mut p = project(&cam, &truth, &x).unwrap().pixel;
+            if n % 4 == 1 {
+                p.x += 60.0;
+            }
+            let w = x + world;
+            writeln!(csv, "{},{},{},{},{}", p.x, p.y, w.x, w.y, w.z).unwrap();
+            n += 1;
+        }
+    }
+    let dir = tempfile::tempdir().unwrap();
+    std::fs::write(dir.path().join("p.csv"), csv).unwrap();
+    let out = dir.path().join("pose.json");
+    let st = Command::new(BIN)
+        .args([
+            "-q",
+            "resect",
+            "--camera",
+            "5000,5000,3000,2000",
+            "--width",
+            "6000",
+            "--height",
+            "4000",
+            "--points",
+        ])
+        .arg(dir.path().join("p.csv"))
+        .arg("--out")
+        .arg(&out)
+        .output()
+        .unwrap();
+    assert!(
+        st.status.success(),
+        "{}",
+        String::from_utf8_lossy(&st.stderr)
+    );
+    let r: serde_json::Value = serde_json::from_slice(&std::fs::read(&out).unwrap()).unwrap();
+    let c: Vec<f64> = r["pose"]["center"]
+        .as_array()
+        .unwrap()
+        .iter()
+        .map(|v| v.as_f64().unwrap())
+        .collect();
+    let e = (Vector3::new(c[0], c[1], c[2]) - world - truth.center).norm();
+    assert!(e < 1e-3, "centre error {e} m");
+    assert_eq!(r["num_inliers"], 18);
+}
