@@ -90,3 +90,29 @@ def test_unknown_ids_are_named():
         b.add_observations([6], [1], [[10.0, 10.0]], 1.0)
     with pytest.raises(CloudControlError, match="two"):
         b.adjust()
+
+
+def test_pos_priors_and_lidar_planes_through_the_abi():
+    rng = np.random.default_rng(5)
+    cam, poses, X, obs = make_block(rng)
+    counts = np.bincount([o[0] for o in obs], minlength=len(X))
+    used = np.nonzero(counts >= 2)[0]
+    b = Block()
+    b.add_camera(1, cam)
+    for j, p in enumerate(poses):
+        b.add_photo(j + 1, 1, Pose(p.rotation, p.center + rng.normal(0, 2.0, 3)))
+        b.set_pos_prior(j + 1, p.center + rng.normal(0, 0.05, 3), [0.05] * 3, p.rotation, 1e-3)
+    b.add_points(used + 1, np.full(len(used), TIE), X[used] + rng.normal(0, 1.0, (len(used), 3)))
+    sel = [o for o in obs if counts[o[0]] >= 2]
+    b.add_observations([o[0] + 1 for o in sel], [o[1] + 1 for o in sel], np.array([o[2] for o in sel]), 1.0)
+    # Horizontal LiDAR planes through every tenth tie point's true height.
+    pl = used[::10]
+    b.add_planes(pl + 1, np.tile([0.0, 0.0, 1.0], (len(pl), 1)), X[pl, 2], np.full(len(pl), 1 / 0.05**2))
+    s = b.adjust()
+    rep = b.report()
+    assert rep["datum"] == "pos+lidar_planes"
+    assert abs(s["sigma0"] / 0.5 - 1.0) < 0.1
+    for j, p in enumerate(poses):
+        q, _ = b.photo(j + 1)
+        assert np.linalg.norm(q.center - p.center) < 0.2
+    assert abs(b.point(int(pl[0]) + 1)[2] - X[pl[0], 2]) < 0.2
