@@ -6,6 +6,7 @@
 //! formats/lidar → block → matching/adjust/control → pipeline → outputs, with [`ffi`] and
 //! the CLI as thin skins.
 
+pub mod adjust;
 pub mod block;
 pub mod control;
 pub mod estimators;

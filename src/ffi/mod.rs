@@ -10,11 +10,13 @@
 //! misalignment and non-finite values are detected and reported, not trusted.
 #![allow(clippy::missing_safety_doc)] // the contract above applies to every entry point
 
+mod adjust;
 mod camera;
 mod control;
 mod formats;
 mod synth;
 
+pub use adjust::*;
 pub use camera::*;
 pub use control::*;
 pub use formats::*;

@@ -1,6 +1,7 @@
 //! The `cloudcontrol` command line: argument parsing, progress and output only; the work
 //! is done by the library.
 
+mod adjust;
 mod convert;
 mod dcp;
 mod ortho;
@@ -51,6 +52,10 @@ enum Command {
     Version,
     Convert(convert::Args),
     Ortho(ortho::Args),
+    /// Robust bundle adjustment of a COLMAP model with control, check points and LiDAR planes.
+    Adjust(adjust::AdjustArgs),
+    /// Single-photo resection from control points.
+    Resect(adjust::ResectArgs),
 }
 
 fn init_logging(quiet: bool, verbose: u8) {
@@ -90,6 +95,8 @@ fn main() -> ExitCode {
             }
         },
         Command::Synth(args) => synth::run(args, cli.json, cli.quiet),
+        Command::Adjust(a) => adjust::print_result("adjust", adjust::run_adjust(&a), cli.quiet),
+        Command::Resect(a) => adjust::print_result("resect", adjust::run_resect(&a), cli.quiet),
         Command::Demo { out } => match cloudcontrol::pipeline::demo::run(&out) {
             Ok(s) => {
                 if cli.json {

@@ -1,0 +1,222 @@
+//! Robust bundle adjustment with self-calibration, and single-photo resection.
+//!
+//! [`adjust`] reads a [`Block`], assembles one residual block per observation (image
+//! points of tie and control points, control-point priors, POS centre/attitude priors,
+//! LiDAR point-to-plane constraints), solves by Levenberg–Marquardt on the reduced camera
+//! system, removes gross errors (IRLS with Huber/Cauchy, then elimination of
+//! observations whose standardised residual exceeds k·σ0, or Baarda data snooping),
+//! writes the adjusted orientations back into the block and reports the precision.
+//! Check points never enter the solution: they are intersected afterwards with the
+//! adjusted orientations and compared with their surveyed coordinates.
+
+mod precision;
+mod problem;
+pub mod resection;
+mod residual;
+mod robust;
+mod solver;
+pub mod synthetic;
+
+pub use problem::adjust;
+pub use resection::{resect, ResectionOptions, ResectionResult};
+pub use residual::Loss;
+
+use crate::block::{PhotoId, PointId};
+use nalgebra::Vector3;
+use serde::{Deserialize, Serialize};
+
+/// Errors of the adjustment and the resection; each names the photo, point or option.
+#[derive(Debug, thiserror::Error, Clone, PartialEq)]
+pub enum AdjustError {
+    #[error("invalid block: {0}")]
+    InvalidBlock(String),
+    #[error("invalid option {name}: {message}")]
+    InvalidOption { name: String, message: String },
+    #[error("degenerate geometry: {0}")]
+    Degenerate(String),
+    #[error("too few observations: {0}")]
+    TooFewObservations(String),
+    #[error("unknown {what} {id}")]
+    UnknownId { what: String, id: String },
+    #[error("{what} is not finite")]
+    NotFinite { what: String },
+    #[error("the normal equations are singular: {0}")]
+    Singular(String),
+}
+
+/// A LiDAR plane n·X = d (block-local, |n| = 1) that tie point `point` should lie on,
+/// with the plane's coplanarity weight (1/σ² of the point-to-plane distance, 1/m²).
+#[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
+pub struct PlaneConstraint {
+    pub point: PointId,
+    pub normal: [f64; 3],
+    pub d: f64,
+    pub weight: f64,
+}
+
+/// Re-fits the LiDAR planes of tie points between adjustment rounds (the LiDAR module
+/// implements it: nearest neighbours around the current object position, PCA plane,
+/// coplanarity weight). Returning an empty list drops all plane constraints.
+pub trait PlaneRefitter {
+    fn refit(&mut self, points: &[(PointId, Vector3<f64>)]) -> Vec<PlaneConstraint>;
+}
+
+/// How gross errors are removed after each robust solution.
+#[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
+#[serde(rename_all = "snake_case")]
+pub enum Rejection {
+    /// Keep every observation (IRLS only).
+    None,
+    /// Remove every observation whose standardised residual exceeds `k` (in units of
+    /// σ0), re-solve, repeat until none remains (seed 000: k = 2–3).
+    Threshold(f64),
+    /// Baarda data snooping: remove, per object point, only the observation with the
+    /// largest normalised residual when it exceeds the critical value `k` (3.29 for
+    /// α0 = 0.1 %), re-solve, repeat.
+    DataSnooping(f64),
+}
+
+/// Options of [`adjust`].
+#[derive(Debug, Clone, Serialize, Deserialize)]
+pub struct AdjustOptions {
+    pub loss: Loss,
+    pub rejection: Rejection,
+    /// Largest number of solve–reject rounds.
+    pub max_rounds: usize,
+    pub max_iterations: usize,
+    pub function_tolerance: f64,
+    pub parameter_tolerance: f64,
+    /// Correlation above which a self-calibrated parameter is flagged as not determinable.
+    pub max_correlation: f64,
+    /// Compute per-photo EO standard deviations (one multi-right-hand-side solve).
+    pub covariance: bool,
+}
+
+impl Default for AdjustOptions {
+    fn default() -> Self {
+        Self {
+            loss: Loss::Huber(2.0),
+            rejection: Rejection::Threshold(3.0),
+            max_rounds: 10,
+            max_iterations: 50,
+            function_tolerance: 1e-6,
+            parameter_tolerance: 1e-10,
+            max_correlation: 0.98,
+            covariance: true,
+        }
+    }
+}
+
+/// Which observation a report entry refers to.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(tag = "type", rename_all = "snake_case")]
+pub enum ObservationRef {
+    Image { point: PointId, photo: PhotoId },
+    ControlPrior { point: PointId },
+    PosCenter { photo: PhotoId },
+    PosAttitude { photo: PhotoId },
+    Plane { point: PointId },
+}
+
+/// A rejected observation and why.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub struct Rejected {
+    pub observation: ObservationRef,
+    pub round: usize,
+    pub standardized_residual: f64,
+    pub reason: String,
+}
+
+/// Residual of one observation after the adjustment.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub struct ResidualReport {
+    pub observation: ObservationRef,
+    /// Residual in the observation's units (px, m, rad), up to three components.
+    pub residual: Vec<f64>,
+    /// Largest standardised residual component (units of σ0·σ_l·√r).
+    pub standardized: f64,
+    /// Redundancy number (local estimate, see `precision`).
+    pub redundancy: f64,
+}
+
+/// Exterior-orientation precision of a photo.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub struct PhotoPrecision {
+    pub photo: PhotoId,
+    pub name: String,
+    /// σ of the rotation vector components (rad, camera-frame left perturbation).
+    pub sigma_rotation_rad: [f64; 3],
+    /// σ of the projection centre (m).
+    pub sigma_center_m: [f64; 3],
+    /// RMS image residual of the photo (px).
+    pub rmse_px: f64,
+    pub observations: usize,
+}
+
+/// Result of self-calibration for one interior parameter.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub struct CalibrationReport {
+    pub camera: u32,
+    pub param: String,
+    pub value: f64,
+    pub sigma: f64,
+    /// Largest |correlation| with any other unknown of the reduced system.
+    pub max_correlation: f64,
+    /// Name of the unknown it correlates most with.
+    pub correlated_with: String,
+    /// False when the block geometry does not determine the parameter (correlation
+    /// above the limit): the value is then not trustworthy.
+    pub determinable: bool,
+}
+
+/// Check point comparison.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub struct CheckPointReport {
+    pub point: PointId,
+    pub name: String,
+    /// Intersected minus surveyed (m): x, y, z.
+    pub error: [f64; 3],
+    pub rays: usize,
+}
+
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub struct CheckSummary {
+    pub count: usize,
+    pub rmse_plan_m: f64,
+    pub rmse_height_m: f64,
+    pub max_m: f64,
+    pub points: Vec<CheckPointReport>,
+}
+
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub struct RejectedSummary {
+    pub count: usize,
+    pub list: Vec<Rejected>,
+}
+
+/// The adjustment report (serialised as the JSON report, see formats/adjust/).
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub struct AdjustReport {
+    /// A-posteriori standard deviation of unit weight.
+    pub sigma0: f64,
+    /// RMS of the image residuals (px), active observations.
+    pub rmse_px: f64,
+    pub iterations: usize,
+    pub rounds: usize,
+    pub converged: bool,
+    /// How the datum is defined: "control", "pos", "lidar_planes", combinations, or
+    /// "free_network" (first photo and one centre coordinate of a second held fixed).
+    pub datum: String,
+    pub photos: usize,
+    pub points: usize,
+    pub observations: usize,
+    pub redundancy: usize,
+    pub rejected: RejectedSummary,
+    pub time_s: f64,
+    pub photo_precision: Vec<PhotoPrecision>,
+    pub calibration: Vec<CalibrationReport>,
+    pub check: Option<CheckSummary>,
+    /// Residuals of every observation (image residuals can be many; omit from JSON by
+    /// clearing when not wanted).
+    pub residuals: Vec<ResidualReport>,
+}

@@ -1,0 +1,198 @@
+//! One residual-block abstraction for every observation type of the adjustment: image
+//! points (collinearity), object-point priors (control), POS centre and attitude priors
+//! and LiDAR point-to-plane distances. Each block is whitened by its a-priori σ so that
+//! the solver sees unit-weight residuals, and reports its Jacobians with respect to the
+//! three kinds of parameter blocks (exterior orientation, interior orientation, object
+//! point) whichever it touches.
+
+use crate::geometry::{project_with_jacobians, Camera, Pose};
+use nalgebra::{Matrix3, Rotation3, SMatrix, Vector2, Vector3};
+
+/// Current values of all unknowns, indexed densely (photo, camera, point index).
+#[derive(Debug, Clone)]
+pub(crate) struct State {
+    pub poses: Vec<Pose>,
+    pub cameras: Vec<Camera>,
+    pub points: Vec<Vector3<f64>>,
+}
+
+/// What a residual block measures.
+#[derive(Debug, Clone)]
+pub(crate) enum Kind {
+    /// Image coordinates of an object point (tie or control), σ in pixels.
+    Image { pixel: Vector2<f64>, sigma: f64 },
+    /// Surveyed position of a control point.
+    PointPrior {
+        value: Vector3<f64>,
+        sigma: Vector3<f64>,
+    },
+    /// POS projection centre.
+    PosCenter {
+        value: Vector3<f64>,
+        sigma: Vector3<f64>,
+    },
+    /// POS attitude (world→camera rotation), σ per angle in radians.
+    PosAttitude { rotation: Matrix3<f64>, sigma: f64 },
+    /// Distance of an object point to a LiDAR plane n·X = d, times √weight.
+    Plane {
+        normal: Vector3<f64>,
+        d: f64,
+        sqrt_weight: f64,
+    },
+}
+
+impl Kind {
+    pub fn label(&self) -> &'static str {
+        match self {
+            Kind::Image { .. } => "image point",
+            Kind::PointPrior { .. } => "control point prior",
+            Kind::PosCenter { .. } => "POS centre",
+            Kind::PosAttitude { .. } => "POS attitude",
+            Kind::Plane { .. } => "LiDAR plane",
+        }
+    }
+}
+
+/// A residual block and the parameter blocks it touches.
+#[derive(Debug, Clone)]
+pub(crate) struct ResidualBlock {
+    pub kind: Kind,
+    pub photo: Option<usize>,
+    pub camera: Option<usize>,
+    pub point: Option<usize>,
+    /// False once rejected as a gross error.
+    pub active: bool,
+}
+
+/// Whitened residual (first `dim` rows used) and Jacobians. Exterior orientation uses
+/// the first six columns of `j_photo` (δθ left-multiplied, then δC, as `Pose::perturbed`);
+/// `j_camera` has one column per interior parameter of `Camera::params`.
+#[derive(Debug, Clone, Copy)]
+pub(crate) struct Eval {
+    pub dim: usize,
+    pub r: Vector3<f64>,
+    pub j_photo: SMatrix<f64, 3, 9>,
+    pub j_camera: SMatrix<f64, 3, 9>,
+    pub j_point: Matrix3<f64>,
+}
+
+impl Eval {
+    fn new(dim: usize) -> Self {
+        Self {
+            dim,
+            r: Vector3::zeros(),
+            j_photo: SMatrix::zeros(),
+            j_camera: SMatrix::zeros(),
+            j_point: Matrix3::zeros(),
+        }
+    }
+    pub fn norm_sq(&self) -> f64 {
+        self.r.norm_squared()
+    }
+}
+
+/// Rotation vector of a rotation matrix (the inverse of `rotation_from_vector`).
+pub(crate) fn rotation_vector(r: &Matrix3<f64>) -> Vector3<f64> {
+    Rotation3::from_matrix_unchecked(*r).scaled_axis()
+}
+
+impl ResidualBlock {
+    /// Residual and Jacobians at `state`; `None` when the block cannot be evaluated
+    /// (object point behind the camera), which the solver treats as a missing observation.
+    pub fn evaluate(&self, s: &State) -> Option<Eval> {
+        match &self.kind {
+            Kind::Image { pixel, sigma } => {
+                let (ph, cam, pt) = (self.photo?, self.camera?, self.point?);
+                let (p, j) =
+                    project_with_jacobians(&s.cameras[cam], &s.poses[ph], &s.points[pt]).ok()?;
+                let w = 1.0 / sigma;
+                let mut e = Eval::new(2);
+                let r = (p.pixel - pixel) * w;
+                e.r = Vector3::new(r.x, r.y, 0.0);
+                e.j_photo
+                    .fixed_view_mut::<2, 6>(0, 0)
+                    .copy_from(&(j.pose * w));
+                e.j_camera
+                    .fixed_view_mut::<2, 9>(0, 0)
+                    .copy_from(&(j.intrinsics * w));
+                e.j_point
+                    .fixed_view_mut::<2, 3>(0, 0)
+                    .copy_from(&(j.point * w));
+                Some(e)
+            }
+            Kind::PointPrior { value, sigma } => {
+                let x = s.points[self.point?];
+                let mut e = Eval::new(3);
+                e.r = (x - value).component_div(sigma);
+                e.j_point = Matrix3::from_diagonal(&sigma.map(|v| 1.0 / v));
+                Some(e)
+            }
+            Kind::PosCenter { value, sigma } => {
+                let c = s.poses[self.photo?].center;
+                let mut e = Eval::new(3);
+                e.r = (c - value).component_div(sigma);
+                e.j_photo
+                    .fixed_view_mut::<3, 3>(0, 3)
+                    .copy_from(&Matrix3::from_diagonal(&sigma.map(|v| 1.0 / v)));
+                Some(e)
+            }
+            Kind::PosAttitude { rotation, sigma } => {
+                let r = s.poses[self.photo?].rotation;
+                let mut e = Eval::new(3);
+                // exp(δθ)·R·R₀ᵀ: to first order the residual moves by δθ itself.
+                e.r = rotation_vector(&(r * rotation.transpose())) / *sigma;
+                e.j_photo
+                    .fixed_view_mut::<3, 3>(0, 0)
+                    .copy_from(&(Matrix3::identity() / *sigma));
+                Some(e)
+            }
+            Kind::Plane {
+                normal,
+                d,
+                sqrt_weight,
+            } => {
+                let x = s.points[self.point?];
+                let mut e = Eval::new(1);
+                e.r.x = (normal.dot(&x) - d) * sqrt_weight;
+                e.j_point
+                    .fixed_view_mut::<1, 3>(0, 0)
+                    .copy_from(&(normal.transpose() * *sqrt_weight));
+                Some(e)
+            }
+        }
+    }
+}
+
+/// Robust loss ρ(s) of the squared whitened residual norm s, as in Ceres.
+#[derive(Debug, Clone, Copy, PartialEq, serde::Serialize, serde::Deserialize)]
+#[serde(rename_all = "snake_case")]
+pub enum Loss {
+    /// Ordinary least squares.
+    None,
+    /// Huber with threshold `c` (whitened units): quadratic inside, linear outside.
+    Huber(f64),
+    /// Cauchy with scale `c`: redescending influence, for heavy gross-error rates.
+    Cauchy(f64),
+}
+
+impl Loss {
+    /// ρ(s) and the IRLS weight ρ'(s).
+    pub fn rho(&self, s: f64) -> (f64, f64) {
+        match *self {
+            Loss::None => (s, 1.0),
+            Loss::Huber(c) => {
+                let c2 = c * c;
+                if s <= c2 {
+                    (s, 1.0)
+                } else {
+                    let r = s.sqrt();
+                    (2.0 * c * r - c2, c / r)
+                }
+            }
+            Loss::Cauchy(c) => {
+                let c2 = c * c;
+                (c2 * (1.0 + s / c2).ln(), 1.0 / (1.0 + s / c2))
+            }
+        }
+    }
+}

@@ -1,0 +1,534 @@
+//! Levenberg–Marquardt on the normal equations with the object points eliminated
+//! (Schur complement, 3×3 point blocks), leaving the reduced camera system over exterior
+//! orientations and free interior parameters. The reduced system is factorised by a
+//! sparse Cholesky (faer, AMD fill-reducing ordering, symbolic analysis reused while the
+//! sparsity pattern holds) or, for small blocks, a dense Cholesky.
+//!
+//! Assembly is parallel but deterministic: every sum is owned by one task (one object
+//! point, one row of the reduced system) and adds its terms in a fixed order, so the
+//! thread count never changes a bit of the result.
+
+use super::residual::{Eval, Loss, ResidualBlock, State};
+use faer::sparse::linalg::solvers::{Llt, SymbolicLlt};
+use faer::sparse::{SparseColMat, Triplet};
+use faer::Side;
+use nalgebra::{DMatrix, Matrix3, SMatrix, SVector, Vector3};
+use rayon::prelude::*;
+
+type M9 = SMatrix<f64, 9, 9>;
+type M93 = SMatrix<f64, 9, 3>;
+type V9 = SVector<f64, 9>;
+
+/// Reduced systems up to this size are factorised densely.
+const DENSE_MAX: usize = 400;
+
+/// The sparsity structure: which residuals touch which camera-side block (a photo's
+/// exterior orientation or a camera's interior orientation) and which object point.
+pub(crate) struct Structure {
+    pub n_photos: usize,
+    /// Camera index → block index (cameras without free parameters have none).
+    pub camera_block: Vec<Option<usize>>,
+    /// Free local parameter indices per block (photo: 0..6, camera: 0..9).
+    pub free: Vec<Vec<usize>>,
+    pub offset: Vec<usize>,
+    pub n: usize,
+    pub block_res: Vec<Vec<usize>>,
+    pub block_points: Vec<Vec<usize>>,
+    pub point_res: Vec<Vec<usize>>,
+    /// Sorted blocks b2 ≥ b1 coupled to b1 in the reduced system (b1 itself included).
+    pub neighbours: Vec<Vec<usize>>,
+}
+
+impl Structure {
+    pub fn new(
+        res: &[ResidualBlock],
+        n_photos: usize,
+        n_points: usize,
+        photo_free: &[[bool; 6]],
+        camera_free: &[Vec<usize>],
+    ) -> Self {
+        let mut camera_block = Vec::with_capacity(camera_free.len());
+        let mut free: Vec<Vec<usize>> = photo_free
+            .iter()
+            .map(|f| (0..6).filter(|&k| f[k]).collect())
+            .collect();
+        for cf in camera_free {
+            if cf.is_empty() {
+                camera_block.push(None);
+            } else {
+                camera_block.push(Some(free.len()));
+                free.push(cf.clone());
+            }
+        }
+        let nb = free.len();
+        let mut offset = Vec::with_capacity(nb);
+        let mut n = 0;
+        for f in &free {
+            offset.push(n);
+            n += f.len();
+        }
+        let mut block_res = vec![Vec::new(); nb];
+        let mut point_res = vec![Vec::new(); n_points];
+        let mut pairs: Vec<Vec<usize>> = (0..nb).map(|b| vec![b]).collect();
+        for (i, r) in res.iter().enumerate() {
+            if !r.active {
+                continue;
+            }
+            let bs = blocks_of(r, &camera_block);
+            for b in bs.iter().flatten() {
+                block_res[*b].push(i);
+            }
+            if let [Some(a), Some(b)] = bs {
+                pairs[a.min(b)].push(a.max(b));
+            }
+            if let Some(p) = r.point {
+                point_res[p].push(i);
+            }
+        }
+        let mut block_points = vec![Vec::new(); nb];
+        for (p, rs) in point_res.iter().enumerate() {
+            let mut bs: Vec<usize> = rs
+                .iter()
+                .flat_map(|&i| blocks_of(&res[i], &camera_block))
+                .flatten()
+                .collect();
+            bs.sort_unstable();
+            bs.dedup();
+            for (k, &a) in bs.iter().enumerate() {
+                block_points[a].push(p);
+                pairs[a].extend_from_slice(&bs[k..]);
+            }
+        }
+        for p in &mut pairs {
+            p.sort_unstable();
+            p.dedup();
+        }
+        Self {
+            n_photos,
+            camera_block,
+            free,
+            offset,
+            n,
+            block_res,
+            block_points,
+            point_res,
+            neighbours: pairs,
+        }
+    }
+}
+
+/// The camera-side blocks a residual touches: its photo, and its camera when the
+/// residual is an image observation of a self-calibrated camera.
+fn blocks_of(r: &ResidualBlock, camera_block: &[Option<usize>]) -> [Option<usize>; 2] {
+    let cam = match r.kind {
+        super::residual::Kind::Image { .. } => r.camera.and_then(|c| camera_block[c]),
+        _ => None,
+    };
+    [r.photo, cam]
+}
+
+/// Per-point part of the normal equations after damping: V⁻¹, gradient and the
+/// coupling blocks W (one per camera-side block seen by the point).
+pub(crate) struct PointSys {
+    pub vinv: Matrix3<f64>,
+    pub g: Vector3<f64>,
+    pub w: Vec<(usize, M93)>,
+}
+
+pub(crate) struct Evaluated {
+    pub evals: Vec<Option<Eval>>,
+    pub weights: Vec<f64>,
+    pub cost: f64,
+    pub failed: usize,
+}
+
+pub(crate) fn evaluate(res: &[ResidualBlock], state: &State, loss: Loss) -> Evaluated {
+    let evals: Vec<Option<Eval>> = res
+        .par_iter()
+        .map(|r| if r.active { r.evaluate(state) } else { None })
+        .collect();
+    let mut weights = vec![0.0; res.len()];
+    let (mut cost, mut failed) = (0.0, 0);
+    for (i, (r, e)) in res.iter().zip(&evals).enumerate() {
+        match e {
+            Some(e) => {
+                let (rho, w) = loss.rho(e.norm_sq());
+                cost += rho;
+                weights[i] = w;
+            }
+            None if r.active => failed += 1,
+            None => {}
+        }
+    }
+    Evaluated {
+        evals,
+        weights,
+        cost,
+        failed,
+    }
+}
+
+fn damp(d: f64, lambda: f64) -> f64 {
+    lambda * d.clamp(1e-6, 1e32)
+}
+
+pub(crate) fn point_systems(
+    st: &Structure,
+    res: &[ResidualBlock],
+    ev: &Evaluated,
+    lambda: f64,
+) -> Vec<PointSys> {
+    st.point_res
+        .par_iter()
+        .map(|rs| {
+            let mut v = Matrix3::zeros();
+            let mut g = Vector3::zeros();
+            let mut w: Vec<(usize, M93)> = Vec::new();
+            for &i in rs {
+                let Some(e) = &ev.evals[i] else { continue };
+                let wt = ev.weights[i];
+                let jx = e.j_point;
+                v += wt * jx.transpose() * jx;
+                g += wt * jx.transpose() * e.r;
+                for b in blocks_of(&res[i], &st.camera_block).into_iter().flatten() {
+                    let jb = if res[i].photo == Some(b) {
+                        e.j_photo
+                    } else {
+                        e.j_camera
+                    };
+                    let c = wt * jb.transpose() * jx;
+                    match w.iter_mut().find(|(k, _)| *k == b) {
+                        Some((_, m)) => *m += c,
+                        None => w.push((b, c)),
+                    }
+                }
+            }
+            w.sort_by_key(|(k, _)| *k);
+            for k in 0..3 {
+                v[(k, k)] += damp(v[(k, k)], lambda);
+            }
+            let vinv = v.try_inverse().unwrap_or_else(Matrix3::zeros);
+            PointSys { vinv, g, w }
+        })
+        .collect()
+}
+
+/// One row of the reduced camera system: blocks S[b1, b2] for b2 in `neighbours[b1]`.
+pub(crate) struct Row {
+    pub blocks: Vec<M9>,
+    pub rhs: V9,
+}
+
+pub(crate) fn reduced_rows(
+    st: &Structure,
+    res: &[ResidualBlock],
+    ev: &Evaluated,
+    pts: &[PointSys],
+    lambda: f64,
+) -> Vec<Row> {
+    (0..st.free.len())
+        .into_par_iter()
+        .map(|b1| {
+            let nbr = &st.neighbours[b1];
+            let slot = |b2: usize| nbr.binary_search(&b2).expect("pattern holds b2");
+            let mut blocks = vec![M9::zeros(); nbr.len()];
+            let mut rhs = V9::zeros();
+            for &i in &st.block_res[b1] {
+                let Some(e) = &ev.evals[i] else { continue };
+                let wt = ev.weights[i];
+                let r = &res[i];
+                let j1 = if r.photo == Some(b1) {
+                    e.j_photo
+                } else {
+                    e.j_camera
+                };
+                if b1 < st.n_photos {
+                    let j6 = j1.fixed_columns::<6>(0);
+                    let mut v = blocks[0].fixed_view_mut::<6, 6>(0, 0);
+                    v += wt * j6.transpose() * j6;
+                    let mut g = rhs.fixed_rows_mut::<6>(0);
+                    g -= wt * j6.transpose() * e.r;
+                } else {
+                    blocks[0] += wt * j1.transpose() * j1;
+                    rhs -= wt * j1.transpose() * e.r;
+                }
+                if let [Some(p), Some(c)] = blocks_of(r, &st.camera_block) {
+                    if p == b1 && c > b1 {
+                        blocks[slot(c)] += wt * j1.transpose() * e.j_camera;
+                    }
+                }
+            }
+            for k in 0..9 {
+                let d = blocks[0][(k, k)];
+                blocks[0][(k, k)] += damp(d, lambda);
+            }
+            for &p in &st.block_points[b1] {
+                let ps = &pts[p];
+                let Some(w1) = ps.w.iter().find(|(k, _)| *k == b1).map(|(_, m)| *m) else {
+                    continue;
+                };
+                let w1v = w1 * ps.vinv;
+                rhs += w1v * ps.g;
+                let photo1 = b1 < st.n_photos;
+                for (b2, w2) in ps.w.iter().filter(|(k, _)| *k >= b1) {
+                    let blk = &mut blocks[slot(*b2)];
+                    if photo1 && *b2 < st.n_photos {
+                        // Photo–photo coupling: only the 6×6 exterior-orientation corner
+                        // is populated (the bulk of the reduced camera system).
+                        let m = w1v.fixed_rows::<6>(0) * w2.fixed_rows::<6>(0).transpose();
+                        let mut v = blk.fixed_view_mut::<6, 6>(0, 0);
+                        v -= m;
+                    } else {
+                        *blk -= w1v * w2.transpose();
+                    }
+                }
+            }
+            Row { blocks, rhs }
+        })
+        .collect()
+}
+
+/// A factorised reduced camera system.
+pub(crate) enum Factor {
+    Dense(nalgebra::Cholesky<f64, nalgebra::Dyn>),
+    Sparse(Llt<usize, f64>),
+}
+
+impl Factor {
+    pub fn solve_in_place(&self, x: &mut DMatrix<f64>) {
+        match self {
+            Factor::Dense(c) => c.solve_mut(x),
+            Factor::Sparse(l) => {
+                use faer::prelude::Solve;
+                let mut m = faer::Mat::<f64>::from_fn(x.nrows(), x.ncols(), |i, j| x[(i, j)]);
+                l.solve_in_place(m.as_mut());
+                for j in 0..x.ncols() {
+                    for i in 0..x.nrows() {
+                        x[(i, j)] = m[(i, j)];
+                    }
+                }
+            }
+        }
+    }
+}
+
+/// Cache of the symbolic sparse factorisation (AMD ordering and elimination tree),
+/// valid while the structure does not change.
+#[derive(Default)]
+pub(crate) struct SymbolicCache {
+    pub symbolic: Option<SymbolicLlt<usize>>,
+}
+
+pub(crate) fn factorize(st: &Structure, rows: &[Row], cache: &mut SymbolicCache) -> Option<Factor> {
+    let n = st.n;
+    if n == 0 {
+        return None;
+    }
+    if n <= DENSE_MAX {
+        let mut m = DMatrix::zeros(n, n);
+        for (b1, row) in rows.iter().enumerate() {
+            for (s, &b2) in st.neighbours[b1].iter().enumerate() {
+                for (i1, &k1) in st.free[b1].iter().enumerate() {
+                    for (i2, &k2) in st.free[b2].iter().enumerate() {
+                        let (g1, g2) = (st.offset[b1] + i1, st.offset[b2] + i2);
+                        let v = row.blocks[s][(k1, k2)];
+                        m[(g1, g2)] = v;
+                        m[(g2, g1)] = v;
+                    }
+                }
+            }
+        }
+        return m.cholesky().map(Factor::Dense);
+    }
+    let mut trip = Vec::new();
+    for (b1, row) in rows.iter().enumerate() {
+        for (s, &b2) in st.neighbours[b1].iter().enumerate() {
+            for (i1, &k1) in st.free[b1].iter().enumerate() {
+                for (i2, &k2) in st.free[b2].iter().enumerate() {
+                    if b1 == b2 && i2 < i1 {
+                        continue;
+                    }
+                    let (g1, g2) = (st.offset[b1] + i1, st.offset[b2] + i2);
+                    trip.push(Triplet::new(g1, g2, row.blocks[s][(k1, k2)]));
+                }
+            }
+        }
+    }
+    let mat = SparseColMat::<usize, f64>::try_new_from_triplets(n, n, &trip).ok()?;
+    if cache.symbolic.is_none() {
+        cache.symbolic = SymbolicLlt::try_new(mat.symbolic(), Side::Upper).ok();
+    }
+    let sym = cache.symbolic.clone()?;
+    Llt::try_new_with_symbolic(sym, mat.as_ref(), Side::Upper)
+        .ok()
+        .map(Factor::Sparse)
+}
+
+/// Solves for the camera-side update and back-substitutes the points.
+pub(crate) fn solve_step(
+    st: &Structure,
+    rows: &[Row],
+    pts: &[PointSys],
+    factor: &Factor,
+) -> (Vec<V9>, Vec<Vector3<f64>>) {
+    let mut x = DMatrix::zeros(st.n, 1);
+    for (b, row) in rows.iter().enumerate() {
+        for (i, &k) in st.free[b].iter().enumerate() {
+            x[(st.offset[b] + i, 0)] = row.rhs[k];
+        }
+    }
+    factor.solve_in_place(&mut x);
+    let dblocks: Vec<V9> = (0..st.free.len())
+        .map(|b| {
+            let mut v = V9::zeros();
+            for (i, &k) in st.free[b].iter().enumerate() {
+                v[k] = x[(st.offset[b] + i, 0)];
+            }
+            v
+        })
+        .collect();
+    let dpoints = pts
+        .par_iter()
+        .map(|ps| {
+            let mut r = -ps.g;
+            for (b, w) in &ps.w {
+                r -= w.transpose() * dblocks[*b];
+            }
+            ps.vinv * r
+        })
+        .collect();
+    (dblocks, dpoints)
+}
+
+/// Applies an update to a copy of the state.
+pub(crate) fn apply(
+    st: &Structure,
+    state: &State,
+    dblocks: &[V9],
+    dpoints: &[Vector3<f64>],
+) -> State {
+    let mut s = state.clone();
+    for (i, pose) in s.poses.iter_mut().enumerate() {
+        let d = &dblocks[i];
+        *pose = pose.perturbed(
+            &Vector3::new(d[0], d[1], d[2]),
+            &Vector3::new(d[3], d[4], d[5]),
+        );
+    }
+    for (c, cam) in s.cameras.iter_mut().enumerate() {
+        if let Some(b) = st.camera_block[c] {
+            let mut p = cam.params();
+            for &k in &st.free[b] {
+                p[k] += dblocks[b][k];
+            }
+            if cam.set_params(&p).is_err() {
+                continue;
+            }
+        }
+    }
+    for (x, d) in s.points.iter_mut().zip(dpoints) {
+        *x += d;
+    }
+    s
+}
+
+/// Outcome of a Levenberg–Marquardt run.
+#[derive(Debug, Clone)]
+pub(crate) struct LmOutcome {
+    pub iterations: usize,
+    pub initial_cost: f64,
+    pub final_cost: f64,
+    pub converged: bool,
+}
+
+#[derive(Debug, Clone)]
+pub(crate) struct LmOptions {
+    pub max_iterations: usize,
+    /// Stop when the relative cost decrease falls below this.
+    pub function_tolerance: f64,
+    /// Stop when the largest update (radians, metres, interior units) falls below this.
+    pub parameter_tolerance: f64,
+}
+
+pub(crate) fn levenberg_marquardt(
+    st: &Structure,
+    res: &[ResidualBlock],
+    state: &mut State,
+    loss: Loss,
+    opts: &LmOptions,
+) -> LmOutcome {
+    let mut cache = SymbolicCache::default();
+    let mut ev = evaluate(res, state, loss);
+    let initial_cost = ev.cost;
+    let mut lambda = 1e-4;
+    let mut iterations = 0;
+    let mut converged = false;
+    while iterations < opts.max_iterations {
+        iterations += 1;
+        let mut accepted = false;
+        while lambda < 1e12 {
+            let t = std::time::Instant::now();
+            let pts = point_systems(st, res, &ev, lambda);
+            let t_points = t.elapsed().as_secs_f64();
+            let rows = reduced_rows(st, res, &ev, &pts, lambda);
+            let t_rows = t.elapsed().as_secs_f64();
+            let factor = factorize(st, &rows, &mut cache);
+            tracing::debug!(
+                t_points,
+                t_rows = t_rows - t_points,
+                t_factor = t.elapsed().as_secs_f64() - t_rows,
+                n = st.n,
+                "normal equations"
+            );
+            let Some(f) = factor else {
+                lambda *= 10.0;
+                continue;
+            };
+            let (db, dp) = solve_step(st, &rows, &pts, &f);
+            let step_max = db
+                .iter()
+                .map(|v| v.amax())
+                .chain(dp.iter().map(|v| v.amax() * 1e-3))
+                .fold(0.0f64, f64::max);
+            let trial = apply(st, state, &db, &dp);
+            let t = std::time::Instant::now();
+            let tev = evaluate(res, &trial, loss);
+            tracing::debug!(
+                t_eval = t.elapsed().as_secs_f64(),
+                "residuals and Jacobians"
+            );
+            if tev.cost.is_finite() && tev.failed <= ev.failed && tev.cost <= ev.cost {
+                let rel = (ev.cost - tev.cost) / ev.cost.max(f64::MIN_POSITIVE);
+                *state = trial;
+                ev = tev;
+                lambda = (lambda / 3.0).max(1e-12);
+                accepted = true;
+                if rel < opts.function_tolerance || step_max < opts.parameter_tolerance {
+                    converged = true;
+                }
+                break;
+            }
+            lambda *= 10.0;
+        }
+        tracing::debug!(
+            iterations,
+            cost = ev.cost,
+            lambda,
+            "bundle adjustment iteration"
+        );
+        if !accepted {
+            // No step lowers the cost any more: we are at the minimum to machine precision.
+            converged = true;
+            break;
+        }
+        if converged {
+            break;
+        }
+    }
+    LmOutcome {
+        iterations,
+        initial_cost,
+        final_cost: ev.cost,
+        converged,
+    }
+}

@@ -1,0 +1,182 @@
+//! Self-calibration and LiDAR point-to-plane datum on synthetic blocks.
+
+use cloudcontrol::adjust::synthetic::{generate, terrain, terrain_normal, SyntheticOptions};
+use cloudcontrol::adjust::{adjust, AdjustOptions, PlaneConstraint, PlaneRefitter};
+use cloudcontrol::block::{PointId, PointKind};
+use cloudcontrol::geometry::{Brown, Camera};
+use nalgebra::{Matrix3, Vector3};
+
+fn calib_block(relief: f64) -> (cloudcontrol::adjust::synthetic::SyntheticBlock, f64) {
+    let o = SyntheticOptions {
+        strips: 4,
+        photos_per_strip: 15,
+        tie_points: 12_000,
+        relief_m: relief,
+        distortion: Brown {
+            k1: -0.05,
+            k2: 0.01,
+            ..Default::default()
+        },
+        control_grid: (4, 3),
+        check_points: 0,
+        seed: 5,
+        ..Default::default()
+    };
+    let syn = generate(&o);
+    (syn, o.focal_px)
+}
+
+fn run_selfcal(relief: f64) -> (f64, f64, Vec<cloudcontrol::adjust::CalibrationReport>) {
+    let (syn, f_true) = calib_block(relief);
+    let mut b = syn.start.clone();
+    let cam = b.cameras.get_mut(&1).unwrap();
+    let mut p = cam.model.params();
+    p[0] *= 1.003;
+    p[1] *= 1.003;
+    p[4] = 0.0;
+    p[5] = 0.0;
+    cam.model.set_params(&p).unwrap();
+    cam.free_params = ["fx", "fy", "cx", "cy", "k1", "k2"]
+        .iter()
+        .map(|s| s.to_string())
+        .collect();
+    let rep = adjust(&mut b, &[], None, &AdjustOptions::default()).unwrap();
+    let Camera::Frame(c) = &b.cameras[&1].model else {
+        unreachable!()
+    };
+    let f_err = (0.5 * (c.fx + c.fy) / f_true - 1.0).abs();
+    let k1_err = (c.distortion.k1 / -0.05 - 1.0).abs();
+    eprintln!(
+        "relief {relief} m: f error {:.4} %, k1 error {:.2} %, σ0 {:.3}, {:.1} s",
+        100.0 * f_err,
+        100.0 * k1_err,
+        rep.sigma0,
+        rep.time_s
+    );
+    for c in &rep.calibration {
+        eprintln!(
+            "  {} = {:.6} ± {:.2e}  corr {:.4} ({}) {}",
+            c.param, c.value, c.sigma, c.max_correlation, c.correlated_with, c.determinable
+        );
+    }
+    (f_err, k1_err, rep.calibration)
+}
+
+#[test]
+fn self_calibration_recovers_f_and_k1_with_relief_and_flags_a_flat_block() {
+    let (_, _, cal_flat) = run_selfcal(0.0);
+    let (f_err, k1_err, cal) = run_selfcal(250.0);
+    assert!(f_err < 5e-4, "f error {f_err}");
+    assert!(k1_err < 0.05, "k1 error {k1_err}");
+    assert!(cal
+        .iter()
+        .filter(|c| c.param == "fx" || c.param == "k1")
+        .all(|c| c.determinable));
+    // Flat terrain, nadir photos: f and the flying height are not separable.
+    let fx = cal_flat.iter().find(|c| c.param == "fx").unwrap();
+    assert!(
+        !fx.determinable,
+        "f must be flagged on a flat block (corr {})",
+        fx.max_correlation
+    );
+}
+
+/// Re-fits each tie point's plane at its current plan position from the (known) terrain,
+/// as the LiDAR module does from its nearest LiDAR points.
+struct TerrainPlanes {
+    relief: f64,
+    ids: Vec<PointId>,
+    calls: usize,
+}
+
+impl PlaneRefitter for TerrainPlanes {
+    fn refit(&mut self, points: &[(PointId, Vector3<f64>)]) -> Vec<PlaneConstraint> {
+        self.calls += 1;
+        points
+            .iter()
+            .filter(|(id, _)| self.ids.binary_search(id).is_ok())
+            .map(|(id, x)| plane_at(self.relief, *id, x.x, x.y))
+            .collect()
+    }
+}
+
+fn plane_at(relief: f64, id: PointId, x: f64, y: f64) -> PlaneConstraint {
+    let p = Vector3::new(x, y, terrain(relief, x, y));
+    let n = terrain_normal(relief, x, y);
+    PlaneConstraint {
+        point: id,
+        normal: [n.x, n.y, n.z],
+        d: n.dot(&p),
+        weight: 1.0 / (0.05f64 * 0.05),
+    }
+}
+
+#[test]
+fn lidar_planes_alone_fix_the_datum() {
+    let relief = 120.0;
+    let o = SyntheticOptions {
+        relief_m: relief,
+        tie_points: 20_000,
+        check_points: 0,
+        seed: 11,
+        ..Default::default()
+    };
+    let syn = generate(&o);
+    let mut b = syn.start.clone();
+    // No control: the datum comes only from the LiDAR planes. The start is off by a
+    // similarity (3 m shift, 0.05° rotation, 0.05 % scale).
+    let rot = cloudcontrol::geometry::rotation_from_vector(&Vector3::new(0.0, 0.0, 0.0009));
+    let t = Vector3::new(3.0, -2.0, 1.5);
+    let apply = |x: &Vector3<f64>| rot * x * 1.0005 + t;
+    for p in b.photos.values_mut() {
+        p.pose.center = apply(&p.pose.center);
+        p.pose.rotation *= rot.transpose();
+    }
+    let mut ids = Vec::new();
+    for p in b.points.values_mut() {
+        if p.kind != PointKind::Tie {
+            p.kind = PointKind::Tie;
+            p.sigma = None;
+        }
+        p.position = apply(&p.position);
+        if p.id % 4 == 0 {
+            ids.push(p.id);
+        }
+    }
+    let planes: Vec<PlaneConstraint> = ids
+        .iter()
+        .map(|id| {
+            let x = b.points[id].position;
+            plane_at(relief, *id, x.x, x.y)
+        })
+        .collect();
+    let mut refit = TerrainPlanes {
+        relief,
+        ids,
+        calls: 0,
+    };
+    let rep = adjust(&mut b, &planes, Some(&mut refit), &AdjustOptions::default()).unwrap();
+    assert_eq!(rep.datum, "lidar_planes");
+    let mut mean = Vector3::zeros();
+    let mut rms = 0.0;
+    for (id, p) in &b.photos {
+        let e = p.pose.center - syn.truth.photos[id].pose.center;
+        mean += e;
+        rms += e.norm_squared();
+    }
+    let n = b.photos.len() as f64;
+    mean /= n;
+    rms = (rms / n).sqrt();
+    eprintln!(
+        "datum from planes: mean centre offset {:.3?} m, RMS {:.3} m, {} refits, σ0 {:.3}, {:.1} s",
+        mean.as_slice(),
+        rms,
+        refit.calls,
+        rep.sigma0,
+        rep.time_s
+    );
+    assert!(refit.calls >= 1);
+    assert!(mean.norm() < 0.15, "datum offset {mean:?}");
+    assert!(rms < 0.6, "centre RMS {rms}");
+    let _ = Matrix3::<f64>::identity();
+}
