@@ -22,6 +22,9 @@ typedef enum CcpStatus {
   CCP_STATUS_PANIC = 99,
 } CcpStatus;
 
+// Opaque block handle: `ccp_block_new`, `ccp_block_free`.
+typedef struct CcpBlock CcpBlock;
+
 // Opaque camera handle; create with `ccp_camera_new_frame`, release with `ccp_camera_free`.
 typedef struct CcpCamera CcpCamera;
 
@@ -35,6 +38,36 @@ typedef struct CcpPose {
   double center[3];
 } CcpPose;
 
+// Options of `ccp_block_adjust`. `loss`: 0 none, 1 Huber, 2 Cauchy (scale `loss_scale`
+// in σ units); `rejection`: 0 none, 1 k·σ0 threshold, 2 Baarda data snooping (critical
+// value `k`).
+typedef struct CcpAdjustOptions {
+  uint32_t loss;
+  double loss_scale;
+  uint32_t rejection;
+  double k;
+  uint32_t max_iterations;
+  uint32_t max_rounds;
+} CcpAdjustOptions;
+
+// Summary of `ccp_block_adjust` (the full report: `ccp_block_report_json`).
+typedef struct CcpAdjustSummary {
+  double sigma0;
+  double rmse_px;
+  uint32_t iterations;
+  uint32_t rounds;
+  uint32_t converged;
+  uint32_t rejected;
+  uint32_t photos;
+  uint32_t points;
+  uint64_t observations;
+  double time_s;
+  uint32_t check_count;
+  double check_rmse_plan_m;
+  double check_rmse_height_m;
+  double check_max_m;
+} CcpAdjustSummary;
+
 #ifdef __cplusplus
 extern "C" {
 #endif // __cplusplus
@@ -47,6 +80,101 @@ const char *ccp_version(void);
 // Call with `buf = NULL, buf_len = 0` to ask for the size. The message is empty after a
 // successful call.
 size_t ccp_last_error(char *buf, size_t buf_len);
+
+// Creates an empty block with the world coordinates of its local origin (`origin`: 3
+// values; NULL = 0,0,0). All coordinates passed later are block-local.
+enum CcpStatus ccp_block_new(const double *origin, struct CcpBlock **out_block);
+
+// Releases a block; NULL is ignored.
+void ccp_block_free(struct CcpBlock *block);
+
+// Adds a camera (copied from `camera`). `free_params`: comma-separated names of interior
+// parameters to self-calibrate (fx,fy,cx,cy,k1,k2,k3,p1,p2), or NULL for none.
+enum CcpStatus ccp_block_add_camera(struct CcpBlock *block,
+                                    uint32_t camera_id,
+                                    const struct CcpCamera *camera,
+                                    const char *free_params);
+
+// Adds a photo with its approximate exterior orientation.
+enum CcpStatus ccp_block_add_photo(struct CcpBlock *block,
+                                   uint32_t photo_id,
+                                   uint32_t camera_id,
+                                   const struct CcpPose *pose);
+
+// Sets a photo's POS prior: `center` (3) with `center_sigma` (3, m); optional attitude
+// `rotation` (9, row-major world→camera, NULL for none) with σ `rotation_sigma_rad`.
+enum CcpStatus ccp_block_set_pos_prior(struct CcpBlock *block,
+                                       uint32_t photo_id,
+                                       const double *center,
+                                       const double *center_sigma,
+                                       const double *rotation,
+                                       double rotation_sigma_rad);
+
+// Adds object points: `kinds` (0 tie, 1 control, 2 check), positions `xyz` (3n; for tie
+// points the approximate position), `sigmas` (3n, control σ in m; NULL when there is no
+// control point).
+enum CcpStatus ccp_block_add_points(struct CcpBlock *block,
+                                    size_t n,
+                                    const uint64_t *ids,
+                                    const uint32_t *kinds,
+                                    const double *xyz,
+                                    const double *sigmas);
+
+// Adds image observations: point `point_ids[i]` measured at `pixels[2i..2i+2]` in photo
+// `photo_ids[i]` with σ `sigma_px[i]`.
+enum CcpStatus ccp_block_add_observations(struct CcpBlock *block,
+                                          size_t n,
+                                          const uint64_t *point_ids,
+                                          const uint32_t *photo_ids,
+                                          const double *pixels,
+                                          const double *sigma_px);
+
+// Adds LiDAR point-to-plane constraints n·X = d (block-local) with weights (1/m²).
+enum CcpStatus ccp_block_add_planes(struct CcpBlock *block,
+                                    size_t n,
+                                    const uint64_t *point_ids,
+                                    const double *normals,
+                                    const double *d,
+                                    const double *weights);
+
+// Adjusts the block in place (`options` NULL = defaults) and fills `out_summary`.
+enum CcpStatus ccp_block_adjust(struct CcpBlock *block,
+                                const struct CcpAdjustOptions *options,
+                                struct CcpAdjustSummary *out_summary);
+
+// Reads a photo's (adjusted) pose and, after an adjustment, its EO standard deviations
+// (`out_sigma`: 6 values, rotation vector rad then centre m; may be NULL).
+enum CcpStatus ccp_block_get_photo(const struct CcpBlock *block,
+                                   uint32_t photo_id,
+                                   struct CcpPose *out_pose,
+                                   double *out_sigma);
+
+// Reads an object point's (adjusted) block-local position.
+enum CcpStatus ccp_block_get_point(const struct CcpBlock *block,
+                                   uint64_t point_id,
+                                   double *out_xyz);
+
+// Copies the last adjustment's JSON report into `buf` (NUL-terminated) and writes the
+// size it needs (NUL included) to `out_needed`; call with `buf = NULL` to ask the size.
+enum CcpStatus ccp_block_report_json(const struct CcpBlock *block,
+                                     char *buf,
+                                     size_t buf_len,
+                                     size_t *out_needed);
+
+// Resects one photo from `n` control points (`pixels` 2n, `points` 3n block-local, σ
+// `sigma_px`): RANSAC (threshold `threshold_px`) or LMedS (`lmeds` ≠ 0) over P3P, then
+// LM refinement and data snooping. Writes the pose, inlier flags (`out_inliers`, n bytes,
+// may be NULL) and the 6×6 covariance (`out_covariance`, row-major, may be NULL).
+enum CcpStatus ccp_resect(const struct CcpCamera *camera,
+                          size_t n,
+                          const double *pixels,
+                          const double *points,
+                          double sigma_px,
+                          double threshold_px,
+                          uint32_t lmeds,
+                          struct CcpPose *out_pose,
+                          uint8_t *out_inliers,
+                          double *out_covariance);
 
 // Creates a digital frame camera. `params` holds `fx, fy, cx, cy` (pinhole, 4 values) or
 // `fx, fy, cx, cy, k1, k2, k3, p1, p2` (Brown, 9 values), in pixels with the origin at
@@ -127,6 +255,78 @@ enum CcpStatus ccp_predict(const struct CcpCamera *camera,
                            size_t out_len,
                            double *out_covariance,
                            size_t cov_len);
+
+// Converts a block: `input` and `output` are a COLMAP model folder or a BlocksExchange
+// `.xml` (by extension). COLMAP output is binary unless `text` ≠ 0, in COLMAP 4's 5-file
+// layout unless `legacy` ≠ 0.
+//
+// # Safety
+// Pointer arguments must be null or valid for the lengths given; strings NUL-terminated.
+enum CcpStatus ccp_convert(const char *input, const char *output, int32_t text, int32_t legacy);
+
+// Writes a true orthophoto of the block's oriented photos on a DEM GeoTIFF.
+// `images_dir` is the folder the photo names are relative to; `gsd` ≤ 0 picks the photos'
+// median ground pixel; `cog` ≠ 0 writes a cloud-optimised GeoTIFF. On success
+// `width_out`/`height_out` (either may be null) receive the raster size.
+//
+// # Safety
+// Pointer arguments must be null or valid for the lengths given; strings NUL-terminated.
+enum CcpStatus ccp_orthophoto(const char *block,
+                              const char *dem,
+                              const char *images_dir,
+                              const char *out,
+                              double gsd,
+                              int32_t cog,
+                              size_t *width_out,
+                              size_t *height_out);
+
+// Writes a DEM GeoTIFF (float32, tiled, nodata for NaN) from `width × height` row-major
+// heights, a north-up GDAL geotransform `geotransform[6]` and a CRS (`EPSG:n` or WKT).
+//
+// # Safety
+// Pointer arguments must be null or valid for the lengths given; strings NUL-terminated.
+enum CcpStatus ccp_dem_write(const char *path,
+                             size_t width,
+                             size_t height,
+                             const double *geotransform,
+                             const float *heights,
+                             size_t heights_len,
+                             const char *crs);
+
+// Reads a DEM GeoTIFF into a caller buffer (NaN for nodata). `width_out`, `height_out`
+// and `geotransform_out[6]` are always filled; when `heights` is null or
+// `heights_len < width·height` the call returns CCP_STATUS_BUFFER_TOO_SMALL, so call it
+// once with `heights = NULL` to learn the size.
+//
+// # Safety
+// Pointer arguments must be null or valid for the lengths given; strings NUL-terminated.
+enum CcpStatus ccp_dem_read(const char *path,
+                            size_t *width_out,
+                            size_t *height_out,
+                            double *geotransform_out,
+                            float *heights,
+                            size_t heights_len);
+
+// Reads a block (COLMAP folder or BlocksExchange `.xml`) and reports its size in
+// `counts_out[4]`: cameras, photos, points, observations.
+//
+// # Safety
+// Pointer arguments must be null or valid for the lengths given; strings NUL-terminated.
+enum CcpStatus ccp_block_summary(const char *path, uint64_t *counts_out);
+
+// Writes a synthetic block with ground truth into `out_dir` (UTF-8 path).
+// `preset`: 0 tiny, 1 small, 2 medium, 3 large; `pos`: 0 good, 1 rough, 2 none;
+// `change` in [0, 1]; `laz` non-zero writes LAZ tiles. Same arguments give
+// byte-identical files. Layout: formats/synth/README.md.
+//
+// # Safety
+// `out_dir` must be null or a NUL-terminated string valid for the duration of the call.
+enum CcpStatus ccp_synth_generate(const char *out_dir,
+                                  uint32_t preset,
+                                  uint64_t seed,
+                                  double change,
+                                  uint32_t pos,
+                                  uint32_t laz);
 
 #ifdef __cplusplus
 }  // extern "C"

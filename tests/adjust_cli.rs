@@ -165,7 +165,18 @@ fn adjust_a_colmap_model_with_control_measurements_and_check_points() {
         r["rejected"]["count"].as_u64().unwrap()
             == r["rejected"]["list"].as_array().unwrap().len() as u64
     );
-    // The adjusted model is in world coordinates: photo centres back at the truth.
+    // The adjusted model is block-local; the side file carries the origin that brings the
+    // photo centres back to world coordinates and onto the truth.
+    let side: serde_json::Value = serde_json::from_slice(
+        &std::fs::read(out.join(cloudcontrol::formats::colmap::SIDE_FILE)).unwrap(),
+    )
+    .unwrap();
+    let o = &side["origin"];
+    let origin = Vector3::new(
+        o[0].as_f64().unwrap(),
+        o[1].as_f64().unwrap(),
+        o[2].as_f64().unwrap(),
+    );
     let text = std::fs::read_to_string(out.join("images.txt")).unwrap();
     let mut worst: f64 = 0.0;
     for l in text.lines().filter(|l| !l.starts_with('#')).step_by(2) {
@@ -177,7 +188,7 @@ fn adjust_a_colmap_model_with_control_measurements_and_check_points() {
         let r = cloudcontrol::geometry::matrix_from_quaternion_wxyz([t[1], t[2], t[3], t[4]]);
         let c = -(r.transpose() * Vector3::new(t[5], t[6], t[7]));
         let id = t[0] as u32;
-        worst = worst.max((c - world - syn.truth.photos[&id].pose.center).norm());
+        worst = worst.max((c + origin - world - syn.truth.photos[&id].pose.center).norm());
     }
     assert!(worst < 1.0, "largest centre error {worst} m");
 

@@ -5,7 +5,7 @@ use clap::Args;
 use cloudcontrol::adjust::{
     adjust, resect, AdjustOptions, Loss, PlaneConstraint, Rejection, ResectionOptions,
 };
-use cloudcontrol::block::{Block, ObjectPoint, Observation, PointKind};
+use cloudcontrol::block::{ObjectPoint, Observation, PointKind};
 use cloudcontrol::formats::write_bytes_atomically;
 use cloudcontrol::geometry::{Brown, Camera, FrameCamera, Similarity};
 use nalgebra::Vector3;
@@ -118,282 +118,6 @@ fn num(s: &str, path: &Path, line: usize, what: &str) -> Result<f64, String> {
     Ok(v)
 }
 
-/// Temporary minimal COLMAP text reader/writer (3-file layout, frame camera models)
-/// until `formats::colmap` lands; replace with it at merge time.
-mod colmap_tmp {
-    use super::*;
-
-    pub struct Model {
-        pub block: Block,
-        /// Per image: its 2-D points (x, y, POINT3D_ID or -1), in file order.
-        pub points2d: BTreeMap<u32, Vec<(f64, f64, i64)>>,
-    }
-
-    fn camera_from(model: &str, w: u32, h: u32, p: &[f64]) -> Result<Camera, String> {
-        let (fx, fy, cx, cy, d) = match (model, p.len()) {
-            ("SIMPLE_PINHOLE", 3) => (p[0], p[0], p[1], p[2], [0.0; 5]),
-            ("PINHOLE", 4) => (p[0], p[1], p[2], p[3], [0.0; 5]),
-            ("SIMPLE_RADIAL", 4) => (p[0], p[0], p[1], p[2], [p[3], 0.0, 0.0, 0.0, 0.0]),
-            ("RADIAL", 5) => (p[0], p[0], p[1], p[2], [p[3], p[4], 0.0, 0.0, 0.0]),
-            ("OPENCV", 8) => (p[0], p[1], p[2], p[3], [p[4], p[5], 0.0, p[6], p[7]]),
-            ("FULL_OPENCV", 12) if p[9..].iter().all(|v| *v == 0.0) => {
-                (p[0], p[1], p[2], p[3], [p[4], p[5], p[8], p[6], p[7]])
-            }
-            _ => {
-                return err(format!(
-                    "unsupported COLMAP camera model {model} with {} parameters",
-                    p.len()
-                ))
-            }
-        };
-        Ok(Camera::Frame(FrameCamera {
-            width: w,
-            height: h,
-            fx,
-            fy,
-            cx,
-            cy,
-            distortion: Brown::from_array(d),
-        }))
-    }
-
-    fn lines(path: &Path) -> Result<Vec<String>, String> {
-        Ok(std::fs::read_to_string(path)
-            .map_err(|e| format!("{}: {e}", path.display()))?
-            .lines()
-            .filter(|l| !l.trim_start().starts_with('#'))
-            .map(|l| l.to_string())
-            .collect())
-    }
-
-    pub fn read(dir: &Path, sigma_px: f64) -> Result<Model, String> {
-        let mut block = Block::new();
-        let cp = dir.join("cameras.txt");
-        for l in lines(&cp)? {
-            let t: Vec<&str> = l.split_whitespace().collect();
-            if t.is_empty() {
-                continue;
-            }
-            if t.len() < 4 {
-                return err(format!("{}: short line '{l}'", cp.display()));
-            }
-            let id: u32 = t[0]
-                .parse()
-                .map_err(|_| format!("{}: bad camera id '{}'", cp.display(), t[0]))?;
-            let w: u32 = t[2]
-                .parse()
-                .map_err(|_| format!("{}: camera {id}: bad width", cp.display()))?;
-            let h: u32 = t[3]
-                .parse()
-                .map_err(|_| format!("{}: camera {id}: bad height", cp.display()))?;
-            let p: Vec<f64> = t[4..]
-                .iter()
-                .map(|s| {
-                    s.parse()
-                        .map_err(|_| format!("{}: camera {id}: bad parameter '{s}'", cp.display()))
-                })
-                .collect::<Result<_, _>>()?;
-            let model = camera_from(t[1], w, h, &p)
-                .map_err(|e| format!("{}: camera {id}: {e}", cp.display()))?;
-            block.cameras.insert(
-                id,
-                cloudcontrol::block::BlockCamera {
-                    id,
-                    name: t[1].to_string(),
-                    model,
-                    free_params: vec![],
-                },
-            );
-        }
-        let ip = dir.join("images.txt");
-        let il = lines(&ip)?;
-        // Image lines come in pairs and an image without points has an empty second line:
-        // blank lines are skipped only where an image header is expected.
-        let mut points2d = BTreeMap::new();
-        let mut obs: BTreeMap<i64, Vec<Observation>> = BTreeMap::new();
-        let mut k = 0;
-        while k < il.len() {
-            if il[k].trim().is_empty() {
-                k += 1;
-                continue;
-            }
-            let t: Vec<&str> = il[k].split_whitespace().collect();
-            if t.len() < 10 {
-                return err(format!(
-                    "{}: image line '{}' has fewer than 10 fields",
-                    ip.display(),
-                    il[k]
-                ));
-            }
-            let id: u32 = t[0]
-                .parse()
-                .map_err(|_| format!("{}: bad image id '{}'", ip.display(), t[0]))?;
-            let v: Vec<f64> = t[1..8]
-                .iter()
-                .map(|s| {
-                    s.parse()
-                        .map_err(|_| format!("{}: image {id}: bad number '{s}'", ip.display()))
-                })
-                .collect::<Result<_, _>>()?;
-            let cam: u32 = t[8]
-                .parse()
-                .map_err(|_| format!("{}: image {id}: bad camera id", ip.display()))?;
-            let r = cloudcontrol::geometry::matrix_from_quaternion_wxyz([v[0], v[1], v[2], v[3]]);
-            let pose = cloudcontrol::geometry::Pose::from_rotation_translation(
-                r,
-                Vector3::new(v[4], v[5], v[6]),
-            );
-            let name = t[9..].join(" ");
-            let pl: Vec<&str> = il
-                .get(k + 1)
-                .map(|s| s.split_whitespace().collect())
-                .unwrap_or_default();
-            if pl.len() % 3 != 0 {
-                return err(format!(
-                    "{}: image {id}: POINTS2D line does not hold triples",
-                    ip.display()
-                ));
-            }
-            let mut p2 = Vec::new();
-            for c in pl.chunks(3) {
-                let x: f64 = c[0]
-                    .parse()
-                    .map_err(|_| format!("{}: image {id}: bad x '{}'", ip.display(), c[0]))?;
-                let y: f64 = c[1]
-                    .parse()
-                    .map_err(|_| format!("{}: image {id}: bad y '{}'", ip.display(), c[1]))?;
-                let pid: i64 = c[2].parse().map_err(|_| {
-                    format!("{}: image {id}: bad POINT3D_ID '{}'", ip.display(), c[2])
-                })?;
-                if pid >= 0 {
-                    obs.entry(pid).or_default().push(Observation {
-                        photo: id,
-                        pixel: [x, y],
-                        sigma_px,
-                        provenance: "colmap".into(),
-                    });
-                }
-                p2.push((x, y, pid));
-            }
-            points2d.insert(id, p2);
-            block.photos.insert(
-                id,
-                cloudcontrol::block::Photo {
-                    id,
-                    name,
-                    camera: cam,
-                    pose,
-                    oriented: true,
-                    prior: None,
-                    date: None,
-                },
-            );
-            k += 2;
-        }
-        let pp = dir.join("points3D.txt");
-        for l in lines(&pp)? {
-            let t: Vec<&str> = l.split_whitespace().collect();
-            if t.len() < 8 {
-                continue;
-            }
-            let id: i64 = t[0]
-                .parse()
-                .map_err(|_| format!("{}: bad POINT3D_ID '{}'", pp.display(), t[0]))?;
-            let x: Vec<f64> = t[1..4]
-                .iter()
-                .map(|s| {
-                    s.parse()
-                        .map_err(|_| format!("{}: point {id}: bad coordinate", pp.display()))
-                })
-                .collect::<Result<_, _>>()?;
-            let rgb: Vec<u8> = t[4..7].iter().map(|s| s.parse().unwrap_or(128)).collect();
-            block.points.insert(
-                id as u64,
-                ObjectPoint {
-                    id: id as u64,
-                    name: String::new(),
-                    kind: PointKind::Tie,
-                    position: Vector3::new(x[0], x[1], x[2]),
-                    sigma: None,
-                    color: [rgb[0], rgb[1], rgb[2]],
-                    observations: obs.remove(&id).unwrap_or_default(),
-                },
-            );
-        }
-        Ok(Model { block, points2d })
-    }
-
-    pub fn write(dir: &Path, m: &Model, block: &Block) -> Result<(), String> {
-        std::fs::create_dir_all(dir).map_err(|e| format!("{}: {e}", dir.display()))?;
-        let origin = Vector3::from(block.origin);
-        let mut s = String::from("# Camera list with one line of data per camera:\n#   CAMERA_ID, MODEL, WIDTH, HEIGHT, PARAMS[]\n");
-        for c in block.cameras.values() {
-            let Camera::Frame(f) = &c.model else {
-                return err(format!(
-                    "camera {}: film cameras cannot be written to COLMAP here",
-                    c.id
-                ));
-            };
-            let d = f.distortion;
-            s += &format!(
-                "{} FULL_OPENCV {} {} {} {} {} {} {} {} {} {} {} 0 0 0\n",
-                c.id, f.width, f.height, f.fx, f.fy, f.cx, f.cy, d.k1, d.k2, d.p1, d.p2, d.k3
-            );
-        }
-        write_bytes_atomically(&dir.join("cameras.txt"), s.as_bytes())
-            .map_err(|e| e.to_string())?;
-        let mut s = String::from("# Image list with two lines of data per image:\n#   IMAGE_ID, QW, QX, QY, QZ, TX, TY, TZ, CAMERA_ID, NAME\n#   POINTS2D[] as (X, Y, POINT3D_ID)\n");
-        let mut tracks: BTreeMap<u64, Vec<(u32, usize)>> = BTreeMap::new();
-        for p in block.photos.values() {
-            let q = cloudcontrol::geometry::quaternion_wxyz_from_matrix(&p.pose.rotation);
-            let t = -(p.pose.rotation * (p.pose.center + origin));
-            s += &format!(
-                "{} {} {} {} {} {} {} {} {} {}\n",
-                p.id, q[0], q[1], q[2], q[3], t.x, t.y, t.z, p.camera, p.name
-            );
-            let mut items = Vec::new();
-            for (idx, &(x, y, pid)) in m
-                .points2d
-                .get(&p.id)
-                .map(|v| v.as_slice())
-                .unwrap_or(&[])
-                .iter()
-                .enumerate()
-            {
-                let keep = pid >= 0
-                    && block
-                        .points
-                        .get(&(pid as u64))
-                        .is_some_and(|pt| pt.observations.iter().any(|o| o.photo == p.id));
-                if keep {
-                    tracks.entry(pid as u64).or_default().push((p.id, idx));
-                }
-                items.push(format!("{x} {y} {}", if keep { pid } else { -1 }));
-            }
-            s += &items.join(" ");
-            s += "\n";
-        }
-        write_bytes_atomically(&dir.join("images.txt"), s.as_bytes()).map_err(|e| e.to_string())?;
-        let mut s = String::from("# 3D point list with one line of data per point:\n#   POINT3D_ID, X, Y, Z, R, G, B, ERROR, TRACK[] as (IMAGE_ID, POINT2D_IDX)\n");
-        for (id, tr) in &tracks {
-            let pt = &block.points[id];
-            let x = pt.position + origin;
-            let tr: Vec<String> = tr.iter().map(|(i, k)| format!("{i} {k}")).collect();
-            s += &format!(
-                "{id} {} {} {} {} {} {} 0 {}\n",
-                x.x,
-                x.y,
-                x.z,
-                pt.color[0],
-                pt.color[1],
-                pt.color[2],
-                tr.join(" ")
-            );
-        }
-        write_bytes_atomically(&dir.join("points3D.txt"), s.as_bytes()).map_err(|e| e.to_string())
-    }
-}
-
 const F_NAMES: [(&str, &[&str]); 7] = [
     ("f", &["fx", "fy"]),
     ("pp", &["cx", "cy"]),
@@ -439,8 +163,13 @@ fn read_points(path: &Path) -> Result<Vec<PointRow>, String> {
 
 pub fn run_adjust(a: &AdjustArgs) -> Result<serde_json::Value, String> {
     let t0 = std::time::Instant::now();
-    let model = colmap_tmp::read(&a.model, a.sigma_px)?;
-    let mut block = model.block.clone();
+    let mut block = cloudcontrol::formats::colmap::read(&a.model).map_err(|e| e.to_string())?;
+    // COLMAP measurements carry no precision: the command line gives it.
+    for p in block.points.values_mut() {
+        for o in &mut p.observations {
+            o.sigma_px = a.sigma_px;
+        }
+    }
     let by_name: BTreeMap<String, u32> = block
         .photos
         .values()
@@ -617,7 +346,11 @@ pub fn run_adjust(a: &AdjustArgs) -> Result<serde_json::Value, String> {
         ..Default::default()
     };
     let mut rep = adjust(&mut block, &planes, None, &opts).map_err(|e| e.to_string())?;
-    colmap_tmp::write(&a.out, &model, &block)?;
+    let text = cloudcontrol::formats::colmap::WriteOptions {
+        encoding: cloudcontrol::formats::colmap::Encoding::Text,
+        layout: cloudcontrol::formats::colmap::Layout::Rigs,
+    };
+    cloudcontrol::formats::colmap::write(&a.out, &block, &text).map_err(|e| e.to_string())?;
     if a.no_residuals {
         rep.residuals.clear();
     }
