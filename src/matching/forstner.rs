@@ -130,9 +130,31 @@ pub fn forstner(img: &GreyImage, opts: &ForstnerOptions) -> Vec<InterestPoint> {
                 })
             });
             if is_max {
+                // Förstner's optimal point: the least-squares intersection of the edge
+                // lines through the window, x̂ = N⁻¹ Σ ∇g∇gᵀ x (a corner to sub-pixel).
+                let (mut n11, mut n12, mut n22, mut b1, mut b2) = (0.0, 0.0, 0.0, 0.0, 0.0);
+                for rr in r - rad..=r + rad {
+                    for cc in c - rad..=c + rad {
+                        let k = rr * w + cc;
+                        let (x, y) = (cc as f64 + 0.5, rr as f64 + 0.5);
+                        n11 += gxx[k];
+                        n12 += gxy[k];
+                        n22 += gyy[k];
+                        b1 += gxx[k] * x + gxy[k] * y;
+                        b2 += gxy[k] * x + gyy[k] * y;
+                    }
+                }
+                let det = n11 * n22 - n12 * n12;
+                let (mut px, mut py) = (c as f64 + 0.5, r as f64 + 0.5);
+                if det > 0.0 {
+                    let (qx, qy) = ((n22 * b1 - n12 * b2) / det, (n11 * b2 - n12 * b1) / det);
+                    if (qx - px).abs() <= 1.5 && (qy - py).abs() <= 1.5 {
+                        (px, py) = (qx, qy);
+                    }
+                }
                 pts.push(InterestPoint {
-                    x: c as f64 + 0.5,
-                    y: r as f64 + 0.5,
+                    x: px,
+                    y: py,
                     w: v,
                     q: qv[i],
                 });
