@@ -198,7 +198,13 @@ pub struct IoOptions {
 
 impl Default for IoOptions {
     fn default() -> Self {
+        // Shift-only LSM: the template is rendered in the scan's predicted geometry, and
+        // the rotation of a circular mark is not observable (singular normal equations).
         let matching = MatchOptions {
+            lsm: super::LsmOptions {
+                affine: false,
+                ..super::LsmOptions::default()
+            },
             ncc_threshold: 0.6,
             absolute: true,
             agreement_px: 1.0,
@@ -304,18 +310,20 @@ pub fn interior_orientation(
     };
     let pyr = Pyramid::new(img, 8, 16);
     let centre = Vector2::new(img.width as f64 / 2.0, img.height as f64 / 2.0);
-    // The two marks farthest apart carry the wide search.
+    // Two marks far apart carry the wide search; when one of them is missing or
+    // damaged, the next pair (by decreasing distance) takes over.
     let n = cam.fiducials.len();
-    let (mut ia, mut ib, mut dmax) = (0, 1, -1.0);
+    let mut pairs = Vec::new();
     for i in 0..n {
         for j in i + 1..n {
             let f = (&cam.fiducials[i], &cam.fiducials[j]);
-            let d = (f.0.x_mm - f.1.x_mm).hypot(f.0.y_mm - f.1.y_mm);
-            if d > dmax + 1e-9 {
-                (ia, ib, dmax) = (i, j, d);
-            }
+            pairs.push((i, j, (f.0.x_mm - f.1.x_mm).hypot(f.0.y_mm - f.1.y_mm)));
         }
     }
+    pairs.sort_by(|a, b| b.2.total_cmp(&a.2).then(a.0.cmp(&b.0)).then(a.1.cmp(&b.1)));
+    let dmax = pairs[0].2;
+    pairs.retain(|p| p.2 >= 0.6 * dmax);
+    let (ia, ib) = (pairs[0].0, pairs[0].1);
     let orientations = match opts.orientation {
         Some(o) => vec![o],
         None => ScanOrientation::all(),
@@ -343,8 +351,10 @@ pub fn interior_orientation(
     };
     let mut candidates = Vec::new();
     for o in orientations {
-        let (fa, fb) = (&cam.fiducials[ia], &cam.fiducials[ib]);
-        let (Some(pa), Some(pb)) = (wide(fa, o), wide(fb, o)) else {
+        let Some((fa, fb, pa, pb)) = pairs.iter().find_map(|&(i, j, _)| {
+            let (fa, fb) = (&cam.fiducials[i], &cam.fiducials[j]);
+            Some((fa, fb, wide(fa, o)?, wide(fb, o)?))
+        }) else {
             continue;
         };
         // Similarity pixel → mm from the two marks; it fixes the orientation, scale and
@@ -412,8 +422,9 @@ pub fn interior_orientation(
     candidates.sort_by(|a, b| b.score.total_cmp(&a.score));
     let Some(best) = candidates.first() else {
         return Err(orr(format!(
-            "marks {} and {} not found in a ±{} mm search in any scan orientation \
-             (pixel size {:.4} mm; wrong camera definition or pixel size?)",
+            "no two opposite fiducial marks (first tried: {} and {}) found in a ±{} mm \
+             search in any scan orientation (pixel size {:.4} mm; wrong camera definition \
+             or pixel size?)",
             cam.fiducials[ia].id, cam.fiducials[ib].id, opts.search_mm, s
         )));
     };

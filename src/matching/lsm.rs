@@ -10,7 +10,7 @@ use nalgebra::{SMatrix, SVector};
 #[derive(Debug, Clone)]
 pub struct LsmOptions {
     pub max_iterations: usize,
-    /// Converged when the shift update is below this (px) and A changes by < 1e-4.
+    /// Converged when the shift update is below this (px) and A changes by < 1e-3.
     pub shift_tolerance: f64,
     /// Diverged when the position wanders farther than this from the start (px).
     pub max_shift: f64,
@@ -24,7 +24,7 @@ impl Default for LsmOptions {
     fn default() -> Self {
         Self {
             max_iterations: 40,
-            shift_tolerance: 1e-3,
+            shift_tolerance: 5e-3,
             max_shift: 3.0,
             max_scale: 1.5,
             affine: true,
@@ -203,8 +203,9 @@ pub fn lsm(
             return out;
         }
         last_sigma = sigma0;
+        tracing::trace!(it, dx = d[0], dy = d[1], sigma0, "LSM step");
         let shape_step = d[2..6].iter().fold(0.0f64, |a, v| a.max(v.abs()));
-        if d[0].abs() < opts.shift_tolerance && d[1].abs() < opts.shift_tolerance && shape_step < 1e-4 {
+        if d[0].abs() < opts.shift_tolerance && d[1].abs() < opts.shift_tolerance && shape_step < 1e-3 {
             out.converged = true;
             out.reason = None;
             return out;
