@@ -510,3 +510,41 @@ pub fn interior_orientation(
         });
     }
 }
+
+impl IoResult {
+    /// The io.json document: `marks` (id, pixel x/y, residual µm, …), `transform`
+    /// (pixel → mm with its type, row-major 3×3 homogeneous matrices) and `rmse_um`.
+    pub fn to_json(&self) -> serde_json::Value {
+        let m = &self.transform.pixel_to_mm;
+        let inv = m.try_inverse().unwrap_or_else(nalgebra::Matrix3::identity);
+        let rows = |a: &nalgebra::Matrix3<f64>| -> Vec<f64> {
+            (0..3).flat_map(|r| (0..3).map(move |c| a[(r, c)])).collect()
+        };
+        let num = |v: f64| if v.is_finite() { serde_json::json!(v) } else { serde_json::Value::Null };
+        serde_json::json!({
+            "camera": self.camera,
+            "orientation": self.orientation,
+            "orientation_ambiguous": self.orientation_ambiguous,
+            "pixel_mm": self.pixel_mm,
+            "rmse_um": self.rmse_um,
+            "transform": {
+                "type": self.transform.kind,
+                "pixel_to_mm": rows(m),
+                "mm_to_pixel": rows(&inv),
+            },
+            "marks": self.marks.iter().map(|k| serde_json::json!({
+                "id": k.id,
+                "x": k.x,
+                "y": k.y,
+                "x_mm": k.x_mm,
+                "y_mm": k.y_mm,
+                "used": k.used,
+                "ncc": k.ncc,
+                "sigma_px": num(k.sigma_px),
+                "residual_um": [num(k.residual_um[0]), num(k.residual_um[1])],
+                "residual_norm_um": num(k.residual_norm_um),
+                "reason": k.reason,
+            })).collect::<Vec<_>>(),
+        })
+    }
+}

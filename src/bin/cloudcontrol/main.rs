@@ -1,6 +1,8 @@
 //! The `cloudcontrol` command line: argument parsing, progress and output only; the work
 //! is done by the library.
 
+mod matching;
+
 use clap::{Parser, Subcommand};
 use std::path::PathBuf;
 use std::process::ExitCode;
@@ -37,6 +39,12 @@ enum Command {
     },
     /// Print the library version.
     Version,
+    /// Fiducial interior orientation of a film scan → io.json.
+    Io(matching::IoArgs),
+    /// Match a template in an image (NCC + LSM), for debugging.
+    Match(matching::MatchArgs),
+    /// Tie points between overlapping photos of a strip.
+    Ties(matching::TiesArgs),
 }
 
 fn init_logging(quiet: bool, verbose: u8) {
@@ -62,6 +70,9 @@ fn main() -> ExitCode {
     let cli = Cli::parse();
     init_logging(cli.quiet, cli.verbose);
     match cli.command {
+        Command::Io(a) => matching::io(a, cli.quiet),
+        Command::Match(a) => matching::matching(a),
+        Command::Ties(a) => matching::ties(a, cli.quiet),
         Command::Version => {
             println!("cloudcontrol {}", cloudcontrol::VERSION);
             ExitCode::SUCCESS
