@@ -1,5 +1,9 @@
 """cloudcontrol: cloud control photogrammetry, from Python over the C ABI."""
 from ._ffi import CloudControlError, last_error, version
 from .geometry import Camera, Pose
+from .matching import Match, fiducial_io, match_template
 
-__all__ = ["CloudControlError", "Camera", "Pose", "last_error", "version"]
+__all__ = [
+    "CloudControlError", "Camera", "Match", "Pose", "fiducial_io", "last_error", "match_template",
+    "version",
+]
