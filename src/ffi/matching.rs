@@ -203,3 +203,74 @@ pub unsafe extern "C" fn ccp_fiducial_io(
         Ok(())
     })
 }
+
+/// Full NCC surface of `templ` over the whole `image` at one resolution (what OpenCV's
+/// matchTemplate TM_CCOEFF_NORMED computes): `out` receives
+/// (height − templ_height + 1) × (width − templ_width + 1) values, row-major, value (i, j)
+/// for the template's top-left corner at column i, row j.
+#[no_mangle]
+pub unsafe extern "C" fn ccp_ncc_surface(
+    image: *const f32,
+    width: u32,
+    height: u32,
+    templ: *const f32,
+    templ_width: u32,
+    templ_height: u32,
+    out: *mut f32,
+    out_len: usize,
+) -> CcpStatus {
+    guard(|| {
+        let img = image_from(image, width, height, "image")?;
+        let tpl = image_from(templ, templ_width, templ_height, "templ")?;
+        let s = crate::matching::ncc::ncc_surface(&img, &tpl, Window::whole(&img))?;
+        let o = output(out, out_len, s.values.len(), "out")?;
+        o.copy_from_slice(&s.values);
+        Ok(())
+    })
+}
+
+/// Least-squares matching alone (6 affine + 2 radiometric parameters) from the template
+/// centre (x, y). Fills `out` like `ccp_match_template` (`ncc` fields are NaN);
+/// `accepted` means converged.
+#[no_mangle]
+pub unsafe extern "C" fn ccp_lsm(
+    image: *const f32,
+    width: u32,
+    height: u32,
+    templ: *const f32,
+    templ_width: u32,
+    templ_height: u32,
+    x: f64,
+    y: f64,
+    out: *mut CcpMatchResult,
+) -> CcpStatus {
+    guard(|| {
+        let out = output(out, 1, 1, "out")?;
+        let img = image_from(image, width, height, "image")?;
+        let tpl = image_from(templ, templ_width, templ_height, "templ")?;
+        finite(&[x, y], "x/y")?;
+        let l = crate::matching::lsm(&img, &tpl, x, y, None, &crate::matching::LsmOptions::default());
+        let mut reason = [0 as c_char; 200];
+        if let Some(r) = &l.reason {
+            for (d, s) in reason.iter_mut().zip(r.bytes().take(199)) {
+                *d = s as c_char;
+            }
+        }
+        out[0] = CcpMatchResult {
+            accepted: l.converged as i32,
+            lsm_converged: l.converged as i32,
+            lsm_iterations: l.iterations as u32,
+            x: l.x,
+            y: l.y,
+            ncc: f64::NAN,
+            ncc_x: f64::NAN,
+            ncc_y: f64::NAN,
+            ambiguity: f64::NAN,
+            sigma_x: l.sigma_x,
+            sigma_y: l.sigma_y,
+            affine: l.affine,
+            reason,
+        };
+        Ok(())
+    })
+}

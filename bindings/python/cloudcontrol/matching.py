@@ -121,3 +121,39 @@ def fiducial_io(camera, scan, pixel_mm: float | None = None, projective: bool = 
         check(status)
         return json.loads(buf.value.decode("utf-8"))
     raise CloudControlError(8, "io.json did not fit the buffer")
+
+
+lib.ccp_ncc_surface.argtypes = [_fp, ctypes.c_uint32, ctypes.c_uint32, _fp, ctypes.c_uint32,
+                                ctypes.c_uint32, _fp, ctypes.c_size_t]
+lib.ccp_ncc_surface.restype = ctypes.c_int
+lib.ccp_lsm.argtypes = [_fp, ctypes.c_uint32, ctypes.c_uint32, _fp, ctypes.c_uint32, ctypes.c_uint32,
+                        ctypes.c_double, ctypes.c_double, ctypes.POINTER(CcpMatchResult)]
+lib.ccp_lsm.restype = ctypes.c_int
+
+
+def ncc_surface(image, template) -> np.ndarray:
+    """Full NCC surface (as OpenCV matchTemplate TM_CCOEFF_NORMED)."""
+    img = _grey(image, "image")
+    tpl = _grey(template, "template")
+    h, w = img.shape[0] - tpl.shape[0] + 1, img.shape[1] - tpl.shape[1] + 1
+    if h <= 0 or w <= 0:
+        raise ValueError("image is smaller than the template")
+    out = np.empty((h, w), np.float32)
+    check(lib.ccp_ncc_surface(img.ctypes.data_as(_fp), img.shape[1], img.shape[0],
+                              tpl.ctypes.data_as(_fp), tpl.shape[1], tpl.shape[0],
+                              out.ctypes.data_as(_fp), out.size))
+    return out
+
+
+def lsm(image, template, x: float, y: float) -> Match:
+    """Least-squares matching alone from the template centre (x, y)."""
+    img = _grey(image, "image")
+    tpl = _grey(template, "template")
+    out = CcpMatchResult()
+    check(lib.ccp_lsm(img.ctypes.data_as(_fp), img.shape[1], img.shape[0],
+                      tpl.ctypes.data_as(_fp), tpl.shape[1], tpl.shape[0],
+                      float(x), float(y), ctypes.byref(out)))
+    reason = out.reason.decode("utf-8", "replace") or None
+    return Match(bool(out.accepted), out.x, out.y, out.ncc, out.ncc_x, out.ncc_y, out.ambiguity,
+                 out.sigma_x, out.sigma_y, bool(out.lsm_converged), out.lsm_iterations,
+                 tuple(out.affine), reason)
