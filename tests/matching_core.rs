@@ -20,10 +20,21 @@ fn texture(seed: u64) -> impl Fn(f64, f64) -> f64 {
             let lambda = rng.gen_range(7.0..30.0);
             let th: f64 = rng.gen_range(0.0..std::f64::consts::PI);
             let k = 2.0 * std::f64::consts::PI / lambda;
-            (k * th.cos(), k * th.sin(), rng.gen_range(0.0..6.3), rng.gen_range(4.0..12.0))
+            (
+                k * th.cos(),
+                k * th.sin(),
+                rng.gen_range(0.0..6.3),
+                rng.gen_range(4.0..12.0),
+            )
         })
         .collect();
-    move |x, y| 100.0 + waves.iter().map(|w| w.3 * (w.0 * x + w.1 * y + w.2).sin()).sum::<f64>()
+    move |x, y| {
+        100.0
+            + waves
+                .iter()
+                .map(|w| w.3 * (w.0 * x + w.1 * y + w.2).sin())
+                .sum::<f64>()
+    }
 }
 
 /// Template around world point c0 and an image where template offset u appears at
@@ -51,7 +62,11 @@ fn pair(
         20.0 + 0.8 * f(c0[0] + u, c0[1] + v)
     });
     let img = GreyImage {
-        data: img.data.iter().map(|&v| v + nd.sample(&mut rng) as f32).collect(),
+        data: img
+            .data
+            .iter()
+            .map(|&v| v + nd.sample(&mut rng) as f32)
+            .collect(),
         ..img
     };
     (tpl, img)
@@ -64,9 +79,21 @@ fn lsm_recovers_subpixel_shift_and_affine_and_ncc_alone_is_within_02px() {
     let mut e_aff: f64 = 0.0;
     let trials = 30;
     for t in 0..trials {
-        let p = [48.0 + rng.gen_range(0.0..1.0), 47.0 + rng.gen_range(0.0..1.0)];
-        let (s, rot, sh) = (rng.gen_range(0.92..1.08), rng.gen_range(-0.08..0.08f64), rng.gen_range(-0.05..0.05));
-        let a = [s * rot.cos(), -s * rot.sin() + sh, s * rot.sin(), s * rot.cos()];
+        let p = [
+            48.0 + rng.gen_range(0.0..1.0),
+            47.0 + rng.gen_range(0.0..1.0),
+        ];
+        let (s, rot, sh) = (
+            rng.gen_range(0.92..1.08),
+            rng.gen_range(-0.08..0.08f64),
+            rng.gen_range(-0.05..0.05),
+        );
+        let a = [
+            s * rot.cos(),
+            -s * rot.sin() + sh,
+            s * rot.sin(),
+            s * rot.cos(),
+        ];
         let (tpl, img) = pair(100 + t, 31, 96, p, a, 1.0);
         let pk = ncc_search(&img, &tpl, Window::whole(&img), false).unwrap();
         e_ncc += (pk.x - p[0]).powi(2) + (pk.y - p[1]).powi(2);
@@ -103,10 +130,23 @@ fn coarse_to_fine_search_finds_the_patch_in_a_wide_window() {
     let pyr = Pyramid::new(&img, 6, 16);
     assert!(pyr.levels.len() >= 3);
     let pk = ncc_search_pyramid(&pyr, &tpl, Window::whole(&img), 9, false).unwrap();
-    assert!((pk.x - p[0]).abs() < 0.3 && (pk.y - p[1]).abs() < 0.3, "{pk:?}");
-    let m = match_template(&pyr, &tpl, Window::whole(&img), None, &MatchOptions::default()).unwrap();
+    assert!(
+        (pk.x - p[0]).abs() < 0.3 && (pk.y - p[1]).abs() < 0.3,
+        "{pk:?}"
+    );
+    let m = match_template(
+        &pyr,
+        &tpl,
+        Window::whole(&img),
+        None,
+        &MatchOptions::default(),
+    )
+    .unwrap();
     assert!(m.accepted, "{:?}", m.reason);
-    assert!((m.x - p[0]).abs() < 0.05 && (m.y - p[1]).abs() < 0.05, "{m:?}");
+    assert!(
+        (m.x - p[0]).abs() < 0.05 && (m.y - p[1]).abs() < 0.05,
+        "{m:?}"
+    );
     assert!(m.ambiguity < 0.9, "ambiguity {}", m.ambiguity);
 }
 
@@ -138,13 +178,23 @@ fn resampling_is_exact_on_linear_and_quadratic_grey_values() {
             for c in 0..11 {
                 let (x, y) = warp.apply(c as f64 + 0.5, r as f64 + 0.5);
                 let truth = 2.0 * x - y + 0.01 * x * x;
-                let tol = if interp == Interpolation::Bicubic { 1e-3 } else { 0.01 };
+                let tol = if interp == Interpolation::Bicubic {
+                    1e-3
+                } else {
+                    0.01
+                };
                 assert!((p.at(c, r) as f64 - truth).abs() < tol, "{interp:?}");
             }
         }
     }
     let h = nalgebra::Matrix3::new(1.0, 0.0, 5.0, 0.0, 1.0, 5.0, 0.001, 0.0, 1.0);
-    let (p, _) = warp_patch(&img, &PatchWarp::Homography(h), 9, 9, Interpolation::Bicubic);
+    let (p, _) = warp_patch(
+        &img,
+        &PatchWarp::Homography(h),
+        9,
+        9,
+        Interpolation::Bicubic,
+    );
     let (x, y) = PatchWarp::Homography(h).apply(4.5, 4.5);
     assert!((p.at(4, 4) as f64 - (2.0 * x - y + 0.01 * x * x)).abs() < 1e-3);
 }
@@ -199,7 +249,10 @@ fn bad_input_gives_clear_errors_or_no_match() {
     // Textureless search area: a result without a match, with its reason.
     let blank = Pyramid::new(&GreyImage::filled(64, 64, 10.0), 4, 16);
     let m = match_template(&blank, &tpl, Window::whole(&blank.levels[0]), None, &opts).unwrap();
-    assert!(!m.accepted && m.reason.as_deref().unwrap().contains("NCC"), "{m:?}");
+    assert!(
+        !m.accepted && m.reason.as_deref().unwrap().contains("NCC"),
+        "{m:?}"
+    );
     // Unrelated texture: rejected with its reason.
     let other = Pyramid::new(&GreyImage::from_fn(64, 64, texture(99)), 4, 16);
     let m = match_template(&other, &tpl, Window::whole(&other.levels[0]), None, &opts).unwrap();
@@ -222,7 +275,11 @@ fn images_load_8_and_16_bit_grey_and_rgb() {
     img.save(&p8, false).unwrap();
     let back = GreyImage::load(&p8).unwrap();
     assert_eq!((back.width, back.height), (40, 30));
-    assert!(back.data.iter().zip(&img.data).all(|(a, b)| (a - b.round()).abs() < 1e-6));
+    assert!(back
+        .data
+        .iter()
+        .zip(&img.data)
+        .all(|(a, b)| (a - b.round()).abs() < 1e-6));
     let p16 = dir.path().join("a16.tif");
     let img16 = GreyImage::from_fn(40, 30, |x, y| 1000.0 * x + y);
     img16.save(&p16, true).unwrap();

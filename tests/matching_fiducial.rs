@@ -4,7 +4,9 @@
 //! fiducial-mark crops (shared/data/fiducial_templates_nagap_ee).
 
 use cloudcontrol::geometry::InteriorTransformKind;
-use cloudcontrol::matching::fiducial::{interior_orientation, CameraDefinition, IoOptions, ScanOrientation, ShapeKind};
+use cloudcontrol::matching::fiducial::{
+    interior_orientation, CameraDefinition, IoOptions, ScanOrientation, ShapeKind,
+};
 use cloudcontrol::matching::ncc::Window;
 use cloudcontrol::matching::resample::{warp_patch, Interpolation, PatchWarp};
 use cloudcontrol::matching::{match_template, GreyImage, MatchOptions, Pyramid};
@@ -18,7 +20,12 @@ const PIXEL_MM: f64 = 0.1;
 const SIZE: usize = 2400;
 
 fn camera(name: &str) -> CameraDefinition {
-    CameraDefinition::load(&Path::new(env!("CARGO_MANIFEST_DIR")).join("formats/cameras").join(name)).unwrap()
+    CameraDefinition::load(
+        &Path::new(env!("CARGO_MANIFEST_DIR"))
+            .join("formats/cameras")
+            .join(name),
+    )
+    .unwrap()
 }
 
 /// True pixel → mm affine: the orientation's ideal map with scan scale differences,
@@ -33,12 +40,19 @@ fn truth(o: ScanOrientation) -> (Matrix2<f64>, Vector2<f64>) {
 
 /// Renders the marks (bright on a dark, grainy film base) and returns the scan and the
 /// true pixel centre of each mark. `skip` marks are left out (missing/broken off).
-fn render_scan(cam: &CameraDefinition, o: ScanOrientation, skip: &[&str], seed: u64) -> (GreyImage, Vec<[f64; 2]>) {
+fn render_scan(
+    cam: &CameraDefinition,
+    o: ScanOrientation,
+    skip: &[&str],
+    seed: u64,
+) -> (GreyImage, Vec<[f64; 2]>) {
     let (lin, origin) = truth(o);
     let inv = lin.try_inverse().unwrap();
     let mut rng = ChaCha8Rng::seed_from_u64(seed);
     let grain = Normal::new(0.0, 6.0).unwrap();
-    let mut data: Vec<f32> = (0..SIZE * SIZE).map(|_| (50.0 + grain.sample(&mut rng)) as f32).collect();
+    let mut data: Vec<f32> = (0..SIZE * SIZE)
+        .map(|_| (50.0 + grain.sample(&mut rng)) as f32)
+        .collect();
     let mut centres = Vec::new();
     for f in &cam.fiducials {
         let c = origin + inv * Vector2::new(f.x_mm, f.y_mm);
@@ -52,7 +66,10 @@ fn render_scan(cam: &CameraDefinition, o: ScanOrientation, skip: &[&str], seed: 
                 let mut hit = 0;
                 for sy in 0..5 {
                     for sx in 0..5 {
-                        let p = Vector2::new(col as f64 + (sx as f64 + 0.5) / 5.0, row as f64 + (sy as f64 + 0.5) / 5.0);
+                        let p = Vector2::new(
+                            col as f64 + (sx as f64 + 0.5) / 5.0,
+                            row as f64 + (sy as f64 + 0.5) / 5.0,
+                        );
                         let mm = lin * (p - origin) - Vector2::new(f.x_mm, f.y_mm);
                         if f.shape.covers(mm.x, mm.y) {
                             hit += 1;
@@ -86,21 +103,45 @@ fn check(cam: &CameraDefinition, o: ScanOrientation, hint: bool, skip: &[&str]) 
     }
     // The recovered affine reproduces the true scan geometry over the whole format.
     let (lin, origin) = truth(o);
-    for p in [[100.0, 100.0], [2300.0, 150.0], [1200.0, 1200.0], [200.0, 2250.0]] {
+    for p in [
+        [100.0, 100.0],
+        [2300.0, 150.0],
+        [1200.0, 1200.0],
+        [200.0, 2250.0],
+    ] {
         let pv = Vector2::new(p[0], p[1]);
         let t = lin * (pv - origin);
         let e = io.transform.pixel_to_mm(pv) - t;
-        assert!(e.norm() * 1000.0 < 10.0, "affine off by {:.2} µm at {p:?}", e.norm() * 1000.0);
+        assert!(
+            e.norm() * 1000.0 < 10.0,
+            "affine off by {:.2} µm at {p:?}",
+            e.norm() * 1000.0
+        );
     }
-    assert!(io.rmse_um < 0.15 * PIXEL_MM * 1000.0, "rmse {} µm", io.rmse_um);
-    eprintln!("{o:?} hint={hint}: worst mark error {worst:.3} px, rmse {:.2} µm", io.rmse_um);
+    assert!(
+        io.rmse_um < 0.15 * PIXEL_MM * 1000.0,
+        "rmse {} µm",
+        io.rmse_um
+    );
+    eprintln!(
+        "{o:?} hint={hint}: worst mark error {worst:.3} px, rmse {:.2} µm",
+        io.rmse_um
+    );
     worst
 }
 
 #[test]
 fn fiducial_io_recovers_marks_and_scan_affine() {
     let cam = camera("wild_rc10.json");
-    let w = check(&cam, ScanOrientation { rotation_deg: 0, mirrored: false }, true, &[]);
+    let w = check(
+        &cam,
+        ScanOrientation {
+            rotation_deg: 0,
+            mirrored: false,
+        },
+        true,
+        &[],
+    );
     assert!(w <= 0.15, "worst mark error {w} px");
 }
 
@@ -118,10 +159,22 @@ fn fiducial_io_handles_rotated_and_mirrored_scans() {
     cam.fiducials[4].shape.size_mm = 0.5;
     cam.fiducials[4].shape.dot_mm = None;
     for o in [
-        ScanOrientation { rotation_deg: 90, mirrored: false },
-        ScanOrientation { rotation_deg: 180, mirrored: false },
-        ScanOrientation { rotation_deg: 0, mirrored: true },
-        ScanOrientation { rotation_deg: 270, mirrored: true },
+        ScanOrientation {
+            rotation_deg: 90,
+            mirrored: false,
+        },
+        ScanOrientation {
+            rotation_deg: 180,
+            mirrored: false,
+        },
+        ScanOrientation {
+            rotation_deg: 0,
+            mirrored: true,
+        },
+        ScanOrientation {
+            rotation_deg: 270,
+            mirrored: true,
+        },
     ] {
         let w = check(&cam, o, false, &[]);
         assert!(w <= 0.2, "{o:?}: worst mark error {w} px");
@@ -131,7 +184,10 @@ fn fiducial_io_handles_rotated_and_mirrored_scans() {
 #[test]
 fn symmetric_layout_is_flagged_ambiguous_without_a_hint() {
     let cam = camera("wild_rc10.json");
-    let o = ScanOrientation { rotation_deg: 0, mirrored: false };
+    let o = ScanOrientation {
+        rotation_deg: 0,
+        mirrored: false,
+    };
     let (scan, _) = render_scan(&cam, o, &[], 3);
     let io = interior_orientation(&cam, &scan, "scan", &IoOptions::default()).unwrap();
     assert!(io.orientation_ambiguous);
@@ -140,7 +196,10 @@ fn symmetric_layout_is_flagged_ambiguous_without_a_hint() {
 #[test]
 fn missing_mark_still_orients_and_too_few_fails_clearly() {
     let cam = camera("wild_rc10.json");
-    let o = ScanOrientation { rotation_deg: 0, mirrored: false };
+    let o = ScanOrientation {
+        rotation_deg: 0,
+        mirrored: false,
+    };
     let w = check(&cam, o, true, &["6"]);
     assert!(w <= 0.15);
     // Projective transform with the remaining marks.
@@ -150,14 +209,19 @@ fn missing_mark_still_orients_and_too_few_fails_clearly() {
         kind: InteriorTransformKind::Projective,
         ..IoOptions::default()
     };
-    let e = interior_orientation(&cam, &scan, "scan_17.tif", &opts).unwrap_err().to_string();
+    let e = interior_orientation(&cam, &scan, "scan_17.tif", &opts)
+        .unwrap_err()
+        .to_string();
     assert!(e.contains("scan_17.tif") && e.contains("needs 4"), "{e}");
 }
 
 #[test]
 fn damaged_mark_is_rejected_by_its_residual() {
     let cam = camera("wild_rc10.json");
-    let o = ScanOrientation { rotation_deg: 0, mirrored: false };
+    let o = ScanOrientation {
+        rotation_deg: 0,
+        mirrored: false,
+    };
     let (mut scan, centres) = render_scan(&cam, o, &[], 9);
     // A scratch across mark 3 moves its apparent centre by about half a millimetre.
     let c = centres[2];
@@ -166,7 +230,10 @@ fn damaged_mark_is_rejected_by_its_residual() {
             scan.data[r * SIZE + col] = 200.0;
         }
     }
-    let opts = IoOptions { orientation: Some(o), ..IoOptions::default() };
+    let opts = IoOptions {
+        orientation: Some(o),
+        ..IoOptions::default()
+    };
     let io = interior_orientation(&cam, &scan, "scan", &opts).unwrap();
     let m3 = &io.marks[2];
     assert!(!m3.used, "damaged mark used: {m3:?}");
@@ -176,11 +243,21 @@ fn damaged_mark_is_rejected_by_its_residual() {
 
 #[test]
 fn real_fiducial_crops_are_located_within_015_px() {
-    let root = Path::new(env!("CARGO_MANIFEST_DIR")).join("../../shared/data/fiducial_templates_nagap_ee");
-    let root = if root.exists() { root } else { Path::new("/work/shared/data/fiducial_templates_nagap_ee").to_path_buf() };
+    let root =
+        Path::new(env!("CARGO_MANIFEST_DIR")).join("../../shared/data/fiducial_templates_nagap_ee");
+    let root = if root.exists() {
+        root
+    } else {
+        Path::new("/work/shared/data/fiducial_templates_nagap_ee").to_path_buf()
+    };
     let mut worst: f64 = 0.0;
     let mut n = 0;
-    for (style, side) in [("nagap/notch", "L.jpg"), ("nagap/notch", "T.jpg"), ("nagap/triangle", "B.jpg"), ("ee/notch", "B.tif")] {
+    for (style, side) in [
+        ("nagap/notch", "L.jpg"),
+        ("nagap/notch", "T.jpg"),
+        ("nagap/triangle", "B.jpg"),
+        ("ee/notch", "B.tif"),
+    ] {
         let crop = GreyImage::load(&root.join(style).join(side)).unwrap();
         // The whole crop is the template; the "scan" is the crop moved by a known
         // sub-pixel amount (bicubic) into a larger frame, with added grain.
@@ -189,20 +266,47 @@ fn real_fiducial_crops_are_located_within_015_px() {
         let (cw, ch) = (crop.width + 2 * m, crop.height + 2 * m);
         let (moved, _) = warp_patch(
             &crop,
-            &PatchWarp::Affine([1.0, 0.0, -(m as f64) - shift[0], 0.0, 1.0, -(m as f64) - shift[1]]),
+            &PatchWarp::Affine([
+                1.0,
+                0.0,
+                -(m as f64) - shift[0],
+                0.0,
+                1.0,
+                -(m as f64) - shift[1],
+            ]),
             cw,
             ch,
             Interpolation::Bicubic,
         );
         let mut rng = ChaCha8Rng::seed_from_u64(1);
         let g = Normal::new(0.0, 2.0).unwrap();
-        let moved = GreyImage { data: moved.data.iter().map(|&v| v + g.sample(&mut rng) as f32).collect(), ..moved };
+        let moved = GreyImage {
+            data: moved
+                .data
+                .iter()
+                .map(|&v| v + g.sample(&mut rng) as f32)
+                .collect(),
+            ..moved
+        };
         let pyr = Pyramid::new(&moved, 6, 16);
-        let truth = [m as f64 + crop.width as f64 / 2.0 + shift[0], m as f64 + crop.height as f64 / 2.0 + shift[1]];
-        let mm = match_template(&pyr, &crop, Window::whole(&moved), None, &MatchOptions::default()).unwrap();
+        let truth = [
+            m as f64 + crop.width as f64 / 2.0 + shift[0],
+            m as f64 + crop.height as f64 / 2.0 + shift[1],
+        ];
+        let mm = match_template(
+            &pyr,
+            &crop,
+            Window::whole(&moved),
+            None,
+            &MatchOptions::default(),
+        )
+        .unwrap();
         assert!(mm.accepted, "{style}/{side}: {:?} {mm:?}", mm.reason);
         let e = (mm.x - truth[0]).hypot(mm.y - truth[1]);
-        eprintln!("{style}/{side}: error {e:.3} px, σ {:.3} px", mm.sigma_x.hypot(mm.sigma_y));
+        eprintln!(
+            "{style}/{side}: error {e:.3} px, σ {:.3} px",
+            mm.sigma_x.hypot(mm.sigma_y)
+        );
         worst = worst.max(e);
         n += 1;
     }

@@ -32,10 +32,21 @@ fn ground_texture() -> impl Fn(f64, f64) -> f64 + Sync {
             let lambda = rng.gen_range(4.0..30.0);
             let th: f64 = rng.gen_range(0.0..std::f64::consts::PI);
             let k = 2.0 * std::f64::consts::PI / lambda;
-            (k * th.cos(), k * th.sin(), rng.gen_range(0.0..6.3), rng.gen_range(3.0..10.0))
+            (
+                k * th.cos(),
+                k * th.sin(),
+                rng.gen_range(0.0..6.3),
+                rng.gen_range(3.0..10.0),
+            )
         })
         .collect();
-    move |x, y| 120.0 + waves.iter().map(|w| w.3 * (w.0 * x + w.1 * y + w.2).sin()).sum::<f64>()
+    move |x, y| {
+        120.0
+            + waves
+                .iter()
+                .map(|w| w.3 * (w.0 * x + w.1 * y + w.2).sin())
+                .sum::<f64>()
+    }
 }
 
 fn scene() -> Scene {
@@ -51,9 +62,16 @@ fn scene() -> Scene {
     // 60 % forward overlap (base 144 m for a 360 m footprint), 40 % side overlap.
     for y in [60.0, -108.0] {
         for k in 0..3 {
-            let small = Vector3::new(rng.gen_range(-0.01..0.01), rng.gen_range(-0.01..0.01), rng.gen_range(-0.02..0.02));
+            let small = Vector3::new(
+                rng.gen_range(-0.01..0.01),
+                rng.gen_range(-0.01..0.01),
+                rng.gen_range(-0.02..0.02),
+            );
             let r = rotation_from_vector(&small) * nadir;
-            poses.push(Pose::new(r, Vector3::new(-144.0 + 144.0 * k as f64, y, 600.0)));
+            poses.push(Pose::new(
+                r,
+                Vector3::new(-144.0 + 144.0 * k as f64, y, 600.0),
+            ));
         }
     }
     let tex = ground_texture();
@@ -88,7 +106,12 @@ fn transfer(s: &Scene, a: usize, b: usize, p: [f64; 2]) -> Option<[f64; 2]> {
 fn prediction(s: &Scene, a: usize, b: usize) -> PairPrediction {
     let mut pa = Vec::new();
     let mut pb = Vec::new();
-    for p in [[0.0, 0.0], [W as f64, 0.0], [0.0, H as f64], [W as f64, H as f64]] {
+    for p in [
+        [0.0, 0.0],
+        [W as f64, 0.0],
+        [0.0, H as f64],
+        [W as f64, H as f64],
+    ] {
         let ray = back_project(&s.camera, &s.poses[a], p).unwrap();
         let t = (100.0 - ray.origin.z) / ray.direction.z;
         let x = ray.at(t);
@@ -97,7 +120,8 @@ fn prediction(s: &Scene, a: usize, b: usize) -> PairPrediction {
         pb.push([q.pixel.x, q.pixel.y]);
     }
     // The projective interior-orientation solver is a general 4-point homography.
-    let (h, _) = InteriorOrientation::estimate(InteriorTransformKind::Projective, &pa, &pb).unwrap();
+    let (h, _) =
+        InteriorOrientation::estimate(InteriorTransformKind::Projective, &pa, &pb).unwrap();
     PairPrediction {
         a,
         b,
@@ -110,12 +134,32 @@ fn prediction(s: &Scene, a: usize, b: usize) -> PairPrediction {
 fn ties_on_a_synthetic_block_survive_30_percent_false_candidates() {
     let s = scene();
     let opts = TieOptions::default();
-    let pairs_ab = [(0, 1), (1, 2), (0, 2), (3, 4), (4, 5), (3, 5), (0, 3), (1, 4), (2, 5), (0, 4), (1, 3), (1, 5), (2, 4)];
-    let preds: Vec<PairPrediction> = pairs_ab.iter().map(|&(a, b)| prediction(&s, a, b)).collect();
+    let pairs_ab = [
+        (0, 1),
+        (1, 2),
+        (0, 2),
+        (3, 4),
+        (4, 5),
+        (3, 5),
+        (0, 3),
+        (1, 4),
+        (2, 5),
+        (0, 4),
+        (1, 3),
+        (1, 5),
+        (2, 4),
+    ];
+    let preds: Vec<PairPrediction> = pairs_ab
+        .iter()
+        .map(|&(a, b)| prediction(&s, a, b))
+        .collect();
     let pyrs: Vec<Pyramid> = s.photos.iter().map(|p| Pyramid::new(p, 6, 32)).collect();
     let mut rng = ChaCha8Rng::seed_from_u64(99);
     for method in [RobustMethod::Lmeds, RobustMethod::Ransac] {
-        let o = TieOptions { robust: method, ..opts.clone() };
+        let o = TieOptions {
+            robust: method,
+            ..opts.clone()
+        };
         let mut results = Vec::new();
         let (mut good, mut total, mut false_in, mut false_total) = (0usize, 0usize, 0usize, 0usize);
         for pred in &preds {
@@ -157,7 +201,10 @@ fn ties_on_a_synthetic_block_survive_30_percent_false_candidates() {
                 }
             }
             false_total += n_false;
-            assert!(pm.inliers.iter().filter(|&&i| i).count() >= 20, "pair {a}-{b}: too few ties");
+            assert!(
+                pm.inliers.iter().filter(|&&i| i).count() >= 20,
+                "pair {a}-{b}: too few ties"
+            );
             results.push(pm);
         }
         let frac = good as f64 / total as f64;
@@ -165,20 +212,34 @@ fn ties_on_a_synthetic_block_survive_30_percent_false_candidates() {
             "{method:?}: {total} accepted, {:.1} % within 1 px of truth, {false_in} of {false_total} injected false candidates accepted",
             100.0 * frac
         );
-        assert!(frac >= 0.95, "{method:?}: only {:.1} % within 1 px", 100.0 * frac);
+        assert!(
+            frac >= 0.95,
+            "{method:?}: only {:.1} % within 1 px",
+            100.0 * frac
+        );
         // Tracks across and within strips, and the standard positions of every photo.
         let tracks = link_tracks(&results, o.merge_px);
         let multi = tracks.iter().filter(|t| t.observations.len() >= 3).count();
         let across = tracks
             .iter()
-            .filter(|t| t.observations.iter().any(|o| o.0 < 3) && t.observations.iter().any(|o| o.0 >= 3))
+            .filter(|t| {
+                t.observations.iter().any(|o| o.0 < 3) && t.observations.iter().any(|o| o.0 >= 3)
+            })
             .count();
-        eprintln!("{} tracks, {multi} with ≥ 3 photos, {across} across strips", tracks.len());
+        eprintln!(
+            "{} tracks, {multi} with ≥ 3 photos, {across} across strips",
+            tracks.len()
+        );
         assert!(multi >= 20 && across >= 20);
         let sizes = vec![(W, H); 6];
         for cov in coverage(&sizes, &preds, &tracks) {
             assert!(cov.required.iter().filter(|&&r| r).count() >= 4, "{cov:?}");
-            assert!(cov.missing(1).is_empty(), "photo {}: standard positions without points {:?} ({cov:?})", cov.photo, cov.missing(1));
+            assert!(
+                cov.missing(1).is_empty(),
+                "photo {}: standard positions without points {:?} ({cov:?})",
+                cov.photo,
+                cov.missing(1)
+            );
         }
     }
 }
@@ -192,5 +253,8 @@ fn global_shift_prediction_finds_the_strip_overlap() {
     // The centre of photo 0 appears about 144 m × 500/500 = 144 px to the left in photo 1.
     let t = transfer(&s, 0, 1, [W as f64 / 2.0, H as f64 / 2.0]).unwrap();
     let q = pred.transfer([W as f64 / 2.0, H as f64 / 2.0]);
-    assert!((q[0] - t[0]).abs() < pred.search_radius_px && (q[1] - t[1]).abs() < pred.search_radius_px, "{q:?} vs {t:?}");
+    assert!(
+        (q[0] - t[0]).abs() < pred.search_radius_px && (q[1] - t[1]).abs() < pred.search_radius_px,
+        "{q:?} vs {t:?}"
+    );
 }

@@ -2,7 +2,9 @@
 
 use super::{finite, guard, input, output, CcpStatus, FfiError, FfiResult};
 use crate::geometry::InteriorTransformKind;
-use crate::matching::fiducial::{interior_orientation, CameraDefinition, IoOptions, ScanOrientation};
+use crate::matching::fiducial::{
+    interior_orientation, CameraDefinition, IoOptions, ScanOrientation,
+};
 use crate::matching::ncc::Window;
 use crate::matching::{match_template, GreyImage, MatchOptions, MatchingError, Pyramid};
 use std::ffi::{c_char, CStr};
@@ -11,7 +13,9 @@ impl From<MatchingError> for FfiError {
     fn from(e: MatchingError) -> Self {
         let status = match &e {
             MatchingError::Read { .. } => CcpStatus::Io,
-            MatchingError::Orientation { .. } | MatchingError::Relative { .. } => CcpStatus::Numeric,
+            MatchingError::Orientation { .. } | MatchingError::Relative { .. } => {
+                CcpStatus::Numeric
+            }
             MatchingError::Geometry(g) => return FfiError::from(g.clone()),
             _ => CcpStatus::InvalidArgument,
         };
@@ -49,7 +53,10 @@ fn image_from(ptr: *const f32, width: u32, height: u32, name: &str) -> FfiResult
     }
     let data = unsafe { input(ptr, w * h, name, false)? };
     if let Some(i) = data.iter().position(|v| !v.is_finite()) {
-        return Err(FfiError::new(CcpStatus::NotFinite, format!("{name}[{i}] is not finite")));
+        return Err(FfiError::new(
+            CcpStatus::NotFinite,
+            format!("{name}[{i}] is not finite"),
+        ));
     }
     Ok(GreyImage {
         width: w,
@@ -158,11 +165,17 @@ pub unsafe extern "C" fn ccp_fiducial_io(
 ) -> CcpStatus {
     guard(|| {
         if out_needed.is_null() {
-            return Err(FfiError::new(CcpStatus::NullPointer, "out_needed is a null pointer"));
+            return Err(FfiError::new(
+                CcpStatus::NullPointer,
+                "out_needed is a null pointer",
+            ));
         }
         *out_needed = 0;
         if camera_json.is_null() {
-            return Err(FfiError::new(CcpStatus::NullPointer, "camera_json is a null pointer"));
+            return Err(FfiError::new(
+                CcpStatus::NullPointer,
+                "camera_json is a null pointer",
+            ));
         }
         let text = CStr::from_ptr(camera_json)
             .to_str()
@@ -179,7 +192,11 @@ pub unsafe extern "C" fn ccp_fiducial_io(
                 rotation_deg: (k % 4) as u16 * 90,
                 mirrored: k >= 4,
             }),
-            k => return Err(FfiError::invalid(format!("orientation {k}: expected −1 or 0–7"))),
+            k => {
+                return Err(FfiError::invalid(format!(
+                    "orientation {k}: expected −1 or 0–7"
+                )))
+            }
         };
         let opts = IoOptions {
             pixel_mm: (pixel_mm > 0.0).then_some(pixel_mm),
@@ -249,7 +266,14 @@ pub unsafe extern "C" fn ccp_lsm(
         let img = image_from(image, width, height, "image")?;
         let tpl = image_from(templ, templ_width, templ_height, "templ")?;
         finite(&[x, y], "x/y")?;
-        let l = crate::matching::lsm(&img, &tpl, x, y, None, &crate::matching::LsmOptions::default());
+        let l = crate::matching::lsm(
+            &img,
+            &tpl,
+            x,
+            y,
+            None,
+            &crate::matching::LsmOptions::default(),
+        );
         let mut reason = [0 as c_char; 200];
         if let Some(r) = &l.reason {
             for (d, s) in reason.iter_mut().zip(r.bytes().take(199)) {

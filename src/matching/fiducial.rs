@@ -101,7 +101,10 @@ impl FiducialShape {
     }
 
     fn key(&self) -> String {
-        format!("{:?}/{}/{}/{:?}", self.kind, self.size_mm, self.line_mm, self.dot_mm)
+        format!(
+            "{:?}/{}/{}/{:?}",
+            self.kind, self.size_mm, self.line_mm, self.dot_mm
+        )
     }
 }
 
@@ -118,7 +121,10 @@ impl CameraDefinition {
 
     pub fn validate(&self) -> std::result::Result<(), String> {
         if !(self.focal_mm > 0.0 && self.focal_mm.is_finite()) {
-            return Err(format!("focal_mm {} is not a positive length", self.focal_mm));
+            return Err(format!(
+                "focal_mm {} is not a positive length",
+                self.focal_mm
+            ));
         }
         if self.fiducials.len() < 3 {
             return Err(format!(
@@ -133,8 +139,13 @@ impl CameraDefinition {
             if !(f.shape.size_mm > 0.0) {
                 return Err(format!("fiducial {}: size_mm must be positive", f.id));
             }
-            if matches!(f.shape.kind, ShapeKind::Cross | ShapeKind::Ring) && !(f.shape.line_mm > 0.0) {
-                return Err(format!("fiducial {}: {:?} needs line_mm > 0", f.id, f.shape.kind));
+            if matches!(f.shape.kind, ShapeKind::Cross | ShapeKind::Ring)
+                && !(f.shape.line_mm > 0.0)
+            {
+                return Err(format!(
+                    "fiducial {}: {:?} needs line_mm > 0",
+                    f.id, f.shape.kind
+                ));
             }
         }
         Ok(())
@@ -328,13 +339,25 @@ pub fn interior_orientation(
         Some(o) => vec![o],
         None => ScanOrientation::all(),
     };
-    let margin_mm = 0.5 * cam.fiducials.iter().map(|f| f.shape.extent_mm()).fold(0.0, f64::max);
-    let mut wide_cache: HashMap<(i64, i64, String, u16, bool), Option<(f64, f64, f64)>> = HashMap::new();
+    let margin_mm = 0.5
+        * cam
+            .fiducials
+            .iter()
+            .map(|f| f.shape.extent_mm())
+            .fold(0.0, f64::max);
+    let mut wide_cache: HashMap<(i64, i64, String, u16, bool), Option<(f64, f64, f64)>> =
+        HashMap::new();
     let mut wide = |f: &FiducialDef, o: ScanOrientation| -> Option<(f64, f64, f64)> {
         let lin = o.linear(s);
         let inv = lin.try_inverse()?;
         let p = centre + inv * Vector2::new(f.x_mm, f.y_mm);
-        let key = (p.x.round() as i64, p.y.round() as i64, f.shape.key(), o.rotation_deg, o.mirrored);
+        let key = (
+            p.x.round() as i64,
+            p.y.round() as i64,
+            f.shape.key(),
+            o.rotation_deg,
+            o.mirrored,
+        );
         if let Some(v) = wide_cache.get(&key) {
             return *v;
         }
@@ -345,7 +368,9 @@ pub fn interior_orientation(
             mo.use_lsm = false;
             match_template(&pyr, &tpl, w, None, &mo).ok()
         });
-        let v = res.filter(|m| m.ncc >= opts.matching.ncc_threshold).map(|m| (m.x, m.y, m.ncc));
+        let v = res
+            .filter(|m| m.ncc >= opts.matching.ncc_threshold)
+            .map(|m| (m.x, m.y, m.ncc));
         wide_cache.insert(key, v);
         v
     };
@@ -371,7 +396,9 @@ pub fn interior_orientation(
         let dang = ang_m - ang_p;
         let rot = Matrix2::new(dang.cos(), -dang.sin(), dang.sin(), dang.cos());
         let lin = rot * lin0 * (scale / s);
-        let Some(inv) = lin.try_inverse() else { continue };
+        let Some(inv) = lin.try_inverse() else {
+            continue;
+        };
         let origin_px = Vector2::new(pa.0, pa.1) - inv * Vector2::new(fa.x_mm, fa.y_mm);
         let mut marks = Vec::new();
         let mut score = 0.0;
@@ -460,7 +487,10 @@ pub fn interior_orientation(
             )));
         }
         let px: Vec<[f64; 2]> = used.iter().map(|&i| [marks[i].x, marks[i].y]).collect();
-        let mm: Vec<[f64; 2]> = used.iter().map(|&i| [marks[i].x_mm, marks[i].y_mm]).collect();
+        let mm: Vec<[f64; 2]> = used
+            .iter()
+            .map(|&i| [marks[i].x_mm, marks[i].y_mm])
+            .collect();
         let (io, res) = InteriorOrientation::estimate(opts.kind, &px, &mm)?;
         for m in marks.iter_mut() {
             m.residual_um = [f64::NAN; 2];
@@ -518,9 +548,17 @@ impl IoResult {
         let m = &self.transform.pixel_to_mm;
         let inv = m.try_inverse().unwrap_or_else(nalgebra::Matrix3::identity);
         let rows = |a: &nalgebra::Matrix3<f64>| -> Vec<f64> {
-            (0..3).flat_map(|r| (0..3).map(move |c| a[(r, c)])).collect()
+            (0..3)
+                .flat_map(|r| (0..3).map(move |c| a[(r, c)]))
+                .collect()
         };
-        let num = |v: f64| if v.is_finite() { serde_json::json!(v) } else { serde_json::Value::Null };
+        let num = |v: f64| {
+            if v.is_finite() {
+                serde_json::json!(v)
+            } else {
+                serde_json::Value::Null
+            }
+        };
         serde_json::json!({
             "camera": self.camera,
             "orientation": self.orientation,

@@ -171,7 +171,11 @@ pub fn forstner(img: &GreyImage, opts: &ForstnerOptions) -> Vec<InterestPoint> {
     }
     let mut out = Vec::new();
     for mut c in cells {
-        c.sort_by(|a, b| b.w.total_cmp(&a.w).then(a.y.total_cmp(&b.y)).then(a.x.total_cmp(&b.x)));
+        c.sort_by(|a, b| {
+            b.w.total_cmp(&a.w)
+                .then(a.y.total_cmp(&b.y))
+                .then(a.x.total_cmp(&b.x))
+        });
         out.extend(c.into_iter().take(opts.per_cell));
     }
     out

@@ -97,7 +97,13 @@ impl GreyImage {
     pub fn std_dev(&self) -> f64 {
         let n = self.data.len() as f64;
         let mean = self.data.iter().map(|&v| v as f64).sum::<f64>() / n;
-        (self.data.iter().map(|&v| (v as f64 - mean).powi(2)).sum::<f64>() / n).sqrt()
+        (self
+            .data
+            .iter()
+            .map(|&v| (v as f64 - mean).powi(2))
+            .sum::<f64>()
+            / n)
+            .sqrt()
     }
 
     /// Loads a whole image file (8/16-bit grey or RGB(A); colour is reduced to luma
@@ -115,7 +121,9 @@ impl GreyImage {
         let img = match img {
             Ok(i) => i,
             // Large or exotic TIFF scans (tiled, BigTIFF, JPEG-in-TIFF) go through GDAL.
-            Err(e) => return Self::load_window(path, None).map_err(|g| err(format!("{e}; GDAL: {g}"))),
+            Err(e) => {
+                return Self::load_window(path, None).map_err(|g| err(format!("{e}; GDAL: {g}")))
+            }
         };
         let (w, h) = (img.width() as usize, img.height() as usize);
         let data: Vec<f32> = match img {
@@ -191,12 +199,24 @@ impl GreyImage {
             let fmt = image::ImageFormat::from_path(path)
                 .map_err(|e| crate::formats::FormatError::invalid(path, e.to_string()))?;
             let res = if sixteen_bit {
-                let buf: Vec<u16> = self.data.iter().map(|&v| v.round().clamp(0.0, 65535.0) as u16).collect();
-                image::ImageBuffer::<image::Luma<u16>, _>::from_raw(self.width as u32, self.height as u32, buf)
-                    .expect("size matches")
-                    .save_with_format(tmp, fmt)
+                let buf: Vec<u16> = self
+                    .data
+                    .iter()
+                    .map(|&v| v.round().clamp(0.0, 65535.0) as u16)
+                    .collect();
+                image::ImageBuffer::<image::Luma<u16>, _>::from_raw(
+                    self.width as u32,
+                    self.height as u32,
+                    buf,
+                )
+                .expect("size matches")
+                .save_with_format(tmp, fmt)
             } else {
-                let buf: Vec<u8> = self.data.iter().map(|&v| v.round().clamp(0.0, 255.0) as u8).collect();
+                let buf: Vec<u8> = self
+                    .data
+                    .iter()
+                    .map(|&v| v.round().clamp(0.0, 255.0) as u8)
+                    .collect();
                 image::GrayImage::from_raw(self.width as u32, self.height as u32, buf)
                     .expect("size matches")
                     .save_with_format(tmp, fmt)

@@ -184,7 +184,10 @@ pub fn lsm(
         out.r0 = p[6];
         out.r1 = p[7];
         let det = p[2] * p[5] - p[3] * p[4];
-        let (sx, sy) = ((p[2].powi(2) + p[4].powi(2)).sqrt(), (p[3].powi(2) + p[5].powi(2)).sqrt());
+        let (sx, sy) = (
+            (p[2].powi(2) + p[4].powi(2)).sqrt(),
+            (p[3].powi(2) + p[5].powi(2)).sqrt(),
+        );
         let m = opts.max_scale;
         if ((p[0] - x).powi(2) + (p[1] - y).powi(2)).sqrt() > opts.max_shift {
             out.reason = Some(format!(
@@ -195,7 +198,9 @@ pub fn lsm(
             return out;
         }
         if det <= 0.0 || sx > m || sy > m || sx < 1.0 / m || sy < 1.0 / m {
-            out.reason = Some(format!("diverged: implausible shape (scales {sx:.2}, {sy:.2})"));
+            out.reason = Some(format!(
+                "diverged: implausible shape (scales {sx:.2}, {sy:.2})"
+            ));
             return out;
         }
         if it > 3 && sigma0 > 3.0 * last_sigma {
@@ -205,7 +210,10 @@ pub fn lsm(
         last_sigma = sigma0;
         tracing::trace!(it, dx = d[0], dy = d[1], sigma0, "LSM step");
         let shape_step = d[2..6].iter().fold(0.0f64, |a, v| a.max(v.abs()));
-        if d[0].abs() < opts.shift_tolerance && d[1].abs() < opts.shift_tolerance && shape_step < 1e-3 {
+        if d[0].abs() < opts.shift_tolerance
+            && d[1].abs() < opts.shift_tolerance
+            && shape_step < 1e-3
+        {
             out.converged = true;
             out.reason = None;
             return out;

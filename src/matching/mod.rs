@@ -18,8 +18,8 @@ pub mod resample;
 pub mod ties;
 
 pub use fiducial::{
-    interior_orientation, interior_orientation_file, CameraDefinition, FiducialDef, FiducialShape, IoOptions, IoResult,
-    MarkResult, ScanOrientation,
+    interior_orientation, interior_orientation_file, CameraDefinition, FiducialDef, FiducialShape,
+    IoOptions, IoResult, MarkResult, ScanOrientation,
 };
 pub use forstner::{forstner, ForstnerOptions, InterestPoint};
 pub use image::GreyImage;
@@ -58,7 +58,11 @@ pub enum MatchingError {
     #[error("interior orientation of {scan}: {message}")]
     Orientation { scan: String, message: String },
     #[error("relative orientation {a}–{b}: {message}")]
-    Relative { a: String, b: String, message: String },
+    Relative {
+        a: String,
+        b: String,
+        message: String,
+    },
     #[error(transparent)]
     Geometry(#[from] crate::geometry::GeometryError),
 }

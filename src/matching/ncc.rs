@@ -73,7 +73,10 @@ fn prepared_template(tpl: &GreyImage, what: &str) -> Result<(Vec<f32>, f64)> {
     let mean = tpl.data.iter().map(|&v| v as f64).sum::<f64>() / n;
     let t: Vec<f32> = tpl.data.iter().map(|&v| (v as f64 - mean) as f32).collect();
     let norm = t.iter().map(|&v| (v as f64).powi(2)).sum::<f64>().sqrt();
-    let range = tpl.data.iter().fold(0.0f32, |m, &v| m.max((v - mean as f32).abs()));
+    let range = tpl
+        .data
+        .iter()
+        .fold(0.0f32, |m, &v| m.max((v - mean as f32).abs()));
     if norm < 1e-9 * n.sqrt() || range < 1e-6 * (mean.abs() as f32).max(1.0) {
         return Err(MatchingError::Textureless {
             what: what.to_string(),
@@ -126,7 +129,8 @@ unsafe fn correlate_row_avx2(acc: &mut [f32], row: &[f32], t: &[f32]) {
 fn correlate_row(acc: &mut [f32], row: &[f32], t: &[f32]) {
     #[cfg(target_arch = "x86_64")]
     {
-        if std::arch::is_x86_feature_detected!("avx2") && std::arch::is_x86_feature_detected!("fma") {
+        if std::arch::is_x86_feature_detected!("avx2") && std::arch::is_x86_feature_detected!("fma")
+        {
             // SAFETY: the CPU supports the features the function was compiled for.
             return unsafe { correlate_row_avx2(acc, row, t) };
         }
@@ -260,12 +264,20 @@ impl NccSurface {
             }
         };
         let dx = if bi > 0 && bi + 1 < w {
-            para(self.v(bi - 1, bj, absolute), bv, self.v(bi + 1, bj, absolute))
+            para(
+                self.v(bi - 1, bj, absolute),
+                bv,
+                self.v(bi + 1, bj, absolute),
+            )
         } else {
             0.0
         };
         let dy = if bj > 0 && bj + 1 < h {
-            para(self.v(bi, bj - 1, absolute), bv, self.v(bi, bj + 1, absolute))
+            para(
+                self.v(bi, bj - 1, absolute),
+                bv,
+                self.v(bi, bj + 1, absolute),
+            )
         } else {
             0.0
         };

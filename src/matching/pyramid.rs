@@ -34,7 +34,14 @@ pub fn downsample(img: &GreyImage) -> GreyImage {
     let (nw, nh) = (w / 2, h / 2);
     // Horizontal pass at the half-way positions: taps (1 5 10 10 5 1)/32 is the binomial
     // kernel convolved with the 2-sample box, i.e. blur and half-pixel shift in one.
-    const K: [f32; 6] = [1.0 / 32.0, 5.0 / 32.0, 10.0 / 32.0, 10.0 / 32.0, 5.0 / 32.0, 1.0 / 32.0];
+    const K: [f32; 6] = [
+        1.0 / 32.0,
+        5.0 / 32.0,
+        10.0 / 32.0,
+        10.0 / 32.0,
+        5.0 / 32.0,
+        1.0 / 32.0,
+    ];
     let clampi = |v: isize, n: usize| v.clamp(0, n as isize - 1) as usize;
     let mut tmp = vec![0.0f32; nw * h];
     for r in 0..h {

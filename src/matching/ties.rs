@@ -101,7 +101,11 @@ pub struct PairMatches {
 
 impl PairMatches {
     pub fn accepted(&self) -> impl Iterator<Item = &TieCandidate> {
-        self.candidates.iter().zip(&self.inliers).filter(|(_, &i)| i).map(|(c, _)| c)
+        self.candidates
+            .iter()
+            .zip(&self.inliers)
+            .filter(|(_, &i)| i)
+            .map(|(c, _)| c)
     }
 }
 
@@ -111,12 +115,24 @@ pub struct FundamentalEstimator;
 
 fn normalise(pts: &[[f64; 2]]) -> (Matrix3<f64>, Vec<[f64; 2]>) {
     let n = pts.len() as f64;
-    let (mx, my) = pts.iter().fold((0.0, 0.0), |a, p| (a.0 + p[0] / n, a.1 + p[1] / n));
-    let d = pts.iter().map(|p| (p[0] - mx).hypot(p[1] - my)).sum::<f64>() / n;
-    let s = if d > 0.0 { std::f64::consts::SQRT_2 / d } else { 1.0 };
+    let (mx, my) = pts
+        .iter()
+        .fold((0.0, 0.0), |a, p| (a.0 + p[0] / n, a.1 + p[1] / n));
+    let d = pts
+        .iter()
+        .map(|p| (p[0] - mx).hypot(p[1] - my))
+        .sum::<f64>()
+        / n;
+    let s = if d > 0.0 {
+        std::f64::consts::SQRT_2 / d
+    } else {
+        1.0
+    };
     (
         Matrix3::new(s, 0.0, -s * mx, 0.0, s, -s * my, 0.0, 0.0, 1.0),
-        pts.iter().map(|p| [(p[0] - mx) * s, (p[1] - my) * s]).collect(),
+        pts.iter()
+            .map(|p| [(p[0] - mx) * s, (p[1] - my) * s])
+            .collect(),
     )
 }
 
@@ -203,7 +219,10 @@ pub fn candidates(
     points
         .par_iter()
         .filter_map(|p| {
-            let (c0, r0) = ((p[0] - 0.5).round() as isize - h as isize, (p[1] - 0.5).round() as isize - h as isize);
+            let (c0, r0) = (
+                (p[0] - 0.5).round() as isize - h as isize,
+                (p[1] - 0.5).round() as isize - h as isize,
+            );
             if c0 < 0 || r0 < 0 {
                 return None;
             }
@@ -252,7 +271,10 @@ pub fn relative_orientation(
     // σ can be tiny on clean data, and the tolerance reflects the measurement precision.
     let f = res.model;
     let t2 = opts.ro_threshold_px.powi(2);
-    let inliers: Vec<bool> = samples.iter().map(|s| est.residual_sq(&f, s) <= t2).collect();
+    let inliers: Vec<bool> = samples
+        .iter()
+        .map(|s| est.residual_sq(&f, s) <= t2)
+        .collect();
     let mut r: Vec<f64> = samples
         .iter()
         .zip(&inliers)
@@ -266,7 +288,17 @@ pub fn relative_orientation(
         b,
         candidates: cands,
         inliers,
-        fundamental: Some([f[(0, 0)], f[(0, 1)], f[(0, 2)], f[(1, 0)], f[(1, 1)], f[(1, 2)], f[(2, 0)], f[(2, 1)], f[(2, 2)]]),
+        fundamental: Some([
+            f[(0, 0)],
+            f[(0, 1)],
+            f[(0, 2)],
+            f[(1, 0)],
+            f[(1, 1)],
+            f[(1, 2)],
+            f[(2, 0)],
+            f[(2, 1)],
+            f[(2, 2)],
+        ]),
         sigma_px: sigma,
     })
 }
@@ -278,7 +310,10 @@ pub fn match_pair(
     pred: &PairPrediction,
     opts: &TieOptions,
 ) -> Result<PairMatches> {
-    let pts: Vec<[f64; 2]> = forstner(a, &opts.forstner).iter().map(|p| [p.x, p.y]).collect();
+    let pts: Vec<[f64; 2]> = forstner(a, &opts.forstner)
+        .iter()
+        .map(|p| [p.x, p.y])
+        .collect();
     let bimg = &b.levels[0];
     // Only points whose prediction falls inside b can match.
     let pts: Vec<[f64; 2]> = pts
@@ -289,7 +324,13 @@ pub fn match_pair(
         })
         .collect();
     let c = candidates(a, b, pred, &pts, opts);
-    tracing::debug!(a = pred.a, b = pred.b, points = pts.len(), candidates = c.len(), "tie candidates");
+    tracing::debug!(
+        a = pred.a,
+        b = pred.b,
+        points = pts.len(),
+        candidates = c.len(),
+        "tie candidates"
+    );
     relative_orientation(pred.a, pred.b, c, opts)
 }
 
@@ -323,7 +364,9 @@ pub fn link_tracks(pairs: &[PairMatches], merge_px: f64) -> Vec<Track> {
             }
         }
         nodes.push((photo, p));
-        grid.entry((photo, gx, gy)).or_default().push(nodes.len() - 1);
+        grid.entry((photo, gx, gy))
+            .or_default()
+            .push(nodes.len() - 1);
         nodes.len() - 1
     };
     for pm in pairs {
@@ -392,7 +435,9 @@ pub struct Coverage {
 impl Coverage {
     /// Required positions with fewer than `min` points.
     pub fn missing(&self, min: usize) -> Vec<usize> {
-        (0..9).filter(|&k| self.required[k] && self.counts[k] < min).collect()
+        (0..9)
+            .filter(|&k| self.required[k] && self.counts[k] < min)
+            .collect()
     }
 }
 
@@ -468,8 +513,12 @@ pub fn predict_shift(a: &Pyramid, b: &Pyramid, ia: usize, ib: usize) -> Option<P
         for fx in [0.25, 0.5, 0.75] {
             let c0 = (fx * la.width as f64) as usize - ps / 2;
             let r0 = (fy * la.height as f64) as usize - ps / 2;
-            let Ok(t) = la.crop(c0, r0, ps, ps) else { continue };
-            let Ok(pk) = ncc_search(lb, &t, Window::whole(lb), false) else { continue };
+            let Ok(t) = la.crop(c0, r0, ps, ps) else {
+                continue;
+            };
+            let Ok(pk) = ncc_search(lb, &t, Window::whole(lb), false) else {
+                continue;
+            };
             let q = pk.ncc * (1.0 - pk.ratio);
             if pk.ncc > 0.5 && best.is_none_or(|b| q > b.0) {
                 let dx = pk.x - (c0 as f64 + ps as f64 / 2.0);
@@ -505,7 +554,10 @@ pub fn tie_points(
     let mut pairs = Vec::new();
     for p in preds {
         if p.a >= photos.len() || p.b >= photos.len() {
-            return Err(super::invalid("pair prediction", format!("photo index {}–{} out of range", p.a, p.b)));
+            return Err(super::invalid(
+                "pair prediction",
+                format!("photo index {}–{} out of range", p.a, p.b),
+            ));
         }
         pairs.push(match_pair(&photos[p.a], &pyrs[p.b], p, opts)?);
     }

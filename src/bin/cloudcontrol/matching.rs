@@ -4,7 +4,9 @@
 use clap::Args;
 use cloudcontrol::formats::write_bytes_atomically;
 use cloudcontrol::geometry::InteriorTransformKind;
-use cloudcontrol::matching::fiducial::{interior_orientation_file, CameraDefinition, IoOptions, ScanOrientation};
+use cloudcontrol::matching::fiducial::{
+    interior_orientation_file, CameraDefinition, IoOptions, ScanOrientation,
+};
 use cloudcontrol::matching::ncc::Window;
 use cloudcontrol::matching::ties::{coverage, link_tracks, match_pair, predict_shift, TieOptions};
 use cloudcontrol::matching::{match_template, GreyImage, MatchOptions, Pyramid, RobustMethod};
@@ -40,7 +42,7 @@ pub struct MatchArgs {
     image: PathBuf,
     template: PathBuf,
     /// Search window: col,row,width,height (default: the whole image).
-    #[arg(long, value_delimiter = ',', num_args = 4)]
+    #[arg(long, value_delimiter = ',')]
     window: Option<Vec<usize>>,
     #[arg(long, default_value_t = 0.7)]
     ncc_threshold: f64,
@@ -72,16 +74,32 @@ pub fn io(a: IoArgs, quiet: bool) -> ExitCode {
     };
     let orientation = match a.orientation.as_deref().map(|s| {
         let mirrored = s.ends_with('m');
-        s.trim_end_matches('m').parse::<u16>().ok().filter(|r| r % 90 == 0 && *r < 360).map(|rotation_deg| ScanOrientation { rotation_deg, mirrored })
+        s.trim_end_matches('m')
+            .parse::<u16>()
+            .ok()
+            .filter(|r| r % 90 == 0 && *r < 360)
+            .map(|rotation_deg| ScanOrientation {
+                rotation_deg,
+                mirrored,
+            })
     }) {
-        Some(None) => return fail("io", "--orientation: expected 0, 90, 180 or 270, optionally followed by m"),
+        Some(None) => {
+            return fail(
+                "io",
+                "--orientation: expected 0, 90, 180 or 270, optionally followed by m",
+            )
+        }
         Some(Some(o)) => Some(o),
         None => None,
     };
     let opts = IoOptions {
         pixel_mm: a.pixel_um.map(|u| u / 1000.0),
         orientation,
-        kind: if a.projective { InteriorTransformKind::Projective } else { InteriorTransformKind::Affine },
+        kind: if a.projective {
+            InteriorTransformKind::Projective
+        } else {
+            InteriorTransformKind::Affine
+        },
         ..IoOptions::default()
     };
     let io = match interior_orientation_file(&cam, &a.scan, &opts) {
@@ -102,8 +120,16 @@ pub fn io(a: IoArgs, quiet: bool) -> ExitCode {
                     io.marks.len(),
                     io.rmse_um,
                     io.orientation.rotation_deg,
-                    if io.orientation.mirrored { " mirrored" } else { "" },
-                    if io.orientation_ambiguous { " (ambiguous: symmetric fiducial layout)" } else { "" },
+                    if io.orientation.mirrored {
+                        " mirrored"
+                    } else {
+                        ""
+                    },
+                    if io.orientation_ambiguous {
+                        " (ambiguous: symmetric fiducial layout)"
+                    } else {
+                        ""
+                    },
                     p.display()
                 );
             }
@@ -121,18 +147,40 @@ pub fn matching(a: MatchArgs) -> ExitCode {
     let window = match a.window.as_deref() {
         Some([c, r, w, h]) => {
             if c + w > img.width || r + h > img.height {
-                return fail("match", format!("--window {w}×{h} at ({c}, {r}) is outside the {}×{} image", img.width, img.height));
+                return fail(
+                    "match",
+                    format!(
+                        "--window {w}×{h} at ({c}, {r}) is outside the {}×{} image",
+                        img.width, img.height
+                    ),
+                );
             }
-            Window { col: *c, row: *r, width: *w, height: *h }
+            Window {
+                col: *c,
+                row: *r,
+                width: *w,
+                height: *h,
+            }
         }
-        _ => Window::whole(&img),
+        Some(_) => return fail("match", "--window: expected col,row,width,height"),
+        None => Window::whole(&img),
     };
-    let opts = MatchOptions { ncc_threshold: a.ncc_threshold, ..MatchOptions::default() };
+    let opts = MatchOptions {
+        ncc_threshold: a.ncc_threshold,
+        ..MatchOptions::default()
+    };
     let pyr = Pyramid::new(&img, 8, 16);
     match match_template(&pyr, &tpl, window, None, &opts) {
         Ok(m) => {
-            println!("{}", serde_json::to_string_pretty(&m).expect("match serialises"));
-            if m.accepted { ExitCode::SUCCESS } else { ExitCode::from(2) }
+            println!(
+                "{}",
+                serde_json::to_string_pretty(&m).expect("match serialises")
+            );
+            if m.accepted {
+                ExitCode::SUCCESS
+            } else {
+                ExitCode::from(2)
+            }
         }
         Err(e) => fail("match", e),
     }
@@ -142,7 +190,12 @@ pub fn ties(a: TiesArgs, quiet: bool) -> ExitCode {
     let robust = match a.robust.as_str() {
         "lmeds" | "lms" => RobustMethod::Lmeds,
         "ransac" => RobustMethod::Ransac,
-        other => return fail("ties", format!("--robust {other}: expected lmeds or ransac")),
+        other => {
+            return fail(
+                "ties",
+                format!("--robust {other}: expected lmeds or ransac"),
+            )
+        }
     };
     let mut photos = Vec::new();
     for p in &a.photos {
@@ -152,7 +205,10 @@ pub fn ties(a: TiesArgs, quiet: bool) -> ExitCode {
         }
     }
     let pyrs: Vec<Pyramid> = photos.iter().map(|p| Pyramid::new(p, 6, 32)).collect();
-    let opts = TieOptions { robust, ..TieOptions::default() };
+    let opts = TieOptions {
+        robust,
+        ..TieOptions::default()
+    };
     // Neighbours and second neighbours along the strip (triple overlap links tracks).
     let mut preds = Vec::new();
     for i in 0..photos.len() {
@@ -164,8 +220,14 @@ pub fn ties(a: TiesArgs, quiet: bool) -> ExitCode {
             }
         }
     }
-    let bar = if quiet { ProgressBar::hidden() } else { ProgressBar::new(preds.len() as u64) };
-    bar.set_style(ProgressStyle::with_template("{bar:30} {pos}/{len} pairs {msg}").expect("template"));
+    let bar = if quiet {
+        ProgressBar::hidden()
+    } else {
+        ProgressBar::new(preds.len() as u64)
+    };
+    bar.set_style(
+        ProgressStyle::with_template("{bar:30} {pos}/{len} pairs {msg}").expect("template"),
+    );
     let mut pairs = Vec::new();
     for p in &preds {
         match match_pair(&photos[p.a], &pyrs[p.b], p, &opts) {
@@ -190,12 +252,20 @@ pub fn ties(a: TiesArgs, quiet: bool) -> ExitCode {
         "tracks": tracks,
         "coverage": cov,
     });
-    if let Err(e) = write_bytes_atomically(&a.out, serde_json::to_string_pretty(&doc).expect("json").as_bytes()) {
+    if let Err(e) = write_bytes_atomically(
+        &a.out,
+        serde_json::to_string_pretty(&doc).expect("json").as_bytes(),
+    ) {
         return fail("ties", e);
     }
     if !quiet {
         let missing: usize = cov.iter().map(|c| c.missing(1).len()).sum();
-        println!("{} pairs, {} tracks, {missing} standard positions without points → {}", pairs.len(), tracks.len(), a.out.display());
+        println!(
+            "{} pairs, {} tracks, {missing} standard positions without points → {}",
+            pairs.len(),
+            tracks.len(),
+            a.out.display()
+        );
     }
     ExitCode::SUCCESS
 }
