@@ -100,8 +100,8 @@ fn lsm_recovers_subpixel_shift_and_affine_and_ncc_alone_is_within_02px() {
         let l = lsm(&img, &tpl, pk.x, pk.y, None, &LsmOptions::default());
         assert!(l.converged, "trial {t}: {:?}", l.reason);
         e_lsm += (l.x - p[0]).powi(2) + (l.y - p[1]).powi(2);
-        for k in 0..4 {
-            e_aff = e_aff.max((l.affine[k] - a[k]).abs());
+        for (lk, ak) in l.affine.iter().zip(&a) {
+            e_aff = e_aff.max((lk - ak).abs());
         }
         assert!(l.sigma_x > 0.0 && l.sigma_x < 0.05, "σx {}", l.sigma_x);
         assert!((l.r1 - 1.25).abs() < 0.02, "radiometric scale {}", l.r1);

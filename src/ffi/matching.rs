@@ -70,6 +70,10 @@ fn image_from(ptr: *const f32, width: u32, height: u32, name: &str) -> FfiResult
 /// `agreement_px`. `image` and `templ` are row-major f32 grey values; `window` is
 /// `col, row, width, height` (4 values) or NULL for the whole image. A rejected match is
 /// not an error: the status is OK, `accepted` is 0 and `reason` says why.
+///
+/// # Safety
+/// Pointers must be null or point to arrays of the stated lengths (image `width·height`,
+/// template `templ_width·templ_height` values, buffers of the given lengths).
 #[no_mangle]
 pub unsafe extern "C" fn ccp_match_template(
     image: *const f32,
@@ -150,6 +154,10 @@ pub unsafe extern "C" fn ccp_match_template(
 /// orientations, else `rotation_deg / 90 + 4 · mirrored`. The io.json document is written
 /// NUL-terminated into `out_json`; `*out_needed` receives its size including the NUL
 /// (call with `out_len = 0` to ask; status BufferTooSmall when it does not fit).
+///
+/// # Safety
+/// Pointers must be null or point to arrays of the stated lengths (image `width·height`,
+/// template `templ_width·templ_height` values, buffers of the given lengths).
 #[no_mangle]
 pub unsafe extern "C" fn ccp_fiducial_io(
     camera_json: *const c_char,
@@ -225,6 +233,10 @@ pub unsafe extern "C" fn ccp_fiducial_io(
 /// matchTemplate TM_CCOEFF_NORMED computes): `out` receives
 /// (height − templ_height + 1) × (width − templ_width + 1) values, row-major, value (i, j)
 /// for the template's top-left corner at column i, row j.
+///
+/// # Safety
+/// Pointers must be null or point to arrays of the stated lengths (image `width·height`,
+/// template `templ_width·templ_height` values, buffers of the given lengths).
 #[no_mangle]
 pub unsafe extern "C" fn ccp_ncc_surface(
     image: *const f32,
@@ -249,6 +261,10 @@ pub unsafe extern "C" fn ccp_ncc_surface(
 /// Least-squares matching alone (6 affine + 2 radiometric parameters) from the template
 /// centre (x, y). Fills `out` like `ccp_match_template` (`ncc` fields are NaN);
 /// `accepted` means converged.
+///
+/// # Safety
+/// Pointers must be null or point to arrays of the stated lengths (image `width·height`,
+/// template `templ_width·templ_height` values, buffers of the given lengths).
 #[no_mangle]
 pub unsafe extern "C" fn ccp_lsm(
     image: *const f32,

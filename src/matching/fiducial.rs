@@ -136,11 +136,11 @@ impl CameraDefinition {
             if !(f.x_mm.is_finite() && f.y_mm.is_finite()) {
                 return Err(format!("fiducial {}: position is not finite", f.id));
             }
-            if !(f.shape.size_mm > 0.0) {
+            if f.shape.size_mm.is_nan() || f.shape.size_mm <= 0.0 {
                 return Err(format!("fiducial {}: size_mm must be positive", f.id));
             }
             if matches!(f.shape.kind, ShapeKind::Cross | ShapeKind::Ring)
-                && !(f.shape.line_mm > 0.0)
+                && (f.shape.line_mm.is_nan() || f.shape.line_mm <= 0.0)
             {
                 return Err(format!(
                     "fiducial {}: {:?} needs line_mm > 0",
@@ -296,6 +296,9 @@ pub fn interior_orientation_file(
     interior_orientation(cam, &img, &scan.display().to_string(), opts)
 }
 
+/// Wide-search cache key: rounded predicted pixel, mark shape, scan orientation.
+type WideKey = (i64, i64, String, u16, bool);
+
 struct Candidate {
     orientation: ScanOrientation,
     marks: Vec<MarkResult>,
@@ -345,8 +348,7 @@ pub fn interior_orientation(
             .iter()
             .map(|f| f.shape.extent_mm())
             .fold(0.0, f64::max);
-    let mut wide_cache: HashMap<(i64, i64, String, u16, bool), Option<(f64, f64, f64)>> =
-        HashMap::new();
+    let mut wide_cache: HashMap<WideKey, Option<(f64, f64, f64)>> = HashMap::new();
     let mut wide = |f: &FiducialDef, o: ScanOrientation| -> Option<(f64, f64, f64)> {
         let lin = o.linear(s);
         let inv = lin.try_inverse()?;

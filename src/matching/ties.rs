@@ -399,7 +399,7 @@ pub fn link_tracks(pairs: &[PairMatches], merge_px: f64) -> Vec<Track> {
         .into_values()
         .filter_map(|g| {
             let mut obs: Vec<(usize, [f64; 2])> = g.iter().map(|&k| nodes[k]).collect();
-            obs.sort_by(|x, y| x.0.cmp(&y.0));
+            obs.sort_by_key(|o| o.0);
             let distinct = obs.windows(2).all(|w| w[0].0 != w[1].0);
             (distinct && obs.len() >= 2).then_some(Track { observations: obs })
         })
