@@ -294,3 +294,34 @@ fn images_load_8_and_16_bit_grey_and_rgb() {
     let g = GreyImage::load(&prgb).unwrap();
     assert!((g.at(2, 0) - (0.299 * 20.0 + 0.587 * 100.0)).abs() < 1e-3);
 }
+
+#[test]
+fn fft_and_direct_correlation_agree() {
+    use cloudcontrol::matching::ncc::{ncc_surface_with, CorrelationMethod};
+    // Non-power-of-two window sizes exercise the mixed-radix FFT path too.
+    for (w, h, t) in [(64, 64, 21), (97, 75, 31), (130, 128, 41)] {
+        let img = GreyImage::from_fn(w, h, texture(w as u64));
+        let tpl = img.crop(w / 4, h / 3, t, t).unwrap();
+        let d =
+            ncc_surface_with(&img, &tpl, Window::whole(&img), CorrelationMethod::Direct).unwrap();
+        let f = ncc_surface_with(&img, &tpl, Window::whole(&img), CorrelationMethod::Fft).unwrap();
+        let worst = d
+            .values
+            .iter()
+            .zip(&f.values)
+            .map(|(a, b)| (a - b).abs())
+            .fold(0.0f32, f32::max);
+        assert!(
+            worst < 1e-4,
+            "{w}×{h}, template {t}: max difference {worst}"
+        );
+        let i = d
+            .values
+            .iter()
+            .enumerate()
+            .max_by(|a, b| a.1.total_cmp(b.1))
+            .unwrap()
+            .0;
+        assert_eq!((i % d.width, i / d.width), (w / 4, h / 3));
+    }
+}

@@ -7,6 +7,10 @@
 
 use super::{invalid, GreyImage, MatchingError, Pyramid, Result};
 use rayon::prelude::*;
+use rustfft::num_complex::Complex32;
+use rustfft::{Fft, FftPlanner};
+use std::cell::RefCell;
+use std::sync::Arc;
 
 /// A pixel rectangle of an image: top-left corner (col, row) and size.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
@@ -85,61 +89,200 @@ fn prepared_template(tpl: &GreyImage, what: &str) -> Result<(Vec<f32>, f64)> {
     Ok((t, norm))
 }
 
-/// acc[i] += Σ_c t[c] · row[i + c]: four template columns per pass so each accumulator
-/// load/store serves four multiply–adds. With AVX2 + FMA available at run time the same
-/// loop is compiled for 8 lanes with fused multiply–adds (results then differ from the
-/// SSE2 path in the last bits, but never between runs or thread counts on one machine).
+/// One output row of the correlation numerator: out[i] = Σ_r Σ_c t[r][c] · img[j + r][i + c].
+/// Outputs are produced in register-resident blocks of B (32, then 8, then single)
+/// while the whole template streams past, so each multiply–add costs one unaligned
+/// load and no accumulator traffic. With AVX2 + FMA available at run time the same loop
+/// is compiled for 8-lane fused multiply–adds (results then differ from the SSE2 path
+/// in the last bits, but never between runs or thread counts on one machine).
 #[inline(always)]
-fn correlate_row_generic<const FMA: bool>(acc: &mut [f32], row: &[f32], t: &[f32]) {
-    let sw = acc.len();
-    let mut c = 0;
-    while c + 4 <= t.len() {
-        let (t0, t1, t2, t3) = (t[c], t[c + 1], t[c + 2], t[c + 3]);
-        let (s0, s1, s2, s3) = (
-            &row[c..c + sw],
-            &row[c + 1..c + 1 + sw],
-            &row[c + 2..c + 2 + sw],
-            &row[c + 3..c + 3 + sw],
-        );
-        for ((((a, &x0), &x1), &x2), &x3) in acc.iter_mut().zip(s0).zip(s1).zip(s2).zip(s3) {
-            *a = if FMA {
-                x3.mul_add(t3, x2.mul_add(t2, x1.mul_add(t1, x0.mul_add(t0, *a))))
-            } else {
-                *a + (t0 * x0 + t1 * x1) + (t2 * x2 + t3 * x3)
-            };
+fn correlate_block<const B: usize, const FMA: bool>(
+    rows: &[&[f32]],
+    t: &[f32],
+    tw: usize,
+    i0: usize,
+) -> [f32; B] {
+    let mut acc = [0.0f32; B];
+    for (r, row) in rows.iter().enumerate() {
+        let trow = &t[r * tw..(r + 1) * tw];
+        for (c, &tv) in trow.iter().enumerate() {
+            let src: &[f32; B] = row[i0 + c..i0 + c + B].try_into().expect("block");
+            for k in 0..B {
+                acc[k] = if FMA {
+                    src[k].mul_add(tv, acc[k])
+                } else {
+                    acc[k] + tv * src[k]
+                };
+            }
         }
-        c += 4;
     }
-    while c < t.len() {
-        let tv = t[c];
-        for (a, &x) in acc.iter_mut().zip(&row[c..c + sw]) {
-            *a = if FMA { x.mul_add(tv, *a) } else { *a + tv * x };
-        }
-        c += 1;
+    acc
+}
+
+#[inline(always)]
+fn correlate_row_generic<const FMA: bool>(out: &mut [f32], rows: &[&[f32]], t: &[f32], tw: usize) {
+    let sw = out.len();
+    let mut i = 0;
+    while i + 32 <= sw {
+        out[i..i + 32].copy_from_slice(&correlate_block::<32, FMA>(rows, t, tw, i));
+        i += 32;
+    }
+    while i + 8 <= sw {
+        out[i..i + 8].copy_from_slice(&correlate_block::<8, FMA>(rows, t, tw, i));
+        i += 8;
+    }
+    // The tail as one more 8-block overlapping the previous one (recomputing a few
+    // outputs is cheaper than a scalar pass over the whole template per output).
+    if i < sw && sw >= 8 {
+        out[sw - 8..sw].copy_from_slice(&correlate_block::<8, FMA>(rows, t, tw, sw - 8));
+        i = sw;
+    }
+    while i < sw {
+        out[i] = correlate_block::<1, FMA>(rows, t, tw, i)[0];
+        i += 1;
     }
 }
 
 #[cfg(target_arch = "x86_64")]
 #[target_feature(enable = "avx2,fma")]
-unsafe fn correlate_row_avx2(acc: &mut [f32], row: &[f32], t: &[f32]) {
-    correlate_row_generic::<true>(acc, row, t)
+unsafe fn correlate_row_avx2(out: &mut [f32], rows: &[&[f32]], t: &[f32], tw: usize) {
+    correlate_row_generic::<true>(out, rows, t, tw)
 }
 
 #[inline]
-fn correlate_row(acc: &mut [f32], row: &[f32], t: &[f32]) {
+fn correlate_row(out: &mut [f32], rows: &[&[f32]], t: &[f32], tw: usize) {
     #[cfg(target_arch = "x86_64")]
     {
         if std::arch::is_x86_feature_detected!("avx2") && std::arch::is_x86_feature_detected!("fma")
         {
             // SAFETY: the CPU supports the features the function was compiled for.
-            return unsafe { correlate_row_avx2(acc, row, t) };
+            return unsafe { correlate_row_avx2(out, rows, t, tw) };
         }
     }
-    correlate_row_generic::<false>(acc, row, t)
+    correlate_row_generic::<false>(out, rows, t, tw)
+}
+
+thread_local! {
+    static PLANNER: RefCell<FftPlanner<f32>> = RefCell::new(FftPlanner::new());
+}
+
+/// Forward and inverse plans for rows of length w and h.
+type Plans = [Arc<dyn Fft<f32>>; 4];
+
+fn plans(w: usize, h: usize) -> Plans {
+    PLANNER.with(|p| {
+        let mut p = p.borrow_mut();
+        [
+            p.plan_fft_forward(w),
+            p.plan_fft_forward(h),
+            p.plan_fft_inverse(w),
+            p.plan_fft_inverse(h),
+        ]
+    })
+}
+
+/// Row-major w×h → h×w, in 32×32 tiles to stay in cache.
+fn transpose(src: &[Complex32], dst: &mut [Complex32], w: usize, h: usize) {
+    const T: usize = 32;
+    for r0 in (0..h).step_by(T) {
+        for c0 in (0..w).step_by(T) {
+            for r in r0..(r0 + T).min(h) {
+                for c in c0..(c0 + T).min(w) {
+                    dst[c * h + r] = src[r * w + c];
+                }
+            }
+        }
+    }
+}
+
+/// In-place 2-D FFT of a row-major w×h complex array: rows, transpose, rows (the
+/// columns), transpose back. Rows are independent, so the parallel split cannot change
+/// the result.
+fn fft2(
+    data: &mut [Complex32],
+    w: usize,
+    h: usize,
+    fw: &Arc<dyn Fft<f32>>,
+    fh: &Arc<dyn Fft<f32>>,
+) {
+    let run = |d: &mut [Complex32], len: usize, f: &Arc<dyn Fft<f32>>| {
+        d.par_chunks_mut(len * 8).for_each_init(
+            || vec![Complex32::default(); f.get_inplace_scratch_len()],
+            |scratch, chunk| f.process_with_scratch(chunk, scratch),
+        );
+    };
+    run(data, w, fw);
+    let mut t = vec![Complex32::default(); w * h];
+    transpose(data, &mut t, w, h);
+    run(&mut t, h, fh);
+    transpose(&t, data, h, w);
+}
+
+/// Correlation numerator Σ t'(r, c) · I(j + r, i + c) for every valid position through
+/// the FFT: image and zero-padded template are packed as real and imaginary parts of one
+/// complex array (one forward transform for both), separated by conjugate symmetry,
+/// multiplied, and transformed back. The circular correlation equals the linear one on
+/// the valid positions because the template never wraps there.
+fn correlate_fft(win: &[f32], ww: usize, wh: usize, t: &[f32], tw: usize, th: usize) -> Vec<f32> {
+    let [fw, fh, iw, ih] = plans(ww, wh);
+    let (sw, sh) = (ww + 1 - tw, wh + 1 - th);
+    let mut z = vec![Complex32::default(); ww * wh];
+    for (k, v) in win.iter().enumerate() {
+        z[k].re = *v;
+    }
+    for r in 0..th {
+        for c in 0..tw {
+            z[r * ww + c].im = t[r * tw + c];
+        }
+    }
+    fft2(&mut z, ww, wh, &fw, &fh);
+    let mut p = vec![Complex32::default(); ww * wh];
+    for v in 0..wh {
+        let vn = (wh - v) % wh;
+        for u in 0..ww {
+            let un = (ww - u) % ww;
+            let a = z[v * ww + u];
+            let b = z[vn * ww + un].conj();
+            let x = (a + b) * 0.5;
+            // T = (a − b) / (2i); the correlation needs X · conj(T).
+            let tt = (a - b) * Complex32::new(0.0, -0.5);
+            p[v * ww + u] = x * tt.conj();
+        }
+    }
+    fft2(&mut p, ww, wh, &iw, &ih);
+    let scale = 1.0 / (ww * wh) as f32;
+    let mut out = vec![0.0f32; sw * sh];
+    for j in 0..sh {
+        for i in 0..sw {
+            out[j * sw + i] = p[j * ww + i].re * scale;
+        }
+    }
+    out
+}
+
+/// How the correlation numerator is computed.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum CorrelationMethod {
+    /// The cheaper of the two by operation count.
+    Auto,
+    /// Direct sums (register-blocked, SIMD).
+    Direct,
+    /// FFT of the window and the template.
+    Fft,
 }
 
 /// Full correlation surface of `tpl` over `window` of `img`.
 pub fn ncc_surface(img: &GreyImage, tpl: &GreyImage, window: Window) -> Result<NccSurface> {
+    ncc_surface_with(img, tpl, window, CorrelationMethod::Auto)
+}
+
+/// [`ncc_surface`] with a chosen correlation method (benchmarks, tests).
+pub fn ncc_surface_with(
+    img: &GreyImage,
+    tpl: &GreyImage,
+    window: Window,
+    method: CorrelationMethod,
+) -> Result<NccSurface> {
     if window.col + window.width > img.width || window.row + window.height > img.height {
         return Err(invalid(
             "search window",
@@ -181,28 +324,47 @@ pub fn ncc_surface(img: &GreyImage, tpl: &GreyImage, window: Window) -> Result<N
         s[(j + th) * (ww + 1) + i + tw] - s[j * (ww + 1) + i + tw] - s[(j + th) * (ww + 1) + i]
             + s[j * (ww + 1) + i]
     };
-    let mut values = vec![0.0f32; sw * sh];
-    let fill_row = |(j, out): (usize, &mut [f32])| {
-        let mut acc = vec![0.0f32; sw];
-        for r in 0..th {
-            let row = &img.row(window.row + j + r)[window.col..window.col + ww];
-            correlate_row(&mut acc, row, &t[r * tw..(r + 1) * tw]);
+    // Direct sums cost sw·sh·tw·th multiply–adds, the FFT about 2·ww·wh·log2(ww·wh)
+    // butterflies of ~10 flops; the factor was tuned with benches/matching_ncc.py.
+    let direct_cost = (sw * sh * tw * th) as f64;
+    let fft_cost = 20.0 * (ww * wh) as f64 * ((ww * wh) as f64).log2();
+    let use_fft = match method {
+        CorrelationMethod::Auto => direct_cost > fft_cost,
+        CorrelationMethod::Direct => false,
+        CorrelationMethod::Fft => true,
+    };
+    let mut values = if use_fft {
+        let mut win = Vec::with_capacity(ww * wh);
+        for r in 0..wh {
+            win.extend_from_slice(&img.row(window.row + r)[window.col..window.col + ww]);
         }
+        correlate_fft(&win, ww, wh, &t, tw, th)
+    } else {
+        let mut v = vec![0.0f32; sw * sh];
+        let fill = |(j, out): (usize, &mut [f32])| {
+            let rows: Vec<&[f32]> = (0..th)
+                .map(|r| &img.row(window.row + j + r)[window.col..window.col + ww])
+                .collect();
+            correlate_row(out, &rows, &t, tw);
+        };
+        // Small surfaces are cheaper on one thread than the cost of waking the pool.
+        if direct_cost < (1 << 21) as f64 {
+            v.chunks_mut(sw).enumerate().for_each(fill);
+        } else {
+            v.par_chunks_mut(sw).enumerate().for_each(fill);
+        }
+        v
+    };
+    for (j, out) in values.chunks_mut(sw).enumerate() {
         for (i, o) in out.iter_mut().enumerate() {
             let sum = box_sum(&s1, i, j);
             let var = box_sum(&s2, i, j) - sum * sum / n;
             *o = if var > 1e-12 * n {
-                (acc[i] as f64 / (var.sqrt() * tnorm)).clamp(-1.0, 1.0) as f32
+                (*o as f64 / (var.sqrt() * tnorm)).clamp(-1.0, 1.0) as f32
             } else {
                 0.0
             };
         }
-    };
-    // Small surfaces are cheaper on one thread than the cost of waking the pool.
-    if sw * sh * tw * th < 1 << 21 {
-        values.chunks_mut(sw).enumerate().for_each(fill_row);
-    } else {
-        values.par_chunks_mut(sw).enumerate().for_each(fill_row);
     }
     Ok(NccSurface {
         window,
