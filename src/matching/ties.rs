@@ -509,6 +509,7 @@ pub fn predict_shift(a: &Pyramid, b: &Pyramid, ia: usize, ib: usize) -> Option<P
     let s = (1usize << level) as f64;
     let ps = la.width.min(la.height) / 4;
     let mut best: Option<(f64, f64, f64)> = None;
+    let mut corr: Vec<([f64; 2], [f64; 2])> = Vec::new();
     for fy in [0.25, 0.5, 0.75] {
         for fx in [0.25, 0.5, 0.75] {
             let c0 = (fx * la.width as f64) as usize - ps / 2;
@@ -520,19 +521,56 @@ pub fn predict_shift(a: &Pyramid, b: &Pyramid, ia: usize, ib: usize) -> Option<P
                 continue;
             };
             let q = pk.ncc * (1.0 - pk.ratio);
+            let ca = [c0 as f64 + ps as f64 / 2.0, r0 as f64 + ps as f64 / 2.0];
+            if pk.ncc > 0.5 && pk.ratio < 0.8 {
+                corr.push((ca, [pk.x, pk.y]));
+            }
             if pk.ncc > 0.5 && best.is_none_or(|b| q > b.0) {
-                let dx = pk.x - (c0 as f64 + ps as f64 / 2.0);
-                let dy = pk.y - (r0 as f64 + ps as f64 / 2.0);
-                best = Some((q, dx * s, dy * s));
+                best = Some((q, (pk.x - ca[0]) * s, (pk.y - ca[1]) * s));
             }
         }
     }
     let (_, dx, dy) = best?;
+    let mut h = Matrix3::new(1.0, 0.0, dx, 0.0, 1.0, dy, 0.0, 0.0, 1.0);
+    let mut radius = 4.0 * s;
+    // With three or more consistent patches an affine transfer absorbs the rotation and
+    // scale between photos (a drone or a crab-angled strip); the patch with the largest
+    // residual is dropped while it is inconsistent with the others.
+    while corr.len() >= 4 {
+        let n = corr.len();
+        let mut m = DMatrix::<f64>::zeros(2 * n, 6);
+        let mut v = nalgebra::DVector::<f64>::zeros(2 * n);
+        for (k, (pa, pb)) in corr.iter().enumerate() {
+            m.row_mut(2 * k)
+                .copy_from_slice(&[pa[0], pa[1], 1.0, 0.0, 0.0, 0.0]);
+            m.row_mut(2 * k + 1)
+                .copy_from_slice(&[0.0, 0.0, 0.0, pa[0], pa[1], 1.0]);
+            v[2 * k] = pb[0];
+            v[2 * k + 1] = pb[1];
+        }
+        let Ok(x) = m.clone().svd(true, true).solve(&v, 1e-9) else {
+            break;
+        };
+        let r = &m * &x - &v;
+        let res: Vec<f64> = (0..n).map(|k| r[2 * k].hypot(r[2 * k + 1])).collect();
+        let (worst, wv) = res
+            .iter()
+            .enumerate()
+            .fold((0, 0.0), |a, (k, &e)| if e > a.1 { (k, e) } else { a });
+        if wv > 3.0 {
+            corr.remove(worst);
+            continue;
+        }
+        // Level coordinates scale by s in both photos, so only the shift scales.
+        h = Matrix3::new(x[0], x[1], x[2] * s, x[3], x[4], x[5] * s, 0.0, 0.0, 1.0);
+        radius = (4.0 + 2.0 * wv) * s;
+        break;
+    }
     Some(PairPrediction {
         a: ia,
         b: ib,
-        homography: Matrix3::new(1.0, 0.0, dx, 0.0, 1.0, dy, 0.0, 0.0, 1.0),
-        search_radius_px: 4.0 * s,
+        homography: h,
+        search_radius_px: radius,
     })
 }
 
