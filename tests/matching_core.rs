@@ -325,3 +325,68 @@ fn fft_and_direct_correlation_agree() {
         assert_eq!((i % d.width, i / d.width), (w / 4, h / 3));
     }
 }
+
+/// Naive NCC in f64 for one position (template top-left at window (i, j)).
+fn ncc_reference(img: &GreyImage, tpl: &GreyImage, c0: usize, r0: usize) -> f64 {
+    let n = (tpl.width * tpl.height) as f64;
+    let tm = tpl.data.iter().map(|&v| v as f64).sum::<f64>() / n;
+    let mut im = 0.0;
+    for r in 0..tpl.height {
+        for c in 0..tpl.width {
+            im += img.at(c0 + c, r0 + r) as f64;
+        }
+    }
+    im /= n;
+    let (mut num, mut st, mut si) = (0.0, 0.0, 0.0);
+    for r in 0..tpl.height {
+        for c in 0..tpl.width {
+            let a = tpl.at(c, r) as f64 - tm;
+            let b = img.at(c0 + c, r0 + r) as f64 - im;
+            num += a * b;
+            st += a * a;
+            si += b * b;
+        }
+    }
+    num / (st * si).sqrt()
+}
+
+#[test]
+fn correlation_matches_naive_reference_on_odd_shapes() {
+    use cloudcontrol::matching::ncc::{ncc_surface_with, CorrelationMethod};
+    // Windows inside a larger image (stride ≠ width), result widths below, at and above
+    // the SIMD block widths (1, 7, 8, 9, 17, 70) and heights below the row blocking, and
+    // non-square templates: every block shape and overlapping tail of the direct kernel
+    // and the padded (fast-length) FFT sizes.
+    let img = GreyImage::from_fn(160, 120, texture(11));
+    for (ww, wh, tw, th) in [
+        (21, 21, 21, 21),
+        (27, 13, 21, 7),
+        (28, 30, 21, 29),
+        (29, 11, 21, 9),
+        (37, 40, 21, 31),
+        (90, 34, 21, 31),
+        (101, 77, 13, 5),
+    ] {
+        let tpl = img.crop(50, 40, tw, th).unwrap();
+        let window = Window {
+            col: 31,
+            row: 17,
+            width: ww,
+            height: wh,
+        };
+        for method in [CorrelationMethod::Direct, CorrelationMethod::Fft] {
+            let s = ncc_surface_with(&img, &tpl, window, method).unwrap();
+            assert_eq!((s.width, s.height), (ww + 1 - tw, wh + 1 - th));
+            for j in 0..s.height {
+                for i in 0..s.width {
+                    let r = ncc_reference(&img, &tpl, window.col + i, window.row + j);
+                    let v = s.values[j * s.width + i] as f64;
+                    assert!(
+                        (v - r).abs() < 2e-4,
+                        "{method:?} {ww}×{wh} template {tw}×{th} at ({i}, {j}): {v} vs {r}"
+                    );
+                }
+            }
+        }
+    }
+}
