@@ -14,12 +14,14 @@ mod adjust;
 mod camera;
 mod control;
 mod formats;
+mod matching;
 mod synth;
 
 pub use adjust::*;
 pub use camera::*;
 pub use control::*;
 pub use formats::*;
+pub use matching::*;
 pub use synth::*;
 
 use std::cell::RefCell;

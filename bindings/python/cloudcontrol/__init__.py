@@ -2,5 +2,9 @@
 from ._ffi import CloudControlError, last_error, version
 from .control import DcpPackage, predict
 from .geometry import Camera, Pose
+from .matching import Match, fiducial_io, match_template
 
-__all__ = ["CloudControlError", "Camera", "DcpPackage", "Pose", "last_error", "predict", "version"]
+__all__ = [
+    "CloudControlError", "Camera", "DcpPackage", "Match", "Pose", "fiducial_io", "last_error",
+    "match_template", "predict", "version",
+]

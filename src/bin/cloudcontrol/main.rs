@@ -4,6 +4,7 @@
 mod adjust;
 mod convert;
 mod dcp;
+mod matching;
 mod ortho;
 mod synth;
 
@@ -56,6 +57,12 @@ enum Command {
     Adjust(adjust::AdjustArgs),
     /// Single-photo resection from control points.
     Resect(adjust::ResectArgs),
+    /// Fiducial interior orientation of a film scan → io.json.
+    Io(matching::IoArgs),
+    /// Match a template in an image (NCC + LSM), for debugging.
+    Match(matching::MatchArgs),
+    /// Tie points between overlapping photos of a strip.
+    Ties(matching::TiesArgs),
 }
 
 fn init_logging(quiet: bool, verbose: u8) {
@@ -83,6 +90,9 @@ fn main() -> ExitCode {
     match cli.command {
         Command::Convert(a) => convert::run(a, cli.json, cli.quiet),
         Command::Ortho(a) => ortho::run(a, cli.json, cli.quiet),
+        Command::Io(a) => matching::io(a, cli.quiet),
+        Command::Match(a) => matching::matching(a),
+        Command::Ties(a) => matching::ties(a, cli.quiet),
         Command::Version => {
             println!("cloudcontrol {}", cloudcontrol::VERSION);
             ExitCode::SUCCESS

@@ -1,0 +1,271 @@
+//! `cloudcontrol io`, `cloudcontrol match` and `cloudcontrol ties`: argument handling,
+//! progress and output for the matching module.
+
+use clap::Args;
+use cloudcontrol::formats::write_bytes_atomically;
+use cloudcontrol::geometry::InteriorTransformKind;
+use cloudcontrol::matching::fiducial::{
+    interior_orientation_file, CameraDefinition, IoOptions, ScanOrientation,
+};
+use cloudcontrol::matching::ncc::Window;
+use cloudcontrol::matching::ties::{coverage, link_tracks, match_pair, predict_shift, TieOptions};
+use cloudcontrol::matching::{match_template, GreyImage, MatchOptions, Pyramid, RobustMethod};
+use indicatif::{ProgressBar, ProgressStyle};
+use std::path::PathBuf;
+use std::process::ExitCode;
+
+/// Fiducial interior orientation of a film scan.
+#[derive(Args)]
+pub struct IoArgs {
+    /// Camera definition (formats/cameras/*.json).
+    #[arg(long)]
+    camera: PathBuf,
+    /// Scanned photo (TIFF, PNG, JPEG; 8/16-bit grey or RGB).
+    scan: PathBuf,
+    /// Write io.json here (atomically); otherwise print it.
+    #[arg(long)]
+    out: Option<PathBuf>,
+    /// Scan pixel size in µm (default: estimated from the film format).
+    #[arg(long)]
+    pixel_um: Option<f64>,
+    /// Projective instead of affine pixel → mm transform.
+    #[arg(long)]
+    projective: bool,
+    /// Known scan orientation, e.g. "90" or "180m" (m = mirrored); default: search all.
+    #[arg(long)]
+    orientation: Option<String>,
+}
+
+/// Match a template image in an image (NCC over the pyramid, then LSM), for debugging.
+#[derive(Args)]
+pub struct MatchArgs {
+    image: PathBuf,
+    template: PathBuf,
+    /// Search window: col,row,width,height (default: the whole image).
+    #[arg(long, value_delimiter = ',')]
+    window: Option<Vec<usize>>,
+    #[arg(long, default_value_t = 0.7)]
+    ncc_threshold: f64,
+}
+
+/// Tie points between overlapping photos given in strip order.
+#[derive(Args)]
+pub struct TiesArgs {
+    /// Photos in flight order along the strip.
+    #[arg(required = true, num_args = 2..)]
+    photos: Vec<PathBuf>,
+    /// Output JSON (tracks, pair statistics, coverage of the standard positions).
+    #[arg(long)]
+    out: PathBuf,
+    /// Robust relative orientation: lmeds or ransac.
+    #[arg(long, default_value = "lmeds")]
+    robust: String,
+}
+
+fn fail(cmd: &str, e: impl std::fmt::Display) -> ExitCode {
+    eprintln!("cloudcontrol {cmd}: {e}");
+    ExitCode::from(1)
+}
+
+pub fn io(a: IoArgs, quiet: bool) -> ExitCode {
+    let cam = match CameraDefinition::load(&a.camera) {
+        Ok(c) => c,
+        Err(e) => return fail("io", e),
+    };
+    let orientation = match a.orientation.as_deref().map(|s| {
+        let mirrored = s.ends_with('m');
+        s.trim_end_matches('m')
+            .parse::<u16>()
+            .ok()
+            .filter(|r| r % 90 == 0 && *r < 360)
+            .map(|rotation_deg| ScanOrientation {
+                rotation_deg,
+                mirrored,
+            })
+    }) {
+        Some(None) => {
+            return fail(
+                "io",
+                "--orientation: expected 0, 90, 180 or 270, optionally followed by m",
+            )
+        }
+        Some(Some(o)) => Some(o),
+        None => None,
+    };
+    let opts = IoOptions {
+        pixel_mm: a.pixel_um.map(|u| u / 1000.0),
+        orientation,
+        kind: if a.projective {
+            InteriorTransformKind::Projective
+        } else {
+            InteriorTransformKind::Affine
+        },
+        ..IoOptions::default()
+    };
+    let io = match interior_orientation_file(&cam, &a.scan, &opts) {
+        Ok(io) => io,
+        Err(e) => return fail("io", e),
+    };
+    let text = serde_json::to_string_pretty(&io.to_json()).expect("io.json serialises");
+    match &a.out {
+        Some(p) => {
+            if let Err(e) = write_bytes_atomically(p, text.as_bytes()) {
+                return fail("io", e);
+            }
+            if !quiet {
+                let used = io.marks.iter().filter(|m| m.used).count();
+                println!(
+                    "{}: {used}/{} marks, RMSE {:.1} µm, orientation {}°{}{} → {}",
+                    a.scan.display(),
+                    io.marks.len(),
+                    io.rmse_um,
+                    io.orientation.rotation_deg,
+                    if io.orientation.mirrored {
+                        " mirrored"
+                    } else {
+                        ""
+                    },
+                    if io.orientation_ambiguous {
+                        " (ambiguous: symmetric fiducial layout)"
+                    } else {
+                        ""
+                    },
+                    p.display()
+                );
+            }
+        }
+        None => println!("{text}"),
+    }
+    ExitCode::SUCCESS
+}
+
+pub fn matching(a: MatchArgs) -> ExitCode {
+    let (img, tpl) = match (GreyImage::load(&a.image), GreyImage::load(&a.template)) {
+        (Ok(i), Ok(t)) => (i, t),
+        (Err(e), _) | (_, Err(e)) => return fail("match", e),
+    };
+    let window = match a.window.as_deref() {
+        Some([c, r, w, h]) => {
+            if c + w > img.width || r + h > img.height {
+                return fail(
+                    "match",
+                    format!(
+                        "--window {w}×{h} at ({c}, {r}) is outside the {}×{} image",
+                        img.width, img.height
+                    ),
+                );
+            }
+            Window {
+                col: *c,
+                row: *r,
+                width: *w,
+                height: *h,
+            }
+        }
+        Some(_) => return fail("match", "--window: expected col,row,width,height"),
+        None => Window::whole(&img),
+    };
+    let opts = MatchOptions {
+        ncc_threshold: a.ncc_threshold,
+        ..MatchOptions::default()
+    };
+    let pyr = Pyramid::new(&img, 8, 16);
+    match match_template(&pyr, &tpl, window, None, &opts) {
+        Ok(m) => {
+            println!(
+                "{}",
+                serde_json::to_string_pretty(&m).expect("match serialises")
+            );
+            if m.accepted {
+                ExitCode::SUCCESS
+            } else {
+                ExitCode::from(2)
+            }
+        }
+        Err(e) => fail("match", e),
+    }
+}
+
+pub fn ties(a: TiesArgs, quiet: bool) -> ExitCode {
+    let robust = match a.robust.as_str() {
+        "lmeds" | "lms" => RobustMethod::Lmeds,
+        "ransac" => RobustMethod::Ransac,
+        other => {
+            return fail(
+                "ties",
+                format!("--robust {other}: expected lmeds or ransac"),
+            )
+        }
+    };
+    let mut photos = Vec::new();
+    for p in &a.photos {
+        match GreyImage::load(p) {
+            Ok(i) => photos.push(i),
+            Err(e) => return fail("ties", e),
+        }
+    }
+    let pyrs: Vec<Pyramid> = photos.iter().map(|p| Pyramid::new(p, 6, 32)).collect();
+    let opts = TieOptions {
+        robust,
+        ..TieOptions::default()
+    };
+    // Neighbours and second neighbours along the strip (triple overlap links tracks).
+    let mut preds = Vec::new();
+    for i in 0..photos.len() {
+        for j in [i + 1, i + 2] {
+            if j < photos.len() {
+                if let Some(p) = predict_shift(&pyrs[i], &pyrs[j], i, j) {
+                    preds.push(p);
+                }
+            }
+        }
+    }
+    let bar = if quiet {
+        ProgressBar::hidden()
+    } else {
+        ProgressBar::new(preds.len() as u64)
+    };
+    bar.set_style(
+        ProgressStyle::with_template("{bar:30} {pos}/{len} pairs {msg}").expect("template"),
+    );
+    let mut pairs = Vec::new();
+    for p in &preds {
+        match match_pair(&photos[p.a], &pyrs[p.b], p, &opts) {
+            Ok(m) => pairs.push(m),
+            Err(e) => tracing::warn!("pair {}–{} skipped: {e}", p.a, p.b),
+        }
+        bar.inc(1);
+    }
+    bar.finish_and_clear();
+    let tracks = link_tracks(&pairs, opts.merge_px);
+    let sizes: Vec<(usize, usize)> = photos.iter().map(|p| (p.width, p.height)).collect();
+    let cov = coverage(&sizes, &preds, &tracks);
+    let doc = serde_json::json!({
+        "photos": a.photos.iter().map(|p| p.display().to_string()).collect::<Vec<_>>(),
+        "pairs": pairs.iter().map(|p| serde_json::json!({
+            "a": p.a, "b": p.b,
+            "candidates": p.candidates.len(),
+            "accepted": p.inliers.iter().filter(|&&i| i).count(),
+            "sigma_px": p.sigma_px,
+            "fundamental": p.fundamental,
+        })).collect::<Vec<_>>(),
+        "tracks": tracks,
+        "coverage": cov,
+    });
+    if let Err(e) = write_bytes_atomically(
+        &a.out,
+        serde_json::to_string_pretty(&doc).expect("json").as_bytes(),
+    ) {
+        return fail("ties", e);
+    }
+    if !quiet {
+        let missing: usize = cov.iter().map(|c| c.missing(1).len()).sum();
+        println!(
+            "{} pairs, {} tracks, {missing} standard positions without points → {}",
+            pairs.len(),
+            tracks.len(),
+            a.out.display()
+        );
+    }
+    ExitCode::SUCCESS
+}

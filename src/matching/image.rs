@@ -1,0 +1,228 @@
+//! Greyscale f32 images: the one pixel type every matcher works on, loaded from 8/16-bit
+//! grey or RGB files with `image`, or as a window of a large scan with GDAL.
+
+use super::{invalid, MatchingError, Result};
+use std::path::Path;
+
+/// Row-major greyscale image. Grey values keep the file's range (0–255 for 8-bit,
+/// 0–65535 for 16-bit) because NCC and LSM are invariant to a linear radiometric change.
+#[derive(Debug, Clone, PartialEq)]
+pub struct GreyImage {
+    pub width: usize,
+    pub height: usize,
+    pub data: Vec<f32>,
+}
+
+impl GreyImage {
+    pub fn new(width: usize, height: usize, data: Vec<f32>) -> Result<Self> {
+        if width == 0 || height == 0 {
+            return Err(invalid("image", format!("size {width}×{height} is empty")));
+        }
+        if data.len() != width * height {
+            return Err(invalid(
+                "image",
+                format!(
+                    "{width}×{height} pixels need {} values, got {}",
+                    width * height,
+                    data.len()
+                ),
+            ));
+        }
+        if let Some(i) = data.iter().position(|v| !v.is_finite()) {
+            return Err(invalid("image", format!("pixel {i} is not finite")));
+        }
+        Ok(Self {
+            width,
+            height,
+            data,
+        })
+    }
+
+    pub fn filled(width: usize, height: usize, value: f32) -> Self {
+        Self {
+            width,
+            height,
+            data: vec![value; width * height],
+        }
+    }
+
+    /// Samples `f(x, y)` at the pixel centres (x + 0.5, y + 0.5).
+    pub fn from_fn(width: usize, height: usize, f: impl Fn(f64, f64) -> f64) -> Self {
+        let mut data = Vec::with_capacity(width * height);
+        for r in 0..height {
+            for c in 0..width {
+                data.push(f(c as f64 + 0.5, r as f64 + 0.5) as f32);
+            }
+        }
+        Self {
+            width,
+            height,
+            data,
+        }
+    }
+
+    #[inline]
+    pub fn at(&self, col: usize, row: usize) -> f32 {
+        self.data[row * self.width + col]
+    }
+
+    #[inline]
+    pub fn row(&self, row: usize) -> &[f32] {
+        &self.data[row * self.width..(row + 1) * self.width]
+    }
+
+    /// Copy of a rectangle given by its top-left pixel and size (must lie inside).
+    pub fn crop(&self, col: usize, row: usize, w: usize, h: usize) -> Result<GreyImage> {
+        if w == 0 || h == 0 || col + w > self.width || row + h > self.height {
+            return Err(invalid(
+                "crop",
+                format!(
+                    "window {w}×{h} at ({col}, {row}) is outside the {}×{} image",
+                    self.width, self.height
+                ),
+            ));
+        }
+        let mut data = Vec::with_capacity(w * h);
+        for r in row..row + h {
+            data.extend_from_slice(&self.data[r * self.width + col..r * self.width + col + w]);
+        }
+        Ok(GreyImage {
+            width: w,
+            height: h,
+            data,
+        })
+    }
+
+    /// Standard deviation of the grey values (texture check before correlation).
+    pub fn std_dev(&self) -> f64 {
+        let n = self.data.len() as f64;
+        let mean = self.data.iter().map(|&v| v as f64).sum::<f64>() / n;
+        (self
+            .data
+            .iter()
+            .map(|&v| (v as f64 - mean).powi(2))
+            .sum::<f64>()
+            / n)
+            .sqrt()
+    }
+
+    /// Loads a whole image file (8/16-bit grey or RGB(A); colour is reduced to luma
+    /// with the Rec. 601 weights that scanners and film densitometry conventionally use).
+    pub fn load(path: &Path) -> Result<GreyImage> {
+        let err = |m: String| MatchingError::Read {
+            path: path.to_path_buf(),
+            message: m,
+        };
+        let img = image::ImageReader::open(path)
+            .map_err(|e| err(e.to_string()))?
+            .with_guessed_format()
+            .map_err(|e| err(e.to_string()))?
+            .decode();
+        let img = match img {
+            Ok(i) => i,
+            // Large or exotic TIFF scans (tiled, BigTIFF, JPEG-in-TIFF) go through GDAL.
+            Err(e) => {
+                return Self::load_window(path, None).map_err(|g| err(format!("{e}; GDAL: {g}")))
+            }
+        };
+        let (w, h) = (img.width() as usize, img.height() as usize);
+        let data: Vec<f32> = match img {
+            image::DynamicImage::ImageLuma8(b) => b.into_raw().into_iter().map(f32::from).collect(),
+            image::DynamicImage::ImageLuma16(b) => {
+                b.into_raw().into_iter().map(f32::from).collect()
+            }
+            image::DynamicImage::ImageLumaA8(_)
+            | image::DynamicImage::ImageRgb8(_)
+            | image::DynamicImage::ImageRgba8(_) => {
+                let rgb = img.to_rgb8();
+                rgb.pixels()
+                    .map(|p| 0.299 * p[0] as f32 + 0.587 * p[1] as f32 + 0.114 * p[2] as f32)
+                    .collect()
+            }
+            other => {
+                let rgb = other.to_rgb32f();
+                rgb.pixels()
+                    .map(|p| 65535.0 * (0.299 * p[0] + 0.587 * p[1] + 0.114 * p[2]))
+                    .collect()
+            }
+        };
+        GreyImage::new(w, h, data).map_err(|e| err(e.to_string()))
+    }
+
+    /// Reads a window (col, row, width, height) of a raster with GDAL without loading the
+    /// whole file — scans are often 10⁸ pixels. `None` reads everything. Multi-band
+    /// rasters are reduced to luma from their first three bands.
+    pub fn load_window(
+        path: &Path,
+        window: Option<(usize, usize, usize, usize)>,
+    ) -> Result<GreyImage> {
+        let err = |m: String| MatchingError::Read {
+            path: path.to_path_buf(),
+            message: m,
+        };
+        let ds = gdal::Dataset::open(path).map_err(|e| err(e.to_string()))?;
+        let (rw, rh) = ds.raster_size();
+        let (c, r, w, h) = window.unwrap_or((0, 0, rw, rh));
+        if w == 0 || h == 0 || c + w > rw || r + h > rh {
+            return Err(err(format!(
+                "window {w}×{h} at ({c}, {r}) is outside the {rw}×{rh} raster"
+            )));
+        }
+        let bands = ds.raster_count();
+        let read = |b: usize| -> Result<Vec<f32>> {
+            let band = ds.rasterband(b).map_err(|e| err(e.to_string()))?;
+            let buf = band
+                .read_as::<f32>((c as isize, r as isize), (w, h), (w, h), None)
+                .map_err(|e| err(e.to_string()))?;
+            Ok(buf.data().to_vec())
+        };
+        let data = if bands >= 3 {
+            let (rr, gg, bb) = (read(1)?, read(2)?, read(3)?);
+            rr.iter()
+                .zip(&gg)
+                .zip(&bb)
+                .map(|((r, g), b)| 0.299 * r + 0.587 * g + 0.114 * b)
+                .collect()
+        } else {
+            read(1)?
+        };
+        GreyImage::new(w, h, data).map_err(|e| err(e.to_string()))
+    }
+
+    /// Writes an 8-bit (values clamped to 0–255) or 16-bit PNG/TIFF, atomically.
+    pub fn save(&self, path: &Path, sixteen_bit: bool) -> Result<()> {
+        let err = |m: String| MatchingError::Read {
+            path: path.to_path_buf(),
+            message: m,
+        };
+        crate::formats::write_atomically(path, |tmp| {
+            let fmt = image::ImageFormat::from_path(path)
+                .map_err(|e| crate::formats::FormatError::invalid(path, e.to_string()))?;
+            let res = if sixteen_bit {
+                let buf: Vec<u16> = self
+                    .data
+                    .iter()
+                    .map(|&v| v.round().clamp(0.0, 65535.0) as u16)
+                    .collect();
+                image::ImageBuffer::<image::Luma<u16>, _>::from_raw(
+                    self.width as u32,
+                    self.height as u32,
+                    buf,
+                )
+                .expect("size matches")
+                .save_with_format(tmp, fmt)
+            } else {
+                let buf: Vec<u8> = self
+                    .data
+                    .iter()
+                    .map(|&v| v.round().clamp(0.0, 255.0) as u8)
+                    .collect();
+                image::GrayImage::from_raw(self.width as u32, self.height as u32, buf)
+                    .expect("size matches")
+                    .save_with_format(tmp, fmt)
+            };
+            res.map_err(|e| crate::formats::FormatError::invalid(path, e.to_string()))
+        })
+        .map_err(|e| err(e.to_string()))
+    }
+}

@@ -1,0 +1,75 @@
+//! Factor-2 image pyramids. Each level is low-passed with the 5-tap binomial kernel
+//! (1 4 6 4 1)/16 before decimation so coarse levels do not alias fine texture into
+//! false correlation peaks. A level-l pixel covers exactly 2^l × 2^l level-0 pixels,
+//! so coordinates scale by 2^-l (corner origin).
+
+use super::GreyImage;
+
+#[derive(Debug, Clone)]
+pub struct Pyramid {
+    pub levels: Vec<GreyImage>,
+}
+
+impl Pyramid {
+    /// Builds levels until the smaller side would drop below `min_size` or `max_levels`
+    /// levels (level 0 included) exist.
+    pub fn new(image: &GreyImage, max_levels: usize, min_size: usize) -> Self {
+        let mut levels = vec![image.clone()];
+        while levels.len() < max_levels.max(1) {
+            let last = levels.last().expect("level 0");
+            if last.width / 2 < min_size.max(1) || last.height / 2 < min_size.max(1) {
+                break;
+            }
+            levels.push(downsample(last));
+        }
+        Self { levels }
+    }
+}
+
+/// Blur with (1 4 6 4 1)/16 separably (edge-replicated) and keep every second sample;
+/// the level-1 pixel (i, j) is centred between level-0 pixels 2i and 2i+1, so the
+/// filter is evaluated there by averaging the two filtered neighbours.
+pub fn downsample(img: &GreyImage) -> GreyImage {
+    let (w, h) = (img.width, img.height);
+    let (nw, nh) = (w / 2, h / 2);
+    // Horizontal pass at the half-way positions: taps (1 5 10 10 5 1)/32 is the binomial
+    // kernel convolved with the 2-sample box, i.e. blur and half-pixel shift in one.
+    const K: [f32; 6] = [
+        1.0 / 32.0,
+        5.0 / 32.0,
+        10.0 / 32.0,
+        10.0 / 32.0,
+        5.0 / 32.0,
+        1.0 / 32.0,
+    ];
+    let clampi = |v: isize, n: usize| v.clamp(0, n as isize - 1) as usize;
+    let mut tmp = vec![0.0f32; nw * h];
+    for r in 0..h {
+        let row = img.row(r);
+        for i in 0..nw {
+            let base = 2 * i as isize - 2;
+            let mut s = 0.0;
+            for (k, kv) in K.iter().enumerate() {
+                s += kv * row[clampi(base + k as isize, w)];
+            }
+            tmp[r * nw + i] = s;
+        }
+    }
+    let mut out = vec![0.0f32; nw * nh];
+    for j in 0..nh {
+        let base = 2 * j as isize - 2;
+        for (k, kv) in K.iter().enumerate() {
+            let r = clampi(base + k as isize, h);
+            let src = &tmp[r * nw..(r + 1) * nw];
+            let dst = &mut out[j * nw..(j + 1) * nw];
+            for (d, s) in dst.iter_mut().zip(src) {
+                *d += kv * s;
+            }
+        }
+    }
+    GreyImage {
+        width: nw,
+        height: nh,
+        data: out,
+    }
+}

@@ -1,0 +1,260 @@
+//! Tie points on a synthetic block: two overlapping strips of three photos each,
+//! rendered from a textured relief surface through geometry::back_project and
+//! Dem::intersect; matches are checked against the true transfer through the surface,
+//! with 30 % false candidates injected before the robust relative orientation.
+
+use cloudcontrol::geometry::{
+    back_project, project, rotation_from_vector, Camera, Dem, FrameCamera, InteriorOrientation,
+    InteriorTransformKind, Pose,
+};
+use cloudcontrol::matching::ties::{candidates, coverage, relative_orientation, TieCandidate};
+use cloudcontrol::matching::{
+    forstner, link_tracks, GreyImage, PairPrediction, Pyramid, RobustMethod, TieOptions,
+};
+use nalgebra::{Matrix3, Vector3};
+use rand::{Rng, SeedableRng};
+use rand_chacha::ChaCha8Rng;
+
+const W: usize = 360;
+const H: usize = 280;
+
+struct Scene {
+    dem: Dem,
+    camera: Camera,
+    poses: Vec<Pose>,
+    photos: Vec<GreyImage>,
+}
+
+fn ground_texture() -> impl Fn(f64, f64) -> f64 + Sync {
+    let mut rng = ChaCha8Rng::seed_from_u64(17);
+    let waves: Vec<(f64, f64, f64, f64)> = (0..40)
+        .map(|_| {
+            let lambda = rng.gen_range(4.0..30.0);
+            let th: f64 = rng.gen_range(0.0..std::f64::consts::PI);
+            let k = 2.0 * std::f64::consts::PI / lambda;
+            (
+                k * th.cos(),
+                k * th.sin(),
+                rng.gen_range(0.0..6.3),
+                rng.gen_range(3.0..10.0),
+            )
+        })
+        .collect();
+    move |x, y| {
+        120.0
+            + waves
+                .iter()
+                .map(|w| w.3 * (w.0 * x + w.1 * y + w.2).sin())
+                .sum::<f64>()
+    }
+}
+
+fn scene() -> Scene {
+    // Relief of ±45 m under a 500 m flying height: up to ~15 px of parallax.
+    let dem = Dem::from_fn(-400.0, 400.0, 2.0, 600, 400, |x, y| {
+        100.0 + 30.0 * (x / 90.0).sin() * (y / 110.0).cos() + 15.0 * (x / 37.0 + y / 53.0).sin()
+    })
+    .unwrap();
+    let camera = Camera::Frame(FrameCamera::pinhole(W as u32, H as u32, 500.0));
+    let nadir = Matrix3::from_diagonal(&Vector3::new(1.0, -1.0, -1.0));
+    let mut rng = ChaCha8Rng::seed_from_u64(3);
+    let mut poses = Vec::new();
+    // 60 % forward overlap (base 144 m for a 360 m footprint), 40 % side overlap.
+    for y in [60.0, -108.0] {
+        for k in 0..3 {
+            let small = Vector3::new(
+                rng.gen_range(-0.01..0.01),
+                rng.gen_range(-0.01..0.01),
+                rng.gen_range(-0.02..0.02),
+            );
+            let r = rotation_from_vector(&small) * nadir;
+            poses.push(Pose::new(
+                r,
+                Vector3::new(-144.0 + 144.0 * k as f64, y, 600.0),
+            ));
+        }
+    }
+    let tex = ground_texture();
+    let photos = poses
+        .iter()
+        .map(|pose| {
+            GreyImage::from_fn(W, H, |x, y| {
+                back_project(&camera, pose, [x, y])
+                    .and_then(|ray| dem.intersect(&ray))
+                    .map(|p| tex(p.x, p.y))
+                    .unwrap_or(0.0)
+            })
+        })
+        .collect();
+    Scene {
+        dem,
+        camera,
+        poses,
+        photos,
+    }
+}
+
+fn transfer(s: &Scene, a: usize, b: usize, p: [f64; 2]) -> Option<[f64; 2]> {
+    let ray = back_project(&s.camera, &s.poses[a], p).ok()?;
+    let x = s.dem.intersect(&ray).ok()?;
+    let q = project(&s.camera, &s.poses[b], &x).ok()?;
+    Some([q.pixel.x, q.pixel.y])
+}
+
+/// Plane homography a → b through the mean terrain height (the approximate orientation
+/// prediction), estimated from the four image corners.
+fn prediction(s: &Scene, a: usize, b: usize) -> PairPrediction {
+    let mut pa = Vec::new();
+    let mut pb = Vec::new();
+    for p in [
+        [0.0, 0.0],
+        [W as f64, 0.0],
+        [0.0, H as f64],
+        [W as f64, H as f64],
+    ] {
+        let ray = back_project(&s.camera, &s.poses[a], p).unwrap();
+        let t = (100.0 - ray.origin.z) / ray.direction.z;
+        let x = ray.at(t);
+        let q = project(&s.camera, &s.poses[b], &x).unwrap();
+        pa.push(p);
+        pb.push([q.pixel.x, q.pixel.y]);
+    }
+    // The projective interior-orientation solver is a general 4-point homography.
+    let (h, _) =
+        InteriorOrientation::estimate(InteriorTransformKind::Projective, &pa, &pb).unwrap();
+    PairPrediction {
+        a,
+        b,
+        homography: h.pixel_to_mm,
+        search_radius_px: 20.0,
+    }
+}
+
+#[test]
+fn ties_on_a_synthetic_block_survive_30_percent_false_candidates() {
+    let s = scene();
+    let opts = TieOptions::default();
+    let pairs_ab = [
+        (0, 1),
+        (1, 2),
+        (0, 2),
+        (3, 4),
+        (4, 5),
+        (3, 5),
+        (0, 3),
+        (1, 4),
+        (2, 5),
+        (0, 4),
+        (1, 3),
+        (1, 5),
+        (2, 4),
+    ];
+    let preds: Vec<PairPrediction> = pairs_ab
+        .iter()
+        .map(|&(a, b)| prediction(&s, a, b))
+        .collect();
+    let pyrs: Vec<Pyramid> = s.photos.iter().map(|p| Pyramid::new(p, 6, 32)).collect();
+    let mut rng = ChaCha8Rng::seed_from_u64(99);
+    for method in [RobustMethod::Lmeds, RobustMethod::Ransac] {
+        let o = TieOptions {
+            robust: method,
+            ..opts.clone()
+        };
+        let mut results = Vec::new();
+        let (mut good, mut total, mut false_in, mut false_total) = (0usize, 0usize, 0usize, 0usize);
+        for pred in &preds {
+            let (a, b) = (pred.a, pred.b);
+            let pts: Vec<[f64; 2]> = forstner(&s.photos[a], &o.forstner)
+                .iter()
+                .map(|p| [p.x, p.y])
+                .filter(|p| {
+                    let q = pred.transfer(*p);
+                    q[0] > 0.0 && q[1] > 0.0 && q[0] < W as f64 && q[1] < H as f64
+                })
+                .collect();
+            let mut c = candidates(&s.photos[a], &pyrs[b], pred, &pts, &o);
+            let real = c.len();
+            // 30 % of the final candidate list are false correspondences.
+            let n_false = (real as f64 * 0.3 / 0.7).round() as usize;
+            for _ in 0..n_false {
+                let p = pts[rng.gen_range(0..pts.len())];
+                c.push(TieCandidate {
+                    a: p,
+                    b: [rng.gen_range(0.0..W as f64), rng.gen_range(0.0..H as f64)],
+                    ncc: 0.8,
+                    sigma_px: 0.05,
+                });
+            }
+            let pm = relative_orientation(a, b, c, &o).unwrap();
+            for (k, (cand, &inl)) in pm.candidates.iter().zip(&pm.inliers).enumerate() {
+                if !inl {
+                    continue;
+                }
+                total += 1;
+                if k >= real {
+                    false_in += 1;
+                }
+                if let Some(t) = transfer(&s, a, b, cand.a) {
+                    if (t[0] - cand.b[0]).hypot(t[1] - cand.b[1]) <= 1.0 {
+                        good += 1;
+                    }
+                }
+            }
+            false_total += n_false;
+            assert!(
+                pm.inliers.iter().filter(|&&i| i).count() >= 20,
+                "pair {a}-{b}: too few ties"
+            );
+            results.push(pm);
+        }
+        let frac = good as f64 / total as f64;
+        eprintln!(
+            "{method:?}: {total} accepted, {:.1} % within 1 px of truth, {false_in} of {false_total} injected false candidates accepted",
+            100.0 * frac
+        );
+        assert!(
+            frac >= 0.95,
+            "{method:?}: only {:.1} % within 1 px",
+            100.0 * frac
+        );
+        // Tracks across and within strips, and the standard positions of every photo.
+        let tracks = link_tracks(&results, o.merge_px);
+        let multi = tracks.iter().filter(|t| t.observations.len() >= 3).count();
+        let across = tracks
+            .iter()
+            .filter(|t| {
+                t.observations.iter().any(|o| o.0 < 3) && t.observations.iter().any(|o| o.0 >= 3)
+            })
+            .count();
+        eprintln!(
+            "{} tracks, {multi} with ≥ 3 photos, {across} across strips",
+            tracks.len()
+        );
+        assert!(multi >= 20 && across >= 20);
+        let sizes = vec![(W, H); 6];
+        for cov in coverage(&sizes, &preds, &tracks) {
+            assert!(cov.required.iter().filter(|&&r| r).count() >= 4, "{cov:?}");
+            assert!(
+                cov.missing(1).is_empty(),
+                "photo {}: standard positions without points {:?} ({cov:?})",
+                cov.photo,
+                cov.missing(1)
+            );
+        }
+    }
+}
+
+#[test]
+fn global_shift_prediction_finds_the_strip_overlap() {
+    let s = scene();
+    let pa = Pyramid::new(&s.photos[0], 6, 32);
+    let pb = Pyramid::new(&s.photos[1], 6, 32);
+    let pred = cloudcontrol::matching::predict_shift(&pa, &pb, 0, 1).unwrap();
+    // The centre of photo 0 appears about 144 m × 500/500 = 144 px to the left in photo 1.
+    let t = transfer(&s, 0, 1, [W as f64 / 2.0, H as f64 / 2.0]).unwrap();
+    let q = pred.transfer([W as f64 / 2.0, H as f64 / 2.0]);
+    assert!(
+        (q[0] - t[0]).abs() < pred.search_radius_px && (q[1] - t[1]).abs() < pred.search_radius_px,
+        "{q:?} vs {t:?}"
+    );
+}
