@@ -11,6 +11,7 @@ pub mod estimators;
 pub mod ffi;
 pub mod formats;
 pub mod geometry;
+pub mod lidar;
 pub mod pipeline;
 
 /// Library version (the crate version).
