@@ -35,7 +35,9 @@ pub struct IcpOptions {
     pub gate_shrink: f64,
     /// Tukey biweight constant in units of the robust residual scale.
     pub tukey_c: f64,
-    /// Converged when the increment moves no point of the source extent by more than this.
+    /// Converged when the increment moves no point of the source extent by more than
+    /// this (metres) or by more than 2 % of the robust residual scale: below that,
+    /// steps are correspondence switching between neighbouring LiDAR planes, not progress.
     pub tolerance: f64,
     pub min_correspondences: usize,
 }
@@ -49,7 +51,7 @@ impl Default for IcpOptions {
             min_gate: 0.3,
             gate_shrink: 0.7,
             tukey_c: 4.685,
-            tolerance: 1e-4,
+            tolerance: 1e-3,
             min_correspondences: 20,
         }
     }
@@ -132,12 +134,19 @@ pub fn icp_point_to_plane(
     let mut t = unshift.compose(initial).compose(&shift);
     let extent = {
         let c = local.iter().sum::<Vector3<f64>>() / local.len() as f64;
-        local.iter().map(|p| (p - c).norm()).fold(0.0, f64::max).max(1.0)
+        local
+            .iter()
+            .map(|p| (p - c).norm())
+            .fold(0.0, f64::max)
+            .max(1.0)
     };
-    let npar = if opts.model == IcpModel::Similarity { 7 } else { 6 };
+    let npar = if opts.model == IcpModel::Similarity {
+        7
+    } else {
+        6
+    };
 
     let mut gate = opts.initial_gate;
-    let mut sigma = f64::INFINITY;
     let mut iterations = Vec::new();
     let mut converged = false;
     let mut last_cov = SMatrix::<f64, 7, 7>::zeros();
@@ -171,7 +180,7 @@ pub fn icp_point_to_plane(
         // Robust scale from the median absolute residual.
         let mut abs: Vec<f64> = corr.iter().map(|c| c.r.abs()).collect();
         abs.sort_by(|a, b| a.total_cmp(b));
-        sigma = (1.4826 * abs[abs.len() / 2]).max(1e-6);
+        let sigma = (1.4826 * abs[abs.len() / 2]).max(1e-6);
         let cut = opts.tukey_c * sigma;
         let centre = corr.iter().map(|c| c.q).sum::<Vector3<f64>>() / corr.len() as f64;
 
@@ -264,13 +273,12 @@ pub fn icp_point_to_plane(
         );
         let gate_floor = opts.min_gate.max(3.0 * opts.tukey_c * sigma).min(gate);
         let next_gate = (gate * opts.gate_shrink).max(gate_floor);
-        if step < opts.tolerance && (next_gate - gate).abs() < 1e-12 {
+        if step < opts.tolerance.max(0.02 * sigma) && (next_gate - gate).abs() < 1e-12 {
             converged = true;
             break;
         }
         gate = next_gate;
     }
-    let _ = sigma;
     Ok(IcpResult {
         transform: shift.compose(&t).compose(&unshift),
         covariance: last_cov,

@@ -152,11 +152,14 @@ impl PlaneIndex {
         if sum <= 0.0 {
             return None;
         }
-        let (imin, lmin) = eig
-            .eigenvalues
-            .iter()
-            .enumerate()
-            .fold((0, f64::INFINITY), |a, (i, &l)| if l < a.1 { (i, l) } else { a });
+        let (imin, lmin) =
+            eig.eigenvalues
+                .iter()
+                .enumerate()
+                .fold(
+                    (0, f64::INFINITY),
+                    |a, (i, &l)| if l < a.1 { (i, l) } else { a },
+                );
         let coplanarity = lmin.max(0.0) / sum;
         if coplanarity > self.options.max_coplanarity {
             return None;
