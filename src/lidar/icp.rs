@@ -102,9 +102,12 @@ pub fn icp_point_to_plane(
     initial: &Similarity,
     opts: &IcpOptions,
 ) -> Result<IcpResult> {
-    if !(opts.gate_shrink > 0.0 && opts.gate_shrink < 1.0)
-        || !(opts.min_gate > 0.0 && opts.initial_gate >= opts.min_gate)
-    {
+    // Written as one negated conjunction so NaN options are rejected too.
+    let valid = opts.gate_shrink > 0.0
+        && opts.gate_shrink < 1.0
+        && opts.min_gate > 0.0
+        && opts.initial_gate >= opts.min_gate;
+    if !valid {
         return Err(LidarError::InvalidOption(
             "need 0 < gate_shrink < 1 and 0 < min_gate <= initial_gate".into(),
         ));
