@@ -124,8 +124,9 @@ fn validate(checkpoints: &[(String, [f64; 3])], opts: &CheckpointOptions) -> Res
     Ok(())
 }
 
-/// Height of the local plane of `nbrs` (local coordinates about the checkpoint) at (0, 0),
-/// with one pass that rejects points beyond 3× the plane RMS (a low wall, a car).
+/// Height of the local plane of `nbrs` (local coordinates about the checkpoint) at (0, 0).
+/// Points off the ground surface (a low wall, a car, noise) are rejected iteratively at
+/// 3 robust σ (1.4826·MAD, floored at 1 cm) of the plane residuals.
 fn local_plane_height(
     nbrs: &[[f64; 3]],
     min_points: usize,
@@ -140,20 +141,28 @@ fn local_plane_height(
         }
         n.cholesky().map(|c| c.solve(&b))
     };
+    let res = |c: &Vector3<f64>, p: &[f64; 3]| p[2] - (c[0] + c[1] * p[0] + c[2] * p[1]);
     let all: Vec<&[f64; 3]> = nbrs.iter().collect();
     let mut used = all.clone();
     let mut coef = fit(&used).ok_or("ground points are collinear")?;
-    let res = |c: &Vector3<f64>, p: &[f64; 3]| p[2] - (c[0] + c[1] * p[0] + c[2] * p[1]);
-    let rms = (used.iter().map(|p| res(&coef, p).powi(2)).sum::<f64>() / used.len() as f64).sqrt();
-    let kept: Vec<&[f64; 3]> = all
-        .iter()
-        .copied()
-        .filter(|p| res(&coef, p).abs() <= 3.0 * rms + 1e-9)
-        .collect();
-    if kept.len() >= min_points && kept.len() < used.len() {
-        if let Some(c) = fit(&kept) {
-            coef = c;
-            used = kept;
+    for _ in 0..5 {
+        let mut abs: Vec<f64> = all.iter().map(|p| res(&coef, p).abs()).collect();
+        abs.sort_by(|a, b| a.total_cmp(b));
+        let cut = 3.0 * (1.4826 * abs[abs.len() / 2]).max(0.01);
+        let kept: Vec<&[f64; 3]> = all
+            .iter()
+            .copied()
+            .filter(|p| res(&coef, p).abs() <= cut)
+            .collect();
+        if kept.len() < min_points || kept.len() == used.len() {
+            break;
+        }
+        match fit(&kept) {
+            Some(c) => {
+                coef = c;
+                used = kept;
+            }
+            None => break,
         }
     }
     let rms = (used.iter().map(|p| res(&coef, p).powi(2)).sum::<f64>() / used.len() as f64).sqrt();
