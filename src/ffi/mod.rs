@@ -4,8 +4,10 @@
 //! crosses the boundary (each entry point runs under `catch_unwind`).
 
 mod camera;
+mod lidar;
 
 pub use camera::*;
+pub use lidar::*;
 
 use std::cell::RefCell;
 use std::ffi::{c_char, CString};

@@ -436,3 +436,162 @@ pub fn apply_strip_offsets(xyz: &mut [[f64; 3]], source: &[u16], report: &StripO
         }
     }
 }
+
+/// Settings of a file-to-file cleaning run.
+#[derive(Debug, Clone)]
+pub struct CleanOptions {
+    /// Noise filter (per tile); None skips it.
+    pub outliers: Option<OutlierOptions>,
+    /// Strip offset estimation over all tiles; None skips it.
+    pub strips: Option<StripOffsetOptions>,
+    /// Drop noise points instead of classifying them `noise_class`.
+    pub drop_noise: bool,
+    /// ASPRS class given to noise points (7 = low point / noise).
+    pub noise_class: u8,
+    /// Points sampled (evenly) over all tiles for the strip offset estimation.
+    pub max_points_for_offsets: usize,
+    /// Classes left out of the filter and the estimation (already flagged noise).
+    pub skip_classes: Vec<u8>,
+}
+
+impl Default for CleanOptions {
+    fn default() -> Self {
+        Self {
+            outliers: Some(OutlierOptions::default()),
+            strips: Some(StripOffsetOptions::default()),
+            drop_noise: false,
+            noise_class: 7,
+            max_points_for_offsets: 20_000_000,
+            skip_classes: vec![7, 18],
+        }
+    }
+}
+
+#[derive(Debug, Clone, Serialize, Deserialize)]
+pub struct TileCleanReport {
+    pub file: std::path::PathBuf,
+    pub output: std::path::PathBuf,
+    pub points: u64,
+    pub noise: u64,
+    pub written: u64,
+    pub outliers: Option<OutlierReport>,
+}
+
+#[derive(Debug, Clone, Serialize, Deserialize)]
+pub struct CleanReport {
+    pub strip_offsets: Option<StripOffsetReport>,
+    pub tiles: Vec<TileCleanReport>,
+}
+
+/// Cleans every tile of a catalogue into `out_dir` (same file names and formats): noise
+/// points are classified (or dropped) and strip offsets removed. Tiles are processed one
+/// at a time; only a sample of all tiles is held for the offset estimation.
+pub fn clean_tiles(
+    catalogue: &super::catalogue::Catalogue,
+    out_dir: &std::path::Path,
+    opts: &CleanOptions,
+) -> Result<CleanReport> {
+    use super::las::{read_points, rewrite_las};
+    let mut outputs = Vec::new();
+    for t in &catalogue.tiles {
+        let name = t
+            .file
+            .file_name()
+            .ok_or_else(|| LidarError::data(t.file.display().to_string(), "no file name"))?;
+        let out = out_dir.join(name);
+        let same = match (t.file.canonicalize(), out.canonicalize()) {
+            (Ok(a), Ok(b)) => a == b,
+            _ => false,
+        };
+        if same {
+            return Err(LidarError::InvalidOption(format!(
+                "output {} would overwrite its input; choose another folder",
+                out.display()
+            )));
+        }
+        outputs.push(out);
+    }
+    let total: u64 = catalogue.tiles.iter().map(|t| t.point_count).sum();
+    let stride = (total as usize)
+        .div_ceil(opts.max_points_for_offsets.max(1))
+        .max(1);
+    let mut masks = Vec::with_capacity(catalogue.tiles.len());
+    let mut reports = Vec::with_capacity(catalogue.tiles.len());
+    let (mut sample_xyz, mut sample_src) = (Vec::new(), Vec::new());
+    for t in &catalogue.tiles {
+        let pts = read_points(&t.file, None, None)?;
+        let usable: Vec<bool> = pts
+            .class
+            .iter()
+            .map(|c| !opts.skip_classes.contains(c))
+            .collect();
+        let idx: Vec<usize> = (0..pts.len()).filter(|&i| usable[i]).collect();
+        let mut noise = vec![false; pts.len()];
+        let mut rep = None;
+        if let Some(o) = &opts.outliers {
+            if idx.len() > o.k {
+                let sub: Vec<[f64; 3]> = idx.iter().map(|&i| pts.xyz[i]).collect();
+                let (keep, r) = statistical_outlier_filter(&sub, o)?;
+                for (j, &i) in idx.iter().enumerate() {
+                    noise[i] = !keep[j];
+                }
+                rep = Some(r);
+            }
+        }
+        for (n, &i) in idx.iter().enumerate() {
+            if n % stride == 0 && !noise[i] {
+                sample_xyz.push(pts.xyz[i]);
+                sample_src.push(pts.source[i]);
+            }
+        }
+        masks.push(noise);
+        reports.push(rep);
+    }
+    let strip_offsets = match &opts.strips {
+        Some(so) => Some(estimate_strip_offsets(&sample_xyz, &sample_src, so)?),
+        None => None,
+    };
+    drop((sample_xyz, sample_src));
+    let offsets: BTreeMap<u16, [f64; 3]> = strip_offsets
+        .as_ref()
+        .map(|r| r.strips.iter().map(|s| (s.source_id, s.offset_m)).collect())
+        .unwrap_or_default();
+    let mut tiles = Vec::with_capacity(catalogue.tiles.len());
+    for (((t, out), noise), rep) in catalogue
+        .tiles
+        .iter()
+        .zip(&outputs)
+        .zip(&masks)
+        .zip(reports)
+    {
+        let mut n_noise = 0u64;
+        let written = rewrite_las(&t.file, out, |i, mut p| {
+            if noise.get(i as usize).copied().unwrap_or(false) {
+                n_noise += 1;
+                if opts.drop_noise {
+                    return None;
+                }
+                p.classification = las::point::Classification::new(opts.noise_class)
+                    .unwrap_or(las::point::Classification::LowPoint);
+            }
+            if let Some(o) = offsets.get(&p.point_source_id) {
+                p.x -= o[0];
+                p.y -= o[1];
+                p.z -= o[2];
+            }
+            Some(p)
+        })?;
+        tiles.push(TileCleanReport {
+            file: t.file.clone(),
+            output: out.clone(),
+            points: t.point_count,
+            noise: n_noise,
+            written,
+            outliers: rep,
+        });
+    }
+    Ok(CleanReport {
+        strip_offsets,
+        tiles,
+    })
+}

@@ -468,3 +468,38 @@ mod tests {
         );
     }
 }
+
+/// Rewrites a LAS/LAZ file point by point: `edit` returns the point to write (changed or
+/// not) or None to drop it. Header, VLRs, point format and compression are kept; bounds and
+/// counts are recomputed. The output appears atomically.
+pub fn rewrite_las(
+    input: &Path,
+    output: &Path,
+    mut edit: impl FnMut(u64, las::Point) -> Option<las::Point>,
+) -> Result<u64> {
+    let f = File::open(input).map_err(|e| LidarError::io(input, e))?;
+    let mut reader = las::Reader::new(BufReader::new(f)).map_err(|e| las_err(input, e))?;
+    let mut builder = las::Builder::from(reader.header().clone());
+    // The LAZ writer adds its own laszip VLR.
+    builder.vlrs.retain(|v| v.user_id != "laszip encoded");
+    let header = builder.into_header().map_err(|e| las_err(input, e))?;
+    let written = crate::formats::write_atomically(output, |tmp| {
+        let fail = |m: String| crate::formats::FormatError::invalid(output, m);
+        let out = File::create(tmp).map_err(|e| crate::formats::FormatError::io(output, e))?;
+        let mut w = las::Writer::new(std::io::BufWriter::new(out), header)
+            .map_err(|e| fail(format!("cannot write LAS: {e}")))?;
+        let mut n = 0u64;
+        for (i, p) in reader.points().enumerate() {
+            let p = p.map_err(|e| fail(format!("reading {}: point {i}: {e}", input.display())))?;
+            if let Some(q) = edit(i as u64, p) {
+                w.write_point(q)
+                    .map_err(|e| fail(format!("cannot write point {i}: {e}")))?;
+                n += 1;
+            }
+        }
+        w.close()
+            .map_err(|e| fail(format!("cannot finish LAS: {e}")))?;
+        Ok(n)
+    })?;
+    Ok(written)
+}

@@ -13,12 +13,14 @@ pub mod eval;
 pub mod icp;
 pub mod las;
 pub mod planes;
+pub mod points_io;
 pub mod store;
 
 pub use catalogue::{Catalogue, ScanOptions, TileEntry};
 pub use clean::{
-    apply_strip_offsets, estimate_strip_offsets, statistical_outlier_filter, OutlierOptions,
-    OutlierReport, StripOffsetOptions, StripOffsetReport,
+    apply_strip_offsets, clean_tiles, estimate_strip_offsets, statistical_outlier_filter,
+    CleanOptions, CleanReport, OutlierOptions, OutlierReport, StripOffsetOptions,
+    StripOffsetReport,
 };
 pub use dem::{grid_dem, DemMethod, DemOptions};
 pub use eval::{evaluate_checkpoints, CheckpointOptions, CheckpointReport};

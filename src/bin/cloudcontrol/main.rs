@@ -1,6 +1,8 @@
 //! The `cloudcontrol` command line: argument parsing, progress and output only; the work
 //! is done by the library.
 
+mod lidar;
+
 use clap::{Parser, Subcommand};
 use std::path::PathBuf;
 use std::process::ExitCode;
@@ -35,6 +37,14 @@ enum Command {
         #[arg(long, default_value = "cloudcontrol_demo")]
         out: PathBuf,
     },
+    /// LiDAR sources: info, catalogue, checkpoint evaluation, cleaning, DEM.
+    ///
+    /// Example: cloudcontrol lidar catalogue tiles/ --out tiles/catalogue.json
+    Lidar {
+        #[command(subcommand)]
+        command: lidar::LidarCommand,
+    },
+    Icp(lidar::IcpArgs),
     /// Print the library version.
     Version,
 }
@@ -58,6 +68,17 @@ fn init_logging(quiet: bool, verbose: u8) {
         .try_init();
 }
 
+/// Maps a subcommand's outcome to the exit code, printing the error (which names the input).
+fn finish(name: &str, r: Result<(), String>) -> ExitCode {
+    match r {
+        Ok(()) => ExitCode::SUCCESS,
+        Err(e) => {
+            eprintln!("cloudcontrol {name}: {e}");
+            ExitCode::from(1)
+        }
+    }
+}
+
 fn main() -> ExitCode {
     let cli = Cli::parse();
     init_logging(cli.quiet, cli.verbose);
@@ -66,6 +87,10 @@ fn main() -> ExitCode {
             println!("cloudcontrol {}", cloudcontrol::VERSION);
             ExitCode::SUCCESS
         }
+        Command::Lidar { command } => {
+            finish("lidar", lidar::run_lidar(command, cli.json, cli.quiet))
+        }
+        Command::Icp(args) => finish("icp", lidar::run_icp(args, cli.json, cli.quiet)),
         Command::Demo { out } => match cloudcontrol::pipeline::demo::run(&out) {
             Ok(s) => {
                 if cli.json {
