@@ -5,7 +5,8 @@ use super::{LidarError, Result};
 use kiddo::{ImmutableKdTree, SquaredEuclidean};
 use nalgebra::{Matrix3, SymmetricEigen, Vector3};
 use std::num::NonZero;
-use std::sync::OnceLock;
+use std::sync::atomic::{AtomicU32, Ordering};
+use std::sync::RwLock;
 
 /// Plane-fit settings.
 #[derive(Debug, Clone, Copy)]
@@ -51,20 +52,38 @@ impl LocalPlane {
     }
 }
 
+/// Slot states of the plane cache; a fitted plane is stored as its arena index + FIRST.
+const UNKNOWN: u32 = 0;
+const NOT_PLANAR: u32 = 1;
+const FIRST: u32 = 2;
+
 /// LiDAR points in a local frame with a k-d tree; plane fits are cached per LiDAR point
 /// (the neighbourhood of the nearest LiDAR point), so ICP iterations that land on the same
-/// surface patch never refit it.
+/// surface patch never refit it. The cache costs 4 bytes per LiDAR point plus 64 bytes per
+/// plane actually fitted (only the points queries land on), so memory stays near the
+/// points and the tree.
 pub struct PlaneIndex {
     origin: Vector3<f64>,
     points: Vec<[f64; 3]>,
     tree: ImmutableKdTree<f64, 3>,
     options: PlaneOptions,
-    cache: Vec<OnceLock<Option<LocalPlane>>>,
+    slots: Vec<AtomicU32>,
+    arena: RwLock<Vec<LocalPlane>>,
 }
 
 impl PlaneIndex {
     /// Builds the index from world coordinates; `origin` is subtracted before anything else.
     pub fn new(world: &[[f64; 3]], origin: Vector3<f64>, options: PlaneOptions) -> Result<Self> {
+        let local = world
+            .iter()
+            .map(|p| [p[0] - origin.x, p[1] - origin.y, p[2] - origin.z])
+            .collect();
+        Self::from_local(local, origin, options)
+    }
+
+    /// Builds the index from points already in the local frame (world = local + origin),
+    /// taking ownership so that no second copy of the points is made.
+    pub fn from_local(points: Vec<[f64; 3]>, origin: Vector3<f64>, options: PlaneOptions) -> Result<Self> {
         if options.k < 3 {
             return Err(LidarError::InvalidOption(format!(
                 "plane fit needs k >= 3 neighbours, got {}",
@@ -76,32 +95,37 @@ impl PlaneIndex {
                 "max_coplanarity and max_radius must be positive".into(),
             ));
         }
-        if world.len() < options.k {
+        if points.len() < options.k {
             return Err(LidarError::TooFewPoints {
                 what: "LiDAR points".into(),
-                got: world.len(),
+                got: points.len(),
                 need: options.k,
             });
         }
-        let mut points = Vec::with_capacity(world.len());
-        for (i, p) in world.iter().enumerate() {
-            if !p.iter().all(|v| v.is_finite()) {
-                return Err(LidarError::NonFinite {
-                    what: "LiDAR points".into(),
-                    index: i,
-                });
-            }
-            points.push([p[0] - origin.x, p[1] - origin.y, p[2] - origin.z]);
+        if let Some(i) = points.iter().position(|p| !p.iter().all(|v| v.is_finite())) {
+            return Err(LidarError::NonFinite {
+                what: "LiDAR points".into(),
+                index: i,
+            });
+        }
+        if !(origin.iter().all(|v| v.is_finite())) {
+            return Err(LidarError::InvalidOption("origin is not finite".into()));
         }
         let tree = ImmutableKdTree::new_from_slice(&points);
-        let cache = (0..points.len()).map(|_| OnceLock::new()).collect();
+        let slots = (0..points.len()).map(|_| AtomicU32::new(UNKNOWN)).collect();
         Ok(Self {
             origin,
             points,
             tree,
             options,
-            cache,
+            slots,
+            arena: RwLock::new(Vec::new()),
         })
+    }
+
+    /// Planes fitted so far (cache size).
+    pub fn fitted_planes(&self) -> usize {
+        self.arena.read().map(|a| a.len()).unwrap_or(0)
     }
 
     pub fn origin(&self) -> Vector3<f64> {
@@ -120,7 +144,30 @@ impl PlaneIndex {
     pub fn plane_at(&self, q: &Vector3<f64>) -> Option<LocalPlane> {
         let nn = self.tree.nearest_one::<SquaredEuclidean>(&[q.x, q.y, q.z]);
         let idx = nn.item as usize;
-        *self.cache[idx].get_or_init(|| self.fit(idx))
+        match self.slots[idx].load(Ordering::Acquire) {
+            NOT_PLANAR => return None,
+            UNKNOWN => {}
+            k => {
+                if let Ok(a) = self.arena.read() {
+                    return Some(a[(k - FIRST) as usize]);
+                }
+            }
+        }
+        // Two threads may fit the same neighbourhood at once: the fit is deterministic, so
+        // whichever slot value wins holds the same plane.
+        let plane = self.fit(idx);
+        let state = match plane {
+            None => NOT_PLANAR,
+            Some(pl) => match self.arena.write() {
+                Ok(mut a) if a.len() < (u32::MAX - FIRST) as usize => {
+                    a.push(pl);
+                    (a.len() - 1) as u32 + FIRST
+                }
+                _ => return plane,
+            },
+        };
+        self.slots[idx].store(state, Ordering::Release);
+        plane
     }
 
     fn fit(&self, idx: usize) -> Option<LocalPlane> {

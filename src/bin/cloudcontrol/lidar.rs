@@ -519,8 +519,17 @@ pub fn run_icp(a: IcpArgs, json_out: bool, quiet: bool) -> Result<(), String> {
         0.5 * (c.min_y + c.max_y),
         lidar.xyz[0][2],
     );
-    let index = PlaneIndex::new(
-        &lidar.xyz,
+    // Move the coordinates into the index (local frame, in place): no second copy.
+    let n_lidar = lidar.len();
+    let mut local = lidar.xyz;
+    drop((lidar.class, lidar.source, lidar.gps_time));
+    for p in local.iter_mut() {
+        p[0] -= origin.x;
+        p[1] -= origin.y;
+        p[2] -= origin.z;
+    }
+    let index = PlaneIndex::from_local(
+        local,
         origin,
         PlaneOptions {
             k: a.k,
@@ -529,8 +538,6 @@ pub fn run_icp(a: IcpArgs, json_out: bool, quiet: bool) -> Result<(), String> {
         },
     )
     .map_err(|e| e.to_string())?;
-    let n_lidar = lidar.len();
-    drop(lidar);
     let index_s = secs(t);
     let model = if a.rigid || a.model == ModelArg::Rigid {
         IcpModel::Rigid
