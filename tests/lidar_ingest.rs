@@ -202,13 +202,13 @@ fn bad_inputs_are_errors_naming_the_file() {
     // Missing CRS (unless one is assumed).
     let f = dir.path().join("nocrs.las");
     write_las(&f, &pts, 2, CrsVlr::None, false);
-    let e = Catalogue::scan(&[f.clone()], &ScanOptions::default())
+    let e = Catalogue::scan(std::slice::from_ref(&f), &ScanOptions::default())
         .err()
         .unwrap();
     assert!(matches!(e, LidarError::MissingCrs { .. }), "{e}");
     err_names(&e, &f);
     let c = Catalogue::scan(
-        &[f.clone()],
+        std::slice::from_ref(&f),
         &ScanOptions {
             assume_crs: Some("EPSG:32650".into()),
         },

@@ -2,6 +2,13 @@
 //! caller-owned buffers with explicit lengths. No logic lives here: every function
 //! validates its arguments, calls the library and maps errors to a status. No panic
 //! crosses the boundary (each entry point runs under `catch_unwind`).
+//!
+//! # Safety
+//! One contract holds for every `unsafe extern "C"` function here: pointer arguments are
+//! NULL or valid for the element count passed beside them, handles come from this
+//! library's constructors and are not used after their `_free`. NULL, absurd lengths,
+//! misalignment and non-finite values are detected and reported, not trusted.
+#![allow(clippy::missing_safety_doc)] // the contract above applies to every entry point
 
 mod camera;
 mod lidar;

@@ -43,7 +43,7 @@ pub fn statistical_outlier_filter(
     points: &[[f64; 3]],
     opts: &OutlierOptions,
 ) -> Result<(Vec<bool>, OutlierReport)> {
-    if opts.k < 1 || !(opts.n_sigma > 0.0) {
+    if opts.k < 1 || opts.n_sigma.is_nan() || opts.n_sigma <= 0.0 {
         return Err(LidarError::InvalidOption(
             "outlier filter needs k >= 1 and n_sigma > 0".into(),
         ));
@@ -199,7 +199,7 @@ pub fn estimate_strip_offsets(
             source.len()
         )));
     }
-    if !(opts.max_distance > 0.0) || opts.max_samples_per_pair == 0 {
+    if opts.max_distance.is_nan() || opts.max_distance <= 0.0 || opts.max_samples_per_pair == 0 {
         return Err(LidarError::InvalidOption(
             "max_distance must be positive and max_samples_per_pair at least 1".into(),
         ));

@@ -105,7 +105,7 @@ impl CheckpointReport {
 }
 
 fn validate(checkpoints: &[(String, [f64; 3])], opts: &CheckpointOptions) -> Result<()> {
-    if !(opts.radius > 0.0) || opts.k < 3 || opts.min_points < 3 {
+    if opts.radius.is_nan() || opts.radius <= 0.0 || opts.k < 3 || opts.min_points < 3 {
         return Err(LidarError::InvalidOption(
             "checkpoint evaluation needs radius > 0, k >= 3 and min_points >= 3".into(),
         ));

@@ -111,7 +111,7 @@ impl Layout {
             0 => (15, 0x1f, 18, None, 20),
             1 => (15, 0x1f, 18, Some(20), 28),
             2 => (15, 0x1f, 18, None, 26),
-            3 | 4 | 5 => (15, 0x1f, 18, Some(20), 28),
+            3..=5 => (15, 0x1f, 18, Some(20), 28),
             6..=10 => (16, 0xff, 20, Some(22), 30),
             _ => return None,
         };
@@ -453,22 +453,6 @@ pub fn date_of_standard_gps_time(t: f64) -> Option<String> {
     Some(format!("{y:04}-{m:02}-{d:02}"))
 }
 
-#[cfg(test)]
-mod tests {
-    use super::*;
-
-    #[test]
-    fn gps_dates() {
-        assert_eq!(civil_from_days(0), (1970, 1, 1));
-        assert_eq!(date_of_standard_gps_time(-1e9).unwrap(), "1980-01-06");
-        // 2020-01-01T00:00:00 UTC is GPS second 1_261_872_018 (18 leap seconds).
-        assert_eq!(
-            date_of_standard_gps_time(1_261_872_000.0 - 1e9 + 3600.0).unwrap(),
-            "2020-01-01"
-        );
-    }
-}
-
 /// Rewrites a LAS/LAZ file point by point: `edit` returns the point to write (changed or
 /// not) or None to drop it. Header, VLRs, point format and compression are kept; bounds and
 /// counts are recomputed. The output appears atomically.
@@ -502,4 +486,20 @@ pub fn rewrite_las(
         Ok(n)
     })?;
     Ok(written)
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn gps_dates() {
+        assert_eq!(civil_from_days(0), (1970, 1, 1));
+        assert_eq!(date_of_standard_gps_time(-1e9).unwrap(), "1980-01-06");
+        // 2020-01-01T00:00:00 UTC is GPS second 1_261_872_018 (18 leap seconds).
+        assert_eq!(
+            date_of_standard_gps_time(1_261_872_000.0 - 1e9 + 3600.0).unwrap(),
+            "2020-01-01"
+        );
+    }
 }

@@ -83,7 +83,11 @@ impl PlaneIndex {
 
     /// Builds the index from points already in the local frame (world = local + origin),
     /// taking ownership so that no second copy of the points is made.
-    pub fn from_local(points: Vec<[f64; 3]>, origin: Vector3<f64>, options: PlaneOptions) -> Result<Self> {
+    pub fn from_local(
+        points: Vec<[f64; 3]>,
+        origin: Vector3<f64>,
+        options: PlaneOptions,
+    ) -> Result<Self> {
         if options.k < 3 {
             return Err(LidarError::InvalidOption(format!(
                 "plane fit needs k >= 3 neighbours, got {}",
