@@ -13,6 +13,7 @@ pub mod estimators;
 pub mod ffi;
 pub mod formats;
 pub mod geometry;
+pub mod lidar;
 pub mod matching;
 pub mod pipeline;
 pub mod synth;

@@ -14,6 +14,7 @@ mod adjust;
 mod camera;
 mod control;
 mod formats;
+mod lidar;
 mod matching;
 mod synth;
 
@@ -21,6 +22,7 @@ pub use adjust::*;
 pub use camera::*;
 pub use control::*;
 pub use formats::*;
+pub use lidar::*;
 pub use matching::*;
 pub use synth::*;
 

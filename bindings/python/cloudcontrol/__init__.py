@@ -4,7 +4,9 @@ from .control import DcpPackage, predict
 from .geometry import Camera, Pose
 from .matching import Match, fiducial_io, match_template
 
+from . import lidar
+
 __all__ = [
     "CloudControlError", "Camera", "DcpPackage", "Match", "Pose", "fiducial_io", "last_error",
-    "match_template", "predict", "version",
+    "lidar", "match_template", "predict", "version",
 ]

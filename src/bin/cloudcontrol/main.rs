@@ -4,6 +4,7 @@
 mod adjust;
 mod convert;
 mod dcp;
+mod lidar;
 mod matching;
 mod ortho;
 mod synth;
@@ -49,6 +50,14 @@ enum Command {
     ///
     /// Example: cloudcontrol synth --out block --preset small --seed 7
     Synth(synth::SynthArgs),
+    /// LiDAR sources: info, catalogue, checkpoint evaluation, cleaning, DEM.
+    ///
+    /// Example: cloudcontrol lidar catalogue tiles/ --out tiles/catalogue.json
+    Lidar {
+        #[command(subcommand)]
+        command: lidar::LidarCommand,
+    },
+    Icp(lidar::IcpArgs),
     /// Print the library version.
     Version,
     Convert(convert::Args),
@@ -84,6 +93,17 @@ fn init_logging(quiet: bool, verbose: u8) {
         .try_init();
 }
 
+/// Maps a subcommand's outcome to the exit code, printing the error (which names the input).
+fn finish(name: &str, r: Result<(), String>) -> ExitCode {
+    match r {
+        Ok(()) => ExitCode::SUCCESS,
+        Err(e) => {
+            eprintln!("cloudcontrol {name}: {e}");
+            ExitCode::from(1)
+        }
+    }
+}
+
 fn main() -> ExitCode {
     let cli = Cli::parse();
     init_logging(cli.quiet, cli.verbose);
@@ -107,6 +127,10 @@ fn main() -> ExitCode {
         Command::Synth(args) => synth::run(args, cli.json, cli.quiet),
         Command::Adjust(a) => adjust::print_result("adjust", adjust::run_adjust(&a), cli.quiet),
         Command::Resect(a) => adjust::print_result("resect", adjust::run_resect(&a), cli.quiet),
+        Command::Lidar { command } => {
+            finish("lidar", lidar::run_lidar(command, cli.json, cli.quiet))
+        }
+        Command::Icp(args) => finish("icp", lidar::run_icp(args, cli.json, cli.quiet)),
         Command::Demo { out } => match cloudcontrol::pipeline::demo::run(&out) {
             Ok(s) => {
                 if cli.json {

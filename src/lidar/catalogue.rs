@@ -1,0 +1,356 @@
+//! The source catalogue ("organisation of control sources", seed 000): one entry per
+//! LAS/LAZ tile with bounds, point count, density, class and strip histograms, GPS time
+//! range and acquisition dates, and the CRS. Built by scanning files or folders, stored
+//! as JSON (schema in formats/lidar/README.md).
+
+use super::las::{date_of_standard_gps_time, LasStream, PointBatch};
+use super::store::Bbox;
+use super::{LidarError, Result};
+use crate::formats::crs::Crs;
+use crate::formats::write_bytes_atomically;
+use rayon::prelude::*;
+use serde::{Deserialize, Serialize};
+use std::collections::BTreeMap;
+use std::path::{Path, PathBuf};
+
+/// Version of the catalogue JSON layout.
+pub const CATALOGUE_SCHEMA: u32 = 1;
+
+/// One tile (file) of the catalogue. Bounds and counts come from the points, not the header.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub struct TileEntry {
+    pub file: PathBuf,
+    pub version: String,
+    pub point_format: u8,
+    pub compressed: bool,
+    pub point_count: u64,
+    /// [min_x, min_y, min_z, max_x, max_y, max_z] of the points.
+    pub bounds: [f64; 6],
+    /// Plan area of the bounds (m²).
+    pub area_m2: f64,
+    /// point_count / area_m2.
+    pub density_pts_m2: f64,
+    /// ASPRS class → point count.
+    pub classes: BTreeMap<u8, u64>,
+    /// Point source id (flight strip) → point count.
+    pub point_sources: BTreeMap<u16, u64>,
+    /// [first, last] GPS time of the points, when the format has GPS time.
+    pub gps_time_range: Option<[f64; 2]>,
+    /// "standard" (adjusted standard GPS time) or "week" (seconds of the GPS week).
+    pub gps_time_type: String,
+    /// [first, last] acquisition date (ISO 8601) from standard GPS time.
+    pub acquisition_dates: Option<[String; 2]>,
+    /// File creation date from the header.
+    pub creation_date: Option<String>,
+    /// `EPSG:n` or the CRS name.
+    pub crs: String,
+}
+
+impl TileEntry {
+    pub fn bbox(&self) -> Bbox {
+        Bbox::new(
+            self.bounds[0],
+            self.bounds[1],
+            self.bounds[3],
+            self.bounds[4],
+        )
+    }
+}
+
+/// Catalogue of a LiDAR source: every tile in one CRS.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub struct Catalogue {
+    pub schema: u32,
+    /// `EPSG:n` or the CRS name.
+    pub crs: String,
+    /// Full definition of the CRS.
+    pub crs_wkt: String,
+    pub point_count: u64,
+    /// [min_x, min_y, min_z, max_x, max_y, max_z] over all tiles.
+    pub bounds: [f64; 6],
+    pub tiles: Vec<TileEntry>,
+}
+
+/// Options of a catalogue scan.
+#[derive(Debug, Clone, Default)]
+pub struct ScanOptions {
+    /// CRS for files that carry none (`EPSG:n`, WKT, ...). Files with a CRS must match it.
+    pub assume_crs: Option<String>,
+}
+
+/// Expands folders into their `.las`/`.laz` files (sorted, not recursive); files are kept.
+pub fn expand_inputs(inputs: &[PathBuf]) -> Result<Vec<PathBuf>> {
+    let mut out = Vec::new();
+    for p in inputs {
+        if p.is_dir() {
+            let mut files: Vec<PathBuf> = std::fs::read_dir(p)
+                .map_err(|e| LidarError::io(p, e))?
+                .filter_map(|e| e.ok().map(|e| e.path()))
+                .filter(|f| {
+                    f.is_file()
+                        && f.extension().and_then(|x| x.to_str()).is_some_and(|x| {
+                            x.eq_ignore_ascii_case("las") || x.eq_ignore_ascii_case("laz")
+                        })
+                })
+                .collect();
+            files.sort();
+            if files.is_empty() {
+                return Err(LidarError::data(
+                    p.display().to_string(),
+                    "folder holds no .las or .laz file",
+                ));
+            }
+            out.extend(files);
+        } else {
+            out.push(p.clone());
+        }
+    }
+    if out.is_empty() {
+        return Err(LidarError::data("LiDAR inputs", "no file given"));
+    }
+    Ok(out)
+}
+
+struct Scanned {
+    entry: TileEntry,
+    /// WKT (GDAL's SpatialRef is not Send, so the CRS is parsed after the parallel scan).
+    crs_wkt: Option<String>,
+}
+
+fn scan_file(path: &Path) -> Result<Scanned> {
+    let mut s = LasStream::open(path)?;
+    let info = s.info().clone();
+    let mut b = [
+        f64::INFINITY,
+        f64::INFINITY,
+        f64::INFINITY,
+        f64::NEG_INFINITY,
+        f64::NEG_INFINITY,
+        f64::NEG_INFINITY,
+    ];
+    let mut classes = [0u64; 256];
+    let mut sources: BTreeMap<u16, u64> = BTreeMap::new();
+    let (mut t0, mut t1) = (f64::INFINITY, f64::NEG_INFINITY);
+    let mut batch = PointBatch::with_capacity(1 << 18);
+    let mut count = 0u64;
+    loop {
+        batch.xyz.clear();
+        batch.class.clear();
+        batch.source.clear();
+        batch.gps_time.clear();
+        if s.read_into(1 << 18, &mut batch)? == 0 {
+            break;
+        }
+        count += batch.len() as u64;
+        for (i, p) in batch.xyz.iter().enumerate() {
+            for k in 0..3 {
+                b[k] = b[k].min(p[k]);
+                b[k + 3] = b[k + 3].max(p[k]);
+            }
+            classes[batch.class[i] as usize] += 1;
+            let t = batch.gps_time[i];
+            if t.is_finite() {
+                t0 = t0.min(t);
+                t1 = t1.max(t);
+            }
+        }
+        // Strips are long runs: count runs instead of a map lookup per point.
+        let mut i = 0;
+        while i < batch.len() {
+            let id = batch.source[i];
+            let mut j = i;
+            while j < batch.len() && batch.source[j] == id {
+                j += 1;
+            }
+            *sources.entry(id).or_default() += (j - i) as u64;
+            i = j;
+        }
+    }
+    if count == 0 {
+        return Err(LidarError::data(
+            path.display().to_string(),
+            "the file holds no point",
+        ));
+    }
+    let area = ((b[3] - b[0]) * (b[4] - b[1])).max(1e-6);
+    let gps = (t0 <= t1).then_some([t0, t1]);
+    let dates = match (gps, info.gps_standard_time) {
+        (Some([a, z]), true) => date_of_standard_gps_time(a)
+            .zip(date_of_standard_gps_time(z))
+            .map(|(a, z)| [a, z]),
+        _ => None,
+    };
+    let entry = TileEntry {
+        file: path.to_path_buf(),
+        version: info.version.clone(),
+        point_format: info.point_format,
+        compressed: info.compressed,
+        point_count: count,
+        bounds: b,
+        area_m2: area,
+        density_pts_m2: count as f64 / area,
+        classes: classes
+            .iter()
+            .enumerate()
+            .filter(|(_, &n)| n > 0)
+            .map(|(c, &n)| (c as u8, n))
+            .collect(),
+        point_sources: sources,
+        gps_time_range: gps,
+        gps_time_type: if info.gps_standard_time {
+            "standard"
+        } else {
+            "week"
+        }
+        .into(),
+        acquisition_dates: dates,
+        creation_date: info.creation_date.clone(),
+        crs: info.crs_label.clone().unwrap_or_default(),
+    };
+    Ok(Scanned {
+        entry,
+        crs_wkt: info.crs_wkt,
+    })
+}
+
+impl Catalogue {
+    /// Scans files and folders (every point is read: counts, bounds and histograms are
+    /// measured, and a header that disagrees with the records is an error naming the file).
+    /// All tiles must share one CRS.
+    pub fn scan(inputs: &[PathBuf], opts: &ScanOptions) -> Result<Self> {
+        let files = expand_inputs(inputs)?;
+        let assumed = match &opts.assume_crs {
+            Some(d) => Some(Crs::parse(d).map_err(|e| LidarError::Crs {
+                path: PathBuf::from("--crs"),
+                message: e.to_string(),
+            })?),
+            None => None,
+        };
+        // Files in parallel; results are taken in input order, so the first error in
+        // file order is reported and the catalogue is deterministic.
+        let scanned: Vec<Result<Scanned>> = files.par_iter().map(|f| scan_file(f)).collect();
+        let mut tiles = Vec::with_capacity(files.len());
+        let mut reference: Option<(Crs, PathBuf)> = assumed.map(|c| (c, PathBuf::from("--crs")));
+        for s in scanned {
+            let mut s = s?;
+            let path = s.entry.file.clone();
+            let crs = match s.crs_wkt.take() {
+                Some(w) => Crs::parse(&w).map_err(|e| LidarError::Crs {
+                    path: path.clone(),
+                    message: e.to_string(),
+                })?,
+                None => match &reference {
+                    Some((c, _)) if opts.assume_crs.is_some() => {
+                        s.entry.crs = c.label();
+                        c.clone()
+                    }
+                    _ => return Err(LidarError::MissingCrs { path }),
+                },
+            };
+            match &reference {
+                None => reference = Some((crs, path.clone())),
+                Some((r, rp)) => {
+                    if r.spatial_ref() != crs.spatial_ref() {
+                        return Err(LidarError::CrsMismatch {
+                            path,
+                            found: crs.label(),
+                            expected: r.label(),
+                            reference: rp.clone(),
+                        });
+                    }
+                }
+            }
+            tiles.push(s.entry);
+        }
+        let (crs, _) = reference.expect("at least one tile was scanned");
+        let mut bounds = [
+            f64::INFINITY,
+            f64::INFINITY,
+            f64::INFINITY,
+            f64::NEG_INFINITY,
+            f64::NEG_INFINITY,
+            f64::NEG_INFINITY,
+        ];
+        for t in &tiles {
+            for k in 0..3 {
+                bounds[k] = bounds[k].min(t.bounds[k]);
+                bounds[k + 3] = bounds[k + 3].max(t.bounds[k + 3]);
+            }
+        }
+        Ok(Self {
+            schema: CATALOGUE_SCHEMA,
+            crs: crs.label(),
+            crs_wkt: crs.to_wkt()?,
+            point_count: tiles.iter().map(|t| t.point_count).sum(),
+            bounds,
+            tiles,
+        })
+    }
+
+    pub fn to_json(&self) -> String {
+        serde_json::to_string_pretty(self).expect("catalogue serialises")
+    }
+
+    /// Writes the catalogue JSON atomically.
+    pub fn save(&self, path: &Path) -> Result<()> {
+        Ok(write_bytes_atomically(path, self.to_json().as_bytes())?)
+    }
+
+    pub fn load(path: &Path) -> Result<Self> {
+        let text = std::fs::read_to_string(path).map_err(|e| LidarError::io(path, e))?;
+        let c: Catalogue = serde_json::from_str(&text).map_err(|e| LidarError::Las {
+            path: path.to_path_buf(),
+            message: format!("not a catalogue JSON: {e}"),
+        })?;
+        if c.schema != CATALOGUE_SCHEMA {
+            return Err(LidarError::Las {
+                path: path.to_path_buf(),
+                message: format!(
+                    "catalogue schema {} (this build reads {CATALOGUE_SCHEMA})",
+                    c.schema
+                ),
+            });
+        }
+        Ok(c)
+    }
+
+    /// A catalogue from a `.json` catalogue file, or by scanning LAS/LAZ files and folders.
+    pub fn open(inputs: &[PathBuf], opts: &ScanOptions) -> Result<Self> {
+        match inputs {
+            [one]
+                if one
+                    .extension()
+                    .is_some_and(|e| e.eq_ignore_ascii_case("json")) =>
+            {
+                Self::load(one)
+            }
+            _ => Self::scan(inputs, opts),
+        }
+    }
+
+    pub fn crs(&self) -> Result<Crs> {
+        Crs::parse(&self.crs_wkt).map_err(|e| LidarError::Crs {
+            path: PathBuf::from("catalogue"),
+            message: e.to_string(),
+        })
+    }
+
+    /// Indices of the tiles whose bounds intersect `bbox`.
+    pub fn tiles_in(&self, bbox: &Bbox) -> Vec<usize> {
+        (0..self.tiles.len())
+            .filter(|&i| self.tiles[i].bbox().intersects(bbox))
+            .collect()
+    }
+
+    /// Strip (point source) ids over all tiles.
+    pub fn point_sources(&self) -> Vec<u16> {
+        let mut ids: Vec<u16> = self
+            .tiles
+            .iter()
+            .flat_map(|t| t.point_sources.keys().copied())
+            .collect();
+        ids.sort_unstable();
+        ids.dedup();
+        ids
+    }
+}

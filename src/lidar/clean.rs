@@ -1,0 +1,597 @@
+//! Cleaning of a LiDAR source: removal of isolated noise points (statistical outlier
+//! filter on the mean distance to the k nearest neighbours) and estimation / correction of
+//! per-strip (point source id) systematic offsets from overlapping planar surfaces.
+
+use super::planes::{PlaneIndex, PlaneOptions};
+use super::{LidarError, Result};
+use kiddo::{ImmutableKdTree, SquaredEuclidean};
+use nalgebra::{DMatrix, DVector, Vector3};
+use rayon::prelude::*;
+use serde::{Deserialize, Serialize};
+use std::collections::BTreeMap;
+use std::num::NonZero;
+
+/// Statistical outlier filter settings.
+#[derive(Debug, Clone, Copy, Serialize, Deserialize)]
+pub struct OutlierOptions {
+    /// Neighbours in the mean distance.
+    pub k: usize,
+    /// A point is noise when its mean neighbour distance exceeds mean + n_sigma·std.
+    pub n_sigma: f64,
+}
+
+impl Default for OutlierOptions {
+    fn default() -> Self {
+        Self { k: 8, n_sigma: 3.0 }
+    }
+}
+
+/// What the outlier filter found.
+#[derive(Debug, Clone, Serialize, Deserialize)]
+pub struct OutlierReport {
+    pub k: usize,
+    pub n_sigma: f64,
+    pub mean_distance_m: f64,
+    pub std_distance_m: f64,
+    pub threshold_m: f64,
+    pub points: usize,
+    pub removed: usize,
+}
+
+/// Marks isolated points: returns `keep[i]` and the statistics. Parallel and deterministic.
+pub fn statistical_outlier_filter(
+    points: &[[f64; 3]],
+    opts: &OutlierOptions,
+) -> Result<(Vec<bool>, OutlierReport)> {
+    if opts.k < 1 || opts.n_sigma.is_nan() || opts.n_sigma <= 0.0 {
+        return Err(LidarError::InvalidOption(
+            "outlier filter needs k >= 1 and n_sigma > 0".into(),
+        ));
+    }
+    if points.len() <= opts.k {
+        return Err(LidarError::TooFewPoints {
+            what: "outlier filter".into(),
+            got: points.len(),
+            need: opts.k + 1,
+        });
+    }
+    if let Some(i) = points.iter().position(|p| !p.iter().all(|v| v.is_finite())) {
+        return Err(LidarError::NonFinite {
+            what: "outlier filter points".into(),
+            index: i,
+        });
+    }
+    let o = points[0];
+    let local: Vec<[f64; 3]> = points
+        .iter()
+        .map(|p| [p[0] - o[0], p[1] - o[1], p[2] - o[2]])
+        .collect();
+    let tree = ImmutableKdTree::new_from_slice(&local);
+    let k1 = NonZero::new(opts.k + 1).expect("k + 1 > 0");
+    let mean_d: Vec<f64> = local
+        .par_iter()
+        .map(|p| {
+            let nn = tree.nearest_n::<SquaredEuclidean>(p, k1);
+            // The query point itself is among the neighbours at distance 0; drop one zero.
+            let s: f64 = nn.iter().map(|n| n.distance.sqrt()).sum();
+            s / (nn.len().saturating_sub(1)).max(1) as f64
+        })
+        .collect();
+    let n = mean_d.len() as f64;
+    let mean = mean_d.iter().sum::<f64>() / n;
+    let std = (mean_d.iter().map(|d| (d - mean).powi(2)).sum::<f64>() / n).sqrt();
+    let threshold = mean + opts.n_sigma * std;
+    let keep: Vec<bool> = mean_d.iter().map(|&d| d <= threshold).collect();
+    let removed = keep.iter().filter(|k| !**k).count();
+    Ok((
+        keep,
+        OutlierReport {
+            k: opts.k,
+            n_sigma: opts.n_sigma,
+            mean_distance_m: mean,
+            std_distance_m: std,
+            threshold_m: threshold,
+            points: points.len(),
+            removed,
+        },
+    ))
+}
+
+/// Which offset each strip gets.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize)]
+#[serde(rename_all = "lowercase")]
+pub enum OffsetModel {
+    /// A height offset per strip (seen through any non-vertical plane).
+    Vertical,
+    /// A 3-D shift per strip (needs planes of several orientations: roofs, slopes).
+    Translation,
+}
+
+#[derive(Debug, Clone, Copy)]
+pub struct StripOffsetOptions {
+    pub model: OffsetModel,
+    /// Strip held fixed (offset 0); default: the strip with the most points.
+    pub reference: Option<u16>,
+    /// Sample points per ordered strip pair (evenly strided).
+    pub max_samples_per_pair: usize,
+    pub plane: PlaneOptions,
+    /// Point-to-plane distances beyond this (m) are not the same surface.
+    pub max_distance: f64,
+    /// Pairs with fewer accepted observations are ignored.
+    pub min_observations: usize,
+}
+
+impl Default for StripOffsetOptions {
+    fn default() -> Self {
+        Self {
+            model: OffsetModel::Vertical,
+            reference: None,
+            max_samples_per_pair: 20_000,
+            plane: PlaneOptions {
+                k: 10,
+                max_coplanarity: 0.01,
+                max_radius: 3.0,
+            },
+            max_distance: 2.0,
+            min_observations: 50,
+        }
+    }
+}
+
+/// Offset of one strip: observed = true + offset, so the correction subtracts it.
+#[derive(Debug, Clone, Serialize, Deserialize)]
+pub struct StripOffset {
+    pub source_id: u16,
+    pub points: usize,
+    pub offset_m: [f64; 3],
+    pub sigma_m: [f64; 3],
+}
+
+/// Statistics of one ordered strip pair (points of `a` against planes of `b`).
+#[derive(Debug, Clone, Serialize, Deserialize)]
+pub struct PairStats {
+    pub a: u16,
+    pub b: u16,
+    pub observations: usize,
+    /// Median point-to-plane distance before correction (m).
+    pub median_distance_m: f64,
+    /// RMS of the distances after the adjustment (m).
+    pub rms_after_m: f64,
+}
+
+#[derive(Debug, Clone, Serialize, Deserialize)]
+pub struct StripOffsetReport {
+    pub model: OffsetModel,
+    pub reference: u16,
+    pub strips: Vec<StripOffset>,
+    pub pairs: Vec<PairStats>,
+    pub sigma0_m: f64,
+}
+
+impl StripOffsetReport {
+    pub fn offset_of(&self, id: u16) -> Option<[f64; 3]> {
+        self.strips
+            .iter()
+            .find(|s| s.source_id == id)
+            .map(|s| s.offset_m)
+    }
+}
+
+struct Obs {
+    a: usize,
+    b: usize,
+    n: Vector3<f64>,
+    r: f64,
+}
+
+/// Estimates per-strip offsets from overlapping planar surfaces by least squares over all
+/// strip pairs, relative to a reference strip. `xyz` and `source` are parallel arrays
+/// (noise should be removed first).
+pub fn estimate_strip_offsets(
+    xyz: &[[f64; 3]],
+    source: &[u16],
+    opts: &StripOffsetOptions,
+) -> Result<StripOffsetReport> {
+    if xyz.len() != source.len() {
+        return Err(LidarError::InvalidOption(format!(
+            "{} points but {} point source ids",
+            xyz.len(),
+            source.len()
+        )));
+    }
+    if opts.max_distance.is_nan() || opts.max_distance <= 0.0 || opts.max_samples_per_pair == 0 {
+        return Err(LidarError::InvalidOption(
+            "max_distance must be positive and max_samples_per_pair at least 1".into(),
+        ));
+    }
+    let mut by_strip: BTreeMap<u16, Vec<[f64; 3]>> = BTreeMap::new();
+    for (p, &s) in xyz.iter().zip(source) {
+        by_strip.entry(s).or_default().push(*p);
+    }
+    let ids: Vec<u16> = by_strip.keys().copied().collect();
+    if ids.len() < 2 {
+        return Err(LidarError::data(
+            "strip offsets",
+            format!(
+                "need at least two point source ids (strips), found {}",
+                ids.len()
+            ),
+        ));
+    }
+    let reference = match opts.reference {
+        Some(r) if by_strip.contains_key(&r) => r,
+        Some(r) => {
+            return Err(LidarError::InvalidOption(format!(
+                "reference strip {r} has no point (strips: {ids:?})"
+            )))
+        }
+        None => {
+            *by_strip
+                .iter()
+                .max_by_key(|(id, p)| (p.len(), std::cmp::Reverse(**id)))
+                .expect("two strips")
+                .0
+        }
+    };
+    let o = xyz[0];
+    let origin = Vector3::new(o[0], o[1], o[2]);
+    let bbox = |pts: &[[f64; 3]]| super::store::Bbox::of_points(pts, 0.0).expect("non-empty strip");
+    let mut indices = Vec::with_capacity(ids.len());
+    for id in &ids {
+        let pts = &by_strip[id];
+        let idx = if pts.len() >= opts.plane.k {
+            Some(PlaneIndex::new(pts, origin, opts.plane)?)
+        } else {
+            None
+        };
+        indices.push(idx);
+    }
+    let mut obs: Vec<Obs> = Vec::new();
+    let mut pair_ranges = Vec::new();
+    for (ia, a) in ids.iter().enumerate() {
+        let pa = &by_strip[a];
+        for (ib, b) in ids.iter().enumerate() {
+            let Some(index_b) = indices[ib].as_ref().filter(|_| ia != ib) else {
+                continue;
+            };
+            let bb = bbox(&by_strip[b]);
+            if !bbox(pa).intersects(&bb) {
+                continue;
+            }
+            let inside: Vec<&[f64; 3]> = pa.iter().filter(|p| bb.contains(p[0], p[1])).collect();
+            if inside.is_empty() {
+                continue;
+            }
+            let stride = inside.len().div_ceil(opts.max_samples_per_pair);
+            let radius = opts.plane.max_radius;
+            let found: Vec<(Vector3<f64>, f64)> = inside
+                .par_iter()
+                .step_by(stride)
+                .filter_map(|p| {
+                    let q = Vector3::new(p[0], p[1], p[2]) - origin;
+                    let pl = index_b.plane_at(&q)?;
+                    let d = q - pl.centroid;
+                    let r = pl.normal.dot(&d);
+                    let tangential = (d - r * pl.normal).norm();
+                    (tangential <= radius && r.abs() <= opts.max_distance).then_some((pl.normal, r))
+                })
+                .collect();
+            if found.len() < opts.min_observations {
+                continue;
+            }
+            // Reject other surfaces (changed objects, edges) around the pair's median.
+            let mut rs: Vec<f64> = found.iter().map(|f| f.1).collect();
+            rs.sort_by(|x, y| x.total_cmp(y));
+            let med = rs[rs.len() / 2];
+            let mut dev: Vec<f64> = rs.iter().map(|r| (r - med).abs()).collect();
+            dev.sort_by(|x, y| x.total_cmp(y));
+            let cut = 3.0 * 1.4826 * dev[dev.len() / 2] + 1e-3;
+            let start = obs.len();
+            for (n, r) in found {
+                if (r - med).abs() <= cut {
+                    obs.push(Obs { a: ia, b: ib, n, r });
+                }
+            }
+            if obs.len() - start < opts.min_observations {
+                obs.truncate(start);
+                continue;
+            }
+            pair_ranges.push((ia, ib, start, obs.len(), med));
+        }
+    }
+    let dims = if opts.model == OffsetModel::Vertical {
+        1
+    } else {
+        3
+    };
+    let iref = ids
+        .iter()
+        .position(|&i| i == reference)
+        .expect("reference is a strip");
+    // Unknown column of strip s (None for the reference).
+    let col = |s: usize| -> Option<usize> {
+        if s == iref {
+            None
+        } else {
+            Some(if s < iref { s } else { s - 1 } * dims)
+        }
+    };
+    let nu = (ids.len() - 1) * dims;
+    let mut nmat = DMatrix::<f64>::zeros(nu, nu);
+    let mut rhs = DVector::<f64>::zeros(nu);
+    let coeffs = |o: &Obs| -> [f64; 3] {
+        if dims == 1 {
+            [o.n.z, 0.0, 0.0]
+        } else {
+            [o.n.x, o.n.y, o.n.z]
+        }
+    };
+    for o in &obs {
+        let c = coeffs(o);
+        // r = c·(t_a − t_b)
+        let terms: [(Option<usize>, f64); 2] = [(col(o.a), 1.0), (col(o.b), -1.0)];
+        for (ci, si) in terms {
+            let Some(ci) = ci else { continue };
+            for (cj, sj) in terms {
+                let Some(cj) = cj else { continue };
+                for u in 0..dims {
+                    for v in 0..dims {
+                        nmat[(ci + u, cj + v)] += si * sj * c[u] * c[v];
+                    }
+                }
+            }
+            for u in 0..dims {
+                rhs[ci + u] += si * c[u] * o.r;
+            }
+        }
+    }
+    let unconnected: Vec<u16> = (0..ids.len())
+        .filter(|&s| s != iref && !obs.iter().any(|o| o.a == s || o.b == s))
+        .map(|s| ids[s])
+        .collect();
+    if !unconnected.is_empty() {
+        return Err(LidarError::data(
+            "strip offsets",
+            format!("strips {unconnected:?} share no planar overlap with another strip"),
+        ));
+    }
+    let chol = nmat.clone().cholesky().ok_or_else(|| {
+        LidarError::data(
+            "strip offsets",
+            "the strips are not all connected to the reference by planar overlap, or the planes lack the orientations a 3-D offset needs",
+        )
+    })?;
+    let x = chol.solve(&rhs);
+    let offset = |s: usize| -> Vector3<f64> {
+        match col(s) {
+            None => Vector3::zeros(),
+            Some(c) if dims == 1 => Vector3::new(0.0, 0.0, x[c]),
+            Some(c) => Vector3::new(x[c], x[c + 1], x[c + 2]),
+        }
+    };
+    let resid = |o: &Obs| -> f64 {
+        let d = offset(o.a) - offset(o.b);
+        let c = coeffs(o);
+        o.r - (c[0] * d[if dims == 1 { 2 } else { 0 }] + c[1] * d[1] + c[2] * d[2])
+    };
+    let ssr: f64 = obs.iter().map(|o| resid(o).powi(2)).sum();
+    let redundancy = (obs.len() as f64 - nu as f64).max(1.0);
+    let sigma0 = (ssr / redundancy).sqrt();
+    let cov = chol.inverse() * sigma0 * sigma0;
+    let strips = ids
+        .iter()
+        .enumerate()
+        .map(|(s, &id)| {
+            let mut sigma = [0.0; 3];
+            if let Some(c) = col(s) {
+                if dims == 1 {
+                    sigma[2] = cov[(c, c)].sqrt();
+                } else {
+                    for u in 0..3 {
+                        sigma[u] = cov[(c + u, c + u)].sqrt();
+                    }
+                }
+            }
+            let t = offset(s);
+            StripOffset {
+                source_id: id,
+                points: by_strip[&id].len(),
+                offset_m: [t.x, t.y, t.z],
+                sigma_m: sigma,
+            }
+        })
+        .collect();
+    let pairs = pair_ranges
+        .iter()
+        .map(|&(a, b, s, e, med)| PairStats {
+            a: ids[a],
+            b: ids[b],
+            observations: e - s,
+            median_distance_m: med,
+            rms_after_m: (obs[s..e].iter().map(|o| resid(o).powi(2)).sum::<f64>() / (e - s) as f64)
+                .sqrt(),
+        })
+        .collect();
+    Ok(StripOffsetReport {
+        model: opts.model,
+        reference,
+        strips,
+        pairs,
+        sigma0_m: sigma0,
+    })
+}
+
+/// Removes the estimated offsets from the points (strips without an estimate stay).
+pub fn apply_strip_offsets(xyz: &mut [[f64; 3]], source: &[u16], report: &StripOffsetReport) {
+    let map: BTreeMap<u16, [f64; 3]> = report
+        .strips
+        .iter()
+        .map(|s| (s.source_id, s.offset_m))
+        .collect();
+    for (p, s) in xyz.iter_mut().zip(source) {
+        if let Some(t) = map.get(s) {
+            for k in 0..3 {
+                p[k] -= t[k];
+            }
+        }
+    }
+}
+
+/// Settings of a file-to-file cleaning run.
+#[derive(Debug, Clone)]
+pub struct CleanOptions {
+    /// Noise filter (per tile); None skips it.
+    pub outliers: Option<OutlierOptions>,
+    /// Strip offset estimation over all tiles; None skips it.
+    pub strips: Option<StripOffsetOptions>,
+    /// Drop noise points instead of classifying them `noise_class`.
+    pub drop_noise: bool,
+    /// ASPRS class given to noise points (7 = low point / noise).
+    pub noise_class: u8,
+    /// Points sampled (evenly) over all tiles for the strip offset estimation.
+    pub max_points_for_offsets: usize,
+    /// Classes left out of the filter and the estimation (already flagged noise).
+    pub skip_classes: Vec<u8>,
+}
+
+impl Default for CleanOptions {
+    fn default() -> Self {
+        Self {
+            outliers: Some(OutlierOptions::default()),
+            strips: Some(StripOffsetOptions::default()),
+            drop_noise: false,
+            noise_class: 7,
+            max_points_for_offsets: 20_000_000,
+            skip_classes: vec![7, 18],
+        }
+    }
+}
+
+#[derive(Debug, Clone, Serialize, Deserialize)]
+pub struct TileCleanReport {
+    pub file: std::path::PathBuf,
+    pub output: std::path::PathBuf,
+    pub points: u64,
+    pub noise: u64,
+    pub written: u64,
+    pub outliers: Option<OutlierReport>,
+}
+
+#[derive(Debug, Clone, Serialize, Deserialize)]
+pub struct CleanReport {
+    pub strip_offsets: Option<StripOffsetReport>,
+    pub tiles: Vec<TileCleanReport>,
+}
+
+/// Cleans every tile of a catalogue into `out_dir` (same file names and formats): noise
+/// points are classified (or dropped) and strip offsets removed. Tiles are processed one
+/// at a time; only a sample of all tiles is held for the offset estimation.
+pub fn clean_tiles(
+    catalogue: &super::catalogue::Catalogue,
+    out_dir: &std::path::Path,
+    opts: &CleanOptions,
+) -> Result<CleanReport> {
+    use super::las::{read_points, rewrite_las};
+    let mut outputs = Vec::new();
+    for t in &catalogue.tiles {
+        let name = t
+            .file
+            .file_name()
+            .ok_or_else(|| LidarError::data(t.file.display().to_string(), "no file name"))?;
+        let out = out_dir.join(name);
+        let same = match (t.file.canonicalize(), out.canonicalize()) {
+            (Ok(a), Ok(b)) => a == b,
+            _ => false,
+        };
+        if same {
+            return Err(LidarError::InvalidOption(format!(
+                "output {} would overwrite its input; choose another folder",
+                out.display()
+            )));
+        }
+        outputs.push(out);
+    }
+    let total: u64 = catalogue.tiles.iter().map(|t| t.point_count).sum();
+    let stride = (total as usize)
+        .div_ceil(opts.max_points_for_offsets.max(1))
+        .max(1);
+    let mut masks = Vec::with_capacity(catalogue.tiles.len());
+    let mut reports = Vec::with_capacity(catalogue.tiles.len());
+    let (mut sample_xyz, mut sample_src) = (Vec::new(), Vec::new());
+    for t in &catalogue.tiles {
+        let pts = read_points(&t.file, None, None)?;
+        let usable: Vec<bool> = pts
+            .class
+            .iter()
+            .map(|c| !opts.skip_classes.contains(c))
+            .collect();
+        let idx: Vec<usize> = (0..pts.len()).filter(|&i| usable[i]).collect();
+        let mut noise = vec![false; pts.len()];
+        let mut rep = None;
+        if let Some(o) = &opts.outliers {
+            if idx.len() > o.k {
+                let sub: Vec<[f64; 3]> = idx.iter().map(|&i| pts.xyz[i]).collect();
+                let (keep, r) = statistical_outlier_filter(&sub, o)?;
+                for (j, &i) in idx.iter().enumerate() {
+                    noise[i] = !keep[j];
+                }
+                rep = Some(r);
+            }
+        }
+        for (n, &i) in idx.iter().enumerate() {
+            if n % stride == 0 && !noise[i] {
+                sample_xyz.push(pts.xyz[i]);
+                sample_src.push(pts.source[i]);
+            }
+        }
+        masks.push(noise);
+        reports.push(rep);
+    }
+    let strip_offsets = match &opts.strips {
+        Some(so) => Some(estimate_strip_offsets(&sample_xyz, &sample_src, so)?),
+        None => None,
+    };
+    drop((sample_xyz, sample_src));
+    let offsets: BTreeMap<u16, [f64; 3]> = strip_offsets
+        .as_ref()
+        .map(|r| r.strips.iter().map(|s| (s.source_id, s.offset_m)).collect())
+        .unwrap_or_default();
+    let mut tiles = Vec::with_capacity(catalogue.tiles.len());
+    for (((t, out), noise), rep) in catalogue
+        .tiles
+        .iter()
+        .zip(&outputs)
+        .zip(&masks)
+        .zip(reports)
+    {
+        let mut n_noise = 0u64;
+        let written = rewrite_las(&t.file, out, |i, mut p| {
+            if noise.get(i as usize).copied().unwrap_or(false) {
+                n_noise += 1;
+                if opts.drop_noise {
+                    return None;
+                }
+                p.classification = las::point::Classification::new(opts.noise_class)
+                    .unwrap_or(las::point::Classification::LowPoint);
+            }
+            if let Some(o) = offsets.get(&p.point_source_id) {
+                p.x -= o[0];
+                p.y -= o[1];
+                p.z -= o[2];
+            }
+            Some(p)
+        })?;
+        tiles.push(TileCleanReport {
+            file: t.file.clone(),
+            output: out.clone(),
+            points: t.point_count,
+            noise: n_noise,
+            written,
+            outliers: rep,
+        });
+    }
+    Ok(CleanReport {
+        strip_offsets,
+        tiles,
+    })
+}

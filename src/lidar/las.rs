@@ -1,0 +1,505 @@
+//! LAS 1.2–1.4 / LAZ ingestion through the `las` crate: header checks, the CRS from the
+//! WKT or GeoTIFF-keys VLR, and streaming reads in batches so a tile never has to fit in
+//! memory twice.
+//!
+//! Uncompressed LAS is decoded straight from the point records (the `las` crate parses the
+//! header and VLRs; coordinates, class, point source id and GPS time are read from their
+//! fixed offsets), which is several times faster than building a full `las::Point` per
+//! record. LAZ goes through `las::Reader` (laz-rs).
+
+use super::{LidarError, Result};
+use crate::formats::crs::Crs;
+use serde::{Deserialize, Serialize};
+use std::fs::File;
+use std::io::{BufReader, Read};
+use std::path::{Path, PathBuf};
+
+/// Header facts of one LAS/LAZ file.
+#[derive(Debug, Clone, Serialize, Deserialize)]
+pub struct LasInfo {
+    pub file: PathBuf,
+    /// "1.2", "1.4", ...
+    pub version: String,
+    pub point_format: u8,
+    pub compressed: bool,
+    /// Point count declared by the header.
+    pub point_count: u64,
+    /// Header bounds [min_x, min_y, min_z, max_x, max_y, max_z].
+    pub header_bounds: [f64; 6],
+    pub scale: [f64; 3],
+    pub offset: [f64; 3],
+    /// CRS as WKT (from the WKT VLR, or the EPSG code of the GeoTIFF keys), if any.
+    pub crs_wkt: Option<String>,
+    /// `EPSG:n` or the CRS name.
+    pub crs_label: Option<String>,
+    /// Whether GPS times are adjusted standard GPS time (else GPS week seconds).
+    pub gps_standard_time: bool,
+    pub has_gps_time: bool,
+    /// File creation date from the header (ISO 8601), if set.
+    pub creation_date: Option<String>,
+    pub file_source_id: u16,
+}
+
+/// Points of one read, structure of arrays.
+#[derive(Debug, Clone, Default)]
+pub struct PointBatch {
+    pub xyz: Vec<[f64; 3]>,
+    pub class: Vec<u8>,
+    pub source: Vec<u16>,
+    /// NaN where the point format carries no GPS time.
+    pub gps_time: Vec<f64>,
+}
+
+impl PointBatch {
+    pub fn len(&self) -> usize {
+        self.xyz.len()
+    }
+    pub fn is_empty(&self) -> bool {
+        self.xyz.is_empty()
+    }
+    pub fn with_capacity(n: usize) -> Self {
+        Self {
+            xyz: Vec::with_capacity(n),
+            class: Vec::with_capacity(n),
+            source: Vec::with_capacity(n),
+            gps_time: Vec::with_capacity(n),
+        }
+    }
+    pub fn push(&mut self, xyz: [f64; 3], class: u8, source: u16, gps: f64) {
+        self.xyz.push(xyz);
+        self.class.push(class);
+        self.source.push(source);
+        self.gps_time.push(gps);
+    }
+    pub fn append(&mut self, other: &mut PointBatch) {
+        self.xyz.append(&mut other.xyz);
+        self.class.append(&mut other.class);
+        self.source.append(&mut other.source);
+        self.gps_time.append(&mut other.gps_time);
+    }
+    /// Keeps the points where `keep` is true.
+    pub fn retain_mask(&mut self, keep: &[bool]) {
+        fn r<T>(v: &mut Vec<T>, keep: &[bool]) {
+            let mut i = 0;
+            v.retain(|_| {
+                i += 1;
+                keep[i - 1]
+            });
+        }
+        r(&mut self.xyz, keep);
+        r(&mut self.class, keep);
+        r(&mut self.source, keep);
+        r(&mut self.gps_time, keep);
+    }
+    /// Bytes held per point (for memory budgets).
+    pub const BYTES_PER_POINT: usize = 24 + 1 + 2 + 8;
+}
+
+/// Fixed offsets of the fields we read in an uncompressed point record.
+#[derive(Debug, Clone, Copy)]
+struct Layout {
+    len: usize,
+    class_at: usize,
+    class_mask: u8,
+    source_at: usize,
+    gps_at: Option<usize>,
+}
+
+impl Layout {
+    fn of(format: u8, len: usize) -> Option<Self> {
+        let (class_at, class_mask, source_at, gps_at, min_len) = match format {
+            0 => (15, 0x1f, 18, None, 20),
+            1 => (15, 0x1f, 18, Some(20), 28),
+            2 => (15, 0x1f, 18, None, 26),
+            3..=5 => (15, 0x1f, 18, Some(20), 28),
+            6..=10 => (16, 0xff, 20, Some(22), 30),
+            _ => return None,
+        };
+        (len >= min_len).then_some(Self {
+            len,
+            class_at,
+            class_mask,
+            source_at,
+            gps_at,
+        })
+    }
+}
+
+enum Inner {
+    Raw {
+        file: BufReader<File>,
+        layout: Layout,
+        buf: Vec<u8>,
+    },
+    Laz(Box<las::Reader>),
+}
+
+/// A streaming reader of one LAS/LAZ file.
+pub struct LasStream {
+    info: LasInfo,
+    inner: Inner,
+    read: u64,
+}
+
+fn las_err(path: &Path, e: las::Error) -> LidarError {
+    let message = match &e {
+        las::Error::LaszipNotEnabled => {
+            "LAZ (compressed) point data, but this build has no LAZ support (enable the `laz` feature of the las crate)".to_string()
+        }
+        las::Error::InvalidFileSignature(_) => format!("not a LAS/LAZ file ({e})"),
+        las::Error::Io(io) if io.kind() == std::io::ErrorKind::UnexpectedEof => {
+            "truncated: the file ends inside the header or VLRs".to_string()
+        }
+        _ => format!("cannot read LAS/LAZ: {e}"),
+    };
+    LidarError::Las {
+        path: path.to_path_buf(),
+        message,
+    }
+}
+
+/// Extracts the CRS of a header: the WKT VLR first, else the EPSG code of the GeoTIFF keys.
+fn header_crs(path: &Path, header: &las::Header) -> Result<Option<Crs>> {
+    let crs_err = |message: String| LidarError::Crs {
+        path: path.to_path_buf(),
+        message,
+    };
+    if let Some(bytes) = header.get_wkt_crs_bytes() {
+        let wkt = String::from_utf8_lossy(bytes);
+        let wkt = wkt.trim_matches(char::from(0)).trim();
+        if !wkt.is_empty() {
+            return Crs::parse(wkt)
+                .map(Some)
+                .map_err(|e| crs_err(format!("WKT VLR: {e}")));
+        }
+    }
+    let keys = header
+        .get_geotiff_crs()
+        .map_err(|e| crs_err(format!("GeoTIFF keys VLR: {e}")))?;
+    let Some(keys) = keys else {
+        return Ok(None);
+    };
+    let code = keys
+        .get_projected_crs_geo_key_value()
+        .or_else(|| keys.get_geodetic_crs_geo_key_value());
+    match code {
+        Some(c) if c > 0 && c < 32767 => Crs::from_epsg(c as u32)
+            .map(Some)
+            .map_err(|e| crs_err(format!("GeoTIFF keys VLR: EPSG:{c}: {e}"))),
+        Some(c) => Err(crs_err(format!(
+            "GeoTIFF keys VLR holds a user-defined CRS (key value {c}); add a WKT VLR"
+        ))),
+        None => Ok(None),
+    }
+}
+
+impl LasStream {
+    /// Opens a file, reads its header and VLRs and checks that the point records the
+    /// header declares are present (uncompressed LAS: from the file size).
+    pub fn open(path: &Path) -> Result<Self> {
+        let file = File::open(path).map_err(|e| LidarError::io(path, e))?;
+        let file_len = file.metadata().map_err(|e| LidarError::io(path, e))?.len();
+        let mut br = BufReader::new(file);
+        let raw = las::raw::Header::read_from(&mut br).map_err(|e| las_err(path, e))?;
+        let header = {
+            let f = File::open(path).map_err(|e| LidarError::io(path, e))?;
+            las::Header::new(BufReader::new(f)).map_err(|e| las_err(path, e))?
+        };
+        let crs = header_crs(path, &header)?;
+        let fmt = header.point_format();
+        let b = header.bounds();
+        let t = header.transforms();
+        let info = LasInfo {
+            file: path.to_path_buf(),
+            version: format!("{}.{}", header.version().major, header.version().minor),
+            point_format: fmt.to_u8().map_err(|e| las_err(path, e))?,
+            compressed: fmt.is_compressed,
+            point_count: header.number_of_points(),
+            header_bounds: [b.min.x, b.min.y, b.min.z, b.max.x, b.max.y, b.max.z],
+            scale: [t.x.scale, t.y.scale, t.z.scale],
+            offset: [t.x.offset, t.y.offset, t.z.offset],
+            crs_label: crs.as_ref().map(|c| c.label()),
+            crs_wkt: match &crs {
+                Some(c) => Some(c.to_wkt().map_err(|e| LidarError::Crs {
+                    path: path.to_path_buf(),
+                    message: e.to_string(),
+                })?),
+                None => None,
+            },
+            gps_standard_time: header.gps_time_type().is_standard(),
+            has_gps_time: fmt.has_gps_time,
+            creation_date: header.date().map(|d| d.to_string()),
+            file_source_id: header.file_source_id(),
+        };
+        let n = info.point_count;
+        let inner = if fmt.is_compressed {
+            let f = File::open(path).map_err(|e| LidarError::io(path, e))?;
+            let reader = las::Reader::new(BufReader::new(f)).map_err(|e| las_err(path, e))?;
+            Inner::Laz(Box::new(reader))
+        } else {
+            let len = raw.point_data_record_length as usize;
+            let layout = Layout::of(info.point_format, len).ok_or_else(|| LidarError::Las {
+                path: path.to_path_buf(),
+                message: format!(
+                    "point format {} with record length {len} is not supported",
+                    info.point_format
+                ),
+            })?;
+            let start = raw.offset_to_point_data as u64;
+            let end = raw
+                .evlr
+                .as_ref()
+                .map(|e| e.start_of_first_evlr)
+                .filter(|&s| s >= start)
+                .unwrap_or(file_len)
+                .min(file_len);
+            let available = end.saturating_sub(start) / len as u64;
+            if available < n {
+                return Err(LidarError::Truncated {
+                    path: path.to_path_buf(),
+                    declared: n,
+                    found: available,
+                });
+            }
+            if available > n {
+                return Err(LidarError::CountMismatch {
+                    path: path.to_path_buf(),
+                    declared: n,
+                    found: available,
+                });
+            }
+            use std::io::{Seek, SeekFrom};
+            br.seek(SeekFrom::Start(start))
+                .map_err(|e| LidarError::io(path, e))?;
+            Inner::Raw {
+                file: BufReader::with_capacity(1 << 20, br.into_inner()),
+                layout,
+                buf: Vec::new(),
+            }
+        };
+        Ok(Self {
+            info,
+            inner,
+            read: 0,
+        })
+    }
+
+    pub fn info(&self) -> &LasInfo {
+        &self.info
+    }
+
+    /// The CRS of the file, if it has one.
+    pub fn crs(&self) -> Result<Option<Crs>> {
+        match &self.info.crs_wkt {
+            None => Ok(None),
+            Some(w) => Crs::parse(w).map(Some).map_err(|e| LidarError::Crs {
+                path: self.info.file.clone(),
+                message: e.to_string(),
+            }),
+        }
+    }
+
+    /// Points not read yet.
+    pub fn remaining(&self) -> u64 {
+        self.info.point_count - self.read
+    }
+
+    /// Appends up to `max` points to `out`; returns how many were read (0 at the end).
+    pub fn read_into(&mut self, max: usize, out: &mut PointBatch) -> Result<usize> {
+        let n = (self.remaining().min(max as u64)) as usize;
+        if n == 0 {
+            return Ok(0);
+        }
+        let path = &self.info.file;
+        match &mut self.inner {
+            Inner::Raw { file, layout, buf } => {
+                buf.resize(n * layout.len, 0);
+                file.read_exact(buf).map_err(|e| {
+                    if e.kind() == std::io::ErrorKind::UnexpectedEof {
+                        LidarError::Truncated {
+                            path: path.clone(),
+                            declared: self.info.point_count,
+                            found: self.read,
+                        }
+                    } else {
+                        LidarError::io(path, e)
+                    }
+                })?;
+                let (s, o) = (self.info.scale, self.info.offset);
+                let l = *layout;
+                out.xyz.reserve(n);
+                out.class.reserve(n);
+                out.source.reserve(n);
+                out.gps_time.reserve(n);
+                for rec in buf.chunks_exact(l.len) {
+                    let i32_at = |k: usize| i32::from_le_bytes(rec[k..k + 4].try_into().unwrap());
+                    out.xyz.push([
+                        i32_at(0) as f64 * s[0] + o[0],
+                        i32_at(4) as f64 * s[1] + o[1],
+                        i32_at(8) as f64 * s[2] + o[2],
+                    ]);
+                    out.class.push(rec[l.class_at] & l.class_mask);
+                    out.source
+                        .push(u16::from_le_bytes([rec[l.source_at], rec[l.source_at + 1]]));
+                    out.gps_time.push(match l.gps_at {
+                        Some(g) => f64::from_le_bytes(rec[g..g + 8].try_into().unwrap()),
+                        None => f64::NAN,
+                    });
+                }
+            }
+            Inner::Laz(reader) => {
+                let mut pts = Vec::with_capacity(n);
+                let got =
+                    reader
+                        .read_points_into(n as u64, &mut pts)
+                        .map_err(|e| LidarError::Las {
+                            path: path.clone(),
+                            message: format!(
+                                "corrupt or truncated compressed point data after point {}: {e}",
+                                self.read
+                            ),
+                        })?;
+                if (got as usize) < n {
+                    return Err(LidarError::Truncated {
+                        path: path.clone(),
+                        declared: self.info.point_count,
+                        found: self.read + got,
+                    });
+                }
+                for p in pts {
+                    out.push(
+                        [p.x, p.y, p.z],
+                        u8::from(p.classification),
+                        p.point_source_id,
+                        p.gps_time.unwrap_or(f64::NAN),
+                    );
+                }
+            }
+        }
+        self.read += n as u64;
+        Ok(n)
+    }
+}
+
+/// Reads a whole file, keeping the points inside `bbox` ([min_x, min_y, max_x, max_y])
+/// and, when given, of the listed classes. Streams in batches so only kept points stay.
+pub fn read_points(
+    path: &Path,
+    bbox: Option<[f64; 4]>,
+    classes: Option<&[u8]>,
+) -> Result<PointBatch> {
+    let mut s = LasStream::open(path)?;
+    let keep_all = bbox.is_none() && classes.is_none();
+    let mut out = PointBatch::with_capacity(if keep_all {
+        s.info().point_count as usize
+    } else {
+        0
+    });
+    if keep_all {
+        while s.read_into(1 << 20, &mut out)? > 0 {}
+        return Ok(out);
+    }
+    let mut batch = PointBatch::with_capacity(1 << 18);
+    loop {
+        batch.xyz.clear();
+        batch.class.clear();
+        batch.source.clear();
+        batch.gps_time.clear();
+        if s.read_into(1 << 18, &mut batch)? == 0 {
+            break;
+        }
+        for i in 0..batch.len() {
+            let p = batch.xyz[i];
+            if let Some(b) = bbox {
+                if p[0] < b[0] || p[0] > b[2] || p[1] < b[1] || p[1] > b[3] {
+                    continue;
+                }
+            }
+            if let Some(c) = classes {
+                if !c.contains(&batch.class[i]) {
+                    continue;
+                }
+            }
+            out.push(p, batch.class[i], batch.source[i], batch.gps_time[i]);
+        }
+    }
+    Ok(out)
+}
+
+/// Civil date (proleptic Gregorian) of a day count from 1970-01-01 (H. Hinnant's algorithm).
+pub(crate) fn civil_from_days(z: i64) -> (i64, u32, u32) {
+    let z = z + 719_468;
+    let era = z.div_euclid(146_097);
+    let doe = z.rem_euclid(146_097);
+    let yoe = (doe - doe / 1460 + doe / 36_524 - doe / 146_096) / 365;
+    let y = yoe + era * 400;
+    let doy = doe - (365 * yoe + yoe / 4 - yoe / 100);
+    let mp = (5 * doy + 2) / 153;
+    let d = (doy - (153 * mp + 2) / 5 + 1) as u32;
+    let m = if mp < 10 { mp + 3 } else { mp - 9 } as u32;
+    (if m <= 2 { y + 1 } else { y }, m, d)
+}
+
+/// UTC date (ISO 8601) of an adjusted standard GPS time (GPS seconds − 10⁹). Leap
+/// seconds (≤ 18 s) are ignored: this is an acquisition date, not a timestamp.
+pub fn date_of_standard_gps_time(t: f64) -> Option<String> {
+    if !t.is_finite() {
+        return None;
+    }
+    // GPS epoch 1980-01-06 is day 3657 after 1970-01-01.
+    let secs = t + 1e9;
+    let days = 3657 + (secs / 86_400.0).floor() as i64;
+    let (y, m, d) = civil_from_days(days);
+    Some(format!("{y:04}-{m:02}-{d:02}"))
+}
+
+/// Rewrites a LAS/LAZ file point by point: `edit` returns the point to write (changed or
+/// not) or None to drop it. Header, VLRs, point format and compression are kept; bounds and
+/// counts are recomputed. The output appears atomically.
+pub fn rewrite_las(
+    input: &Path,
+    output: &Path,
+    mut edit: impl FnMut(u64, las::Point) -> Option<las::Point>,
+) -> Result<u64> {
+    let f = File::open(input).map_err(|e| LidarError::io(input, e))?;
+    let mut reader = las::Reader::new(BufReader::new(f)).map_err(|e| las_err(input, e))?;
+    let mut builder = las::Builder::from(reader.header().clone());
+    // The LAZ writer adds its own laszip VLR.
+    builder.vlrs.retain(|v| v.user_id != "laszip encoded");
+    let header = builder.into_header().map_err(|e| las_err(input, e))?;
+    let written = crate::formats::write_atomically(output, |tmp| {
+        let fail = |m: String| crate::formats::FormatError::invalid(output, m);
+        let out = File::create(tmp).map_err(|e| crate::formats::FormatError::io(output, e))?;
+        let mut w = las::Writer::new(std::io::BufWriter::new(out), header)
+            .map_err(|e| fail(format!("cannot write LAS: {e}")))?;
+        let mut n = 0u64;
+        for (i, p) in reader.points().enumerate() {
+            let p = p.map_err(|e| fail(format!("reading {}: point {i}: {e}", input.display())))?;
+            if let Some(q) = edit(i as u64, p) {
+                w.write_point(q)
+                    .map_err(|e| fail(format!("cannot write point {i}: {e}")))?;
+                n += 1;
+            }
+        }
+        w.close()
+            .map_err(|e| fail(format!("cannot finish LAS: {e}")))?;
+        Ok(n)
+    })?;
+    Ok(written)
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn gps_dates() {
+        assert_eq!(civil_from_days(0), (1970, 1, 1));
+        assert_eq!(date_of_standard_gps_time(-1e9).unwrap(), "1980-01-06");
+        // 2020-01-01T00:00:00 UTC is GPS second 1_261_872_018 (18 leap seconds).
+        assert_eq!(
+            date_of_standard_gps_time(1_261_872_000.0 - 1e9 + 3600.0).unwrap(),
+            "2020-01-01"
+        );
+    }
+}
