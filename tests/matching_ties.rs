@@ -417,3 +417,119 @@ fn block_ties_from_approximate_orientation() {
         }
     }
 }
+
+/// A photo turned by 35° about its axis against its neighbour (a crab angle or a cross
+/// strip): NCC alone is not rotation invariant, so the guided search resamples each
+/// template into the other photo's geometry from the approximate orientation.
+#[test]
+fn oriented_ties_handle_a_rotated_photo() {
+    use cloudcontrol::matching::{oriented_tie_points, BlockTieOptions, OrientedPhoto, Surface};
+
+    let s = scene();
+    let turn = rotation_from_vector(&Vector3::new(0.0, 0.0, 35f64.to_radians()));
+    let rotated = Pose::new(turn * s.poses[1].rotation, s.poses[1].center);
+    let tex = ground_texture();
+    let img1 = GreyImage::from_fn(W, H, |x, y| {
+        back_project(&s.camera, &rotated, [x, y])
+            .and_then(|ray| s.dem.intersect(&ray))
+            .map(|p| tex(p.x, p.y))
+            .unwrap_or(0.0)
+    });
+    let off = rotation_from_vector(&Vector3::new(0.004, -0.006, 0.005));
+    let photos = [
+        OrientedPhoto {
+            image: &s.photos[0],
+            camera: &s.camera,
+            pose: Pose::new(
+                off * s.poses[0].rotation,
+                s.poses[0].center + Vector3::new(1.5, -2.0, 1.0),
+            ),
+            center_sigma_m: 2.0,
+            angle_sigma_rad: 0.5f64.to_radians(),
+        },
+        OrientedPhoto {
+            image: &img1,
+            camera: &s.camera,
+            pose: Pose::new(off.transpose() * rotated.rotation, rotated.center),
+            center_sigma_m: 2.0,
+            angle_sigma_rad: 0.5f64.to_radians(),
+        },
+    ];
+    let surface = Surface::Dem {
+        dem: &s.dem,
+        origin: Vector3::zeros(),
+        sigma_m: 1.0,
+    };
+    let r = oriented_tie_points(&photos, &[1, 2], &surface, &BlockTieOptions::default()).unwrap();
+    assert_eq!(r.matches.len(), 1, "{:?}", r.reports);
+    let pm = &r.matches[0];
+    let (mut good, mut total) = (0, 0);
+    for c in pm.accepted() {
+        let x = s
+            .dem
+            .intersect(&back_project(&s.camera, &s.poses[0], c.a).unwrap())
+            .unwrap();
+        let q = project(&s.camera, &rotated, &x).unwrap().pixel;
+        total += 1;
+        good += ((q.x - c.b[0]).hypot(q.y - c.b[1]) <= 1.0) as usize;
+    }
+    eprintln!("rotated photo: {good}/{total} within 1 px; {:?}", r.reports);
+    assert!(total >= 40 && good as f64 >= 0.95 * total as f64);
+}
+
+/// Bad input on the guided path: an image that does not fit its camera and an unknown
+/// photo are clear errors; a textureless photo gives pairs skipped with their reason.
+#[test]
+fn block_ties_bad_input() {
+    use cloudcontrol::block::{Block, BlockCamera, Photo};
+    use cloudcontrol::matching::{block_tie_points, BlockTieOptions, Surface};
+    use std::collections::BTreeMap;
+
+    let s = scene();
+    let mut block = Block::new();
+    block.cameras.insert(
+        1,
+        BlockCamera {
+            id: 1,
+            name: "c".into(),
+            model: s.camera.clone(),
+            free_params: vec![],
+        },
+    );
+    for k in 0..2u32 {
+        block.photos.insert(
+            k + 1,
+            Photo {
+                id: k + 1,
+                name: format!("{k}"),
+                camera: 1,
+                pose: s.poses[k as usize],
+                oriented: false,
+                prior: None,
+                date: None,
+            },
+        );
+    }
+    let surface = Surface::Plane {
+        height: 100.0,
+        sigma_m: 20.0,
+    };
+    let opts = BlockTieOptions::default();
+    let mut images = BTreeMap::new();
+    images.insert(1, s.photos[0].clone());
+    images.insert(2, s.photos[1].crop(0, 0, W - 10, H).unwrap());
+    let e = block_tie_points(&mut block.clone(), &images, &surface, 1, &opts).unwrap_err();
+    assert!(e.to_string().contains("camera is 360×280"), "{e}");
+    images.insert(2, GreyImage::filled(W, H, 90.0));
+    let r = block_tie_points(&mut block.clone(), &images, &surface, 1, &opts).unwrap();
+    assert_eq!(r.points_added, 0);
+    let skipped = r.pairs[0].skipped.as_deref().unwrap();
+    assert!(skipped.contains("candidates"), "{skipped}");
+    images.insert(7, s.photos[2].clone());
+    let e = block_tie_points(&mut block.clone(), &images, &surface, 1, &opts).unwrap_err();
+    assert!(e.to_string().contains("photo 7"), "{e}");
+    images.clear();
+    images.insert(1, s.photos[0].clone());
+    let e = block_tie_points(&mut block, &images, &surface, 1, &opts).unwrap_err();
+    assert!(e.to_string().contains("at least 2"), "{e}");
+}
