@@ -364,11 +364,20 @@ pub fn oriented_tie_points(
                 .collect()
         })
         .collect();
+    // Ground footprints (centre and radius) screen the pairs cheaply, so that a block of
+    // thousands of photos does not transfer a grid for every one of its n² pairs.
+    let footprints: Vec<Option<(Vector3<f64>, f64)>> =
+        photos.par_iter().map(|p| footprint(p, surface)).collect();
     let mut pairs = Vec::new();
     let mut matches = Vec::new();
     let mut reports = Vec::new();
     for ia in 0..photos.len() {
         for ib in ia + 1..photos.len() {
+            if let (Some((ca, ra)), Some((cb, rb))) = (footprints[ia], footprints[ib]) {
+                if (ca.xy() - cb.xy()).norm() > ra + rb {
+                    continue;
+                }
+            }
             let Some(pair) = predict_oriented_pair(photos, ia, ib, surface, opts) else {
                 continue;
             };
@@ -449,6 +458,24 @@ pub fn oriented_tie_points(
         tracks,
         coverage,
     })
+}
+
+/// Ground centre of a photo and the radius that contains its footprint (image centre and
+/// corners carried onto the surface); `None` when a ray misses the surface (the pair is
+/// then judged by the grid transfer alone).
+fn footprint(p: &OrientedPhoto, surface: &Surface) -> Option<(Vector3<f64>, f64)> {
+    let (w, h) = (p.image.width as f64, p.image.height as f64);
+    let ground = |q: [f64; 2]| {
+        back_project(p.camera, &p.pose, q)
+            .ok()
+            .and_then(|r| surface.intersect(&r))
+    };
+    let c = ground([w / 2.0, h / 2.0])?;
+    let mut r: f64 = 0.0;
+    for q in [[0.0, 0.0], [w, 0.0], [0.0, h], [w, h]] {
+        r = r.max((ground(q)?.xy() - c.xy()).norm());
+    }
+    Some((c, r))
 }
 
 /// Least-squares intersection of the observation rays (the point nearest to all of
