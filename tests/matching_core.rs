@@ -410,3 +410,24 @@ fn bicubic_gradient_is_the_derivative_of_the_interpolant() {
     assert!(bicubic_with_gradient(&img, 1.2, 20.0).is_none());
     assert!(bicubic_with_gradient(&img, f64::NAN, 20.0).is_none());
 }
+
+/// Large FFT correlations run their passes on the rayon pool; called from inside an outer
+/// parallel loop (as tie matching does), a thread that steals a second correlation while
+/// waiting must not trip over its own reusable buffers. (Stealing is timing-dependent:
+/// this exercises the nesting, it cannot force it.)
+#[test]
+fn nested_parallel_fft_correlations() {
+    use cloudcontrol::matching::ncc::{ncc_surface_with, CorrelationMethod};
+    use rayon::prelude::*;
+    let img = GreyImage::from_fn(300, 280, texture(21));
+    let tpl = img.crop(120, 100, 41, 41).unwrap();
+    let reference =
+        ncc_surface_with(&img, &tpl, Window::whole(&img), CorrelationMethod::Fft).unwrap();
+    let all: Vec<_> = (0..16)
+        .into_par_iter()
+        .map(|_| ncc_surface_with(&img, &tpl, Window::whole(&img), CorrelationMethod::Fft).unwrap())
+        .collect();
+    for s in all {
+        assert_eq!(s.values, reference.values);
+    }
+}

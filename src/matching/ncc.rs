@@ -391,95 +391,108 @@ fn fft_rows(
 /// the sh output rows. The circular correlation equals the linear one on the valid
 /// positions because the template never wraps there.
 fn correlate_fft(win: &WinView, t: &[f32], tw: usize, th: usize, out: &mut [f32]) {
+    // While this thread waits inside a parallel FFT pass, rayon may hand it another
+    // correlation (work stealing from an outer parallel loop); the buffers are then in
+    // use, and that nested call works with fresh ones instead.
+    FFT_WORK.with(|w| match w.try_borrow_mut() {
+        Ok(mut guard) => correlate_fft_with(&mut guard, win, t, tw, th, out),
+        Err(_) => correlate_fft_with(&mut FftWork::default(), win, t, tw, th, out),
+    });
+}
+
+fn correlate_fft_with(
+    work: &mut FftWork,
+    win: &WinView,
+    t: &[f32],
+    tw: usize,
+    th: usize,
+    out: &mut [f32],
+) {
     let (ww, wh) = (win.width, win.height);
     let (sw, sh) = (ww + 1 - tw, wh + 1 - th);
     let (nw, nh) = (fast_len(ww), fast_len(wh));
     let parallel = nw * nh >= 160 * 160 && rayon::current_num_threads() > 1;
-    FFT_WORK.with(|w| {
-        let mut guard = w.borrow_mut();
-        let work = &mut *guard;
-        let planner = work.planner.get_or_insert_with(FftPlanner::new);
-        let (fw, fh) = (planner.plan_fft_forward(nw), planner.plan_fft_forward(nh));
-        let (iw, ih) = (planner.plan_fft_inverse(nw), planner.plan_fft_inverse(nh));
-        let n = nw * nh;
-        work.a.clear();
-        work.a.resize(n, Complex32::default());
-        if work.b.len() < n {
-            work.b.resize(n, Complex32::default());
+    let planner = work.planner.get_or_insert_with(FftPlanner::new);
+    let (fw, fh) = (planner.plan_fft_forward(nw), planner.plan_fft_forward(nh));
+    let (iw, ih) = (planner.plan_fft_inverse(nw), planner.plan_fft_inverse(nh));
+    let n = nw * nh;
+    work.a.clear();
+    work.a.resize(n, Complex32::default());
+    if work.b.len() < n {
+        work.b.resize(n, Complex32::default());
+    }
+    let (a, b) = (&mut work.a[..], &mut work.b[..n]);
+    for r in 0..wh {
+        for (d, &v) in a[r * nw..r * nw + ww].iter_mut().zip(win.row(r)) {
+            d.re = v;
         }
-        let (a, b) = (&mut work.a[..], &mut work.b[..n]);
-        for r in 0..wh {
-            for (d, &v) in a[r * nw..r * nw + ww].iter_mut().zip(win.row(r)) {
-                d.re = v;
-            }
+    }
+    for r in 0..th {
+        for (d, &v) in a[r * nw..r * nw + tw]
+            .iter_mut()
+            .zip(&t[r * tw..(r + 1) * tw])
+        {
+            d.im = v;
         }
-        for r in 0..th {
-            for (d, &v) in a[r * nw..r * nw + tw]
-                .iter_mut()
-                .zip(&t[r * tw..(r + 1) * tw])
-            {
-                d.im = v;
-            }
+    }
+    fft_rows(a, nw, nh, &fw, &mut work.scratch, parallel);
+    transpose(a, b, nw, nh, nw);
+    fft_rows(b, nh, nw, &fh, &mut work.scratch, parallel);
+    // b[u][v]: column frequency u, row frequency v. With Z₋ = conj Z(−u, −v):
+    // X = (Z + Z₋)/2, T = (Z − Z₋)/(2i), and the correlation spectrum is
+    // X · conj(T) = i (Z + Z₋) conj(Z − Z₋) / 4. It is Hermitian (the correlation
+    // is real), so only u ≤ nw/2 is formed and transformed back.
+    let hw = nw / 2 + 1;
+    for u in 0..hw {
+        let un = if u == 0 { 0 } else { nw - u };
+        let (row, rown) = (&b[u * nh..(u + 1) * nh], &b[un * nh..(un + 1) * nh]);
+        let dst = &mut a[u * nh..(u + 1) * nh];
+        let prod = |z: Complex32, zn: Complex32| {
+            let zn = zn.conj();
+            let s = z + zn;
+            let d = (z - zn).conj();
+            let p = s * d * 0.25;
+            Complex32::new(-p.im, p.re)
+        };
+        dst[0] = prod(row[0], rown[0]);
+        for ((d, &z), &zn) in dst[1..]
+            .iter_mut()
+            .zip(&row[1..])
+            .zip(rown[1..].iter().rev())
+        {
+            *d = prod(z, zn);
         }
-        fft_rows(a, nw, nh, &fw, &mut work.scratch, parallel);
-        transpose(a, b, nw, nh, nw);
-        fft_rows(b, nh, nw, &fh, &mut work.scratch, parallel);
-        // b[u][v]: column frequency u, row frequency v. With Z₋ = conj Z(−u, −v):
-        // X = (Z + Z₋)/2, T = (Z − Z₋)/(2i), and the correlation spectrum is
-        // X · conj(T) = i (Z + Z₋) conj(Z − Z₋) / 4. It is Hermitian (the correlation
-        // is real), so only u ≤ nw/2 is formed and transformed back.
-        let hw = nw / 2 + 1;
+    }
+    fft_rows(a, nh, hw, &ih, &mut work.scratch, parallel);
+    // a[u][y] for u ≤ nw/2; the rest of each output row is its conjugate mirror.
+    // Two real output rows share one complex inverse: row y1 + i·row y2.
+    let pairs = sh.div_ceil(2);
+    for m in 0..pairs {
+        let (y1, y2) = (2 * m, (2 * m + 1).min(nh - 1));
+        let dst = &mut b[m * nw..(m + 1) * nw];
         for u in 0..hw {
-            let un = if u == 0 { 0 } else { nw - u };
-            let (row, rown) = (&b[u * nh..(u + 1) * nh], &b[un * nh..(un + 1) * nh]);
-            let dst = &mut a[u * nh..(u + 1) * nh];
-            let prod = |z: Complex32, zn: Complex32| {
-                let zn = zn.conj();
-                let s = z + zn;
-                let d = (z - zn).conj();
-                let p = s * d * 0.25;
-                Complex32::new(-p.im, p.re)
-            };
-            dst[0] = prod(row[0], rown[0]);
-            for ((d, &z), &zn) in dst[1..]
-                .iter_mut()
-                .zip(&row[1..])
-                .zip(rown[1..].iter().rev())
-            {
-                *d = prod(z, zn);
+            let (q1, q2) = (a[u * nh + y1], a[u * nh + y2]);
+            dst[u] = Complex32::new(q1.re - q2.im, q1.im + q2.re);
+            if u != 0 && nw - u >= hw {
+                let (c1, c2) = (q1.conj(), q2.conj());
+                dst[nw - u] = Complex32::new(c1.re - c2.im, c1.im + c2.re);
             }
         }
-        fft_rows(a, nh, hw, &ih, &mut work.scratch, parallel);
-        // a[u][y] for u ≤ nw/2; the rest of each output row is its conjugate mirror.
-        // Two real output rows share one complex inverse: row y1 + i·row y2.
-        let pairs = sh.div_ceil(2);
-        for m in 0..pairs {
-            let (y1, y2) = (2 * m, (2 * m + 1).min(nh - 1));
-            let dst = &mut b[m * nw..(m + 1) * nw];
-            for u in 0..hw {
-                let (q1, q2) = (a[u * nh + y1], a[u * nh + y2]);
-                dst[u] = Complex32::new(q1.re - q2.im, q1.im + q2.re);
-                if u != 0 && nw - u >= hw {
-                    let (c1, c2) = (q1.conj(), q2.conj());
-                    dst[nw - u] = Complex32::new(c1.re - c2.im, c1.im + c2.re);
-                }
+    }
+    fft_rows(b, nw, pairs, &iw, &mut work.scratch, parallel);
+    let scale = 1.0 / n as f32;
+    for (j, o) in out.chunks_mut(sw).enumerate().take(sh) {
+        let src = &b[(j / 2) * nw..(j / 2) * nw + sw];
+        if j % 2 == 0 {
+            for (d, s) in o.iter_mut().zip(src) {
+                *d = s.re * scale;
+            }
+        } else {
+            for (d, s) in o.iter_mut().zip(src) {
+                *d = s.im * scale;
             }
         }
-        fft_rows(b, nw, pairs, &iw, &mut work.scratch, parallel);
-        let scale = 1.0 / n as f32;
-        for (j, o) in out.chunks_mut(sw).enumerate().take(sh) {
-            let src = &b[(j / 2) * nw..(j / 2) * nw + sw];
-            if j % 2 == 0 {
-                for (d, s) in o.iter_mut().zip(src) {
-                    *d = s.re * scale;
-                }
-            } else {
-                for (d, s) in o.iter_mut().zip(src) {
-                    *d = s.im * scale;
-                }
-            }
-        }
-    });
+    }
 }
 
 /// How the correlation numerator is computed.
