@@ -106,37 +106,53 @@ impl WinView<'_> {
     }
 }
 
-/// Portable direct sums for one output row: out[i] = Σ_r Σ_c t[r][c] · win[j + r][i + c],
-/// in register blocks of 8 positions (tail as an overlapping block) so the compiler
-/// vectorises it for whatever baseline the target has (SSE2 on generic x86-64).
-fn correlate_row_portable(out: &mut [f32], win: &WinView, j: usize, t: &[f32], tw: usize) {
+/// B outputs of one row held in registers while the whole template streams past.
+#[inline(always)]
+fn portable_block<const B: usize>(
+    win: &WinView,
+    j: usize,
+    t: &[f32],
+    tw: usize,
+    i0: usize,
+) -> [f32; B] {
     let th = t.len() / tw;
-    let block = |i0: usize, n: usize, out: &mut [f32]| {
-        let mut acc = [0.0f32; 8];
-        for r in 0..th {
-            let row = &win.row(j + r)[i0..];
-            let trow = &t[r * tw..(r + 1) * tw];
-            for (c, &tv) in trow.iter().enumerate() {
-                let src = &row[c..c + n];
-                for k in 0..n {
-                    acc[k] += tv * src[k];
-                }
+    let mut acc = [0.0f32; B];
+    for r in 0..th {
+        let row = &win.row(j + r)[i0..];
+        let trow = &t[r * tw..(r + 1) * tw];
+        for (c, &tv) in trow.iter().enumerate() {
+            let src: &[f32; B] = row[c..c + B].try_into().expect("block inside the row");
+            for k in 0..B {
+                acc[k] += tv * src[k];
             }
         }
-        out[i0..i0 + n].copy_from_slice(&acc[..n]);
-    };
+    }
+    acc
+}
+
+/// Portable direct sums for one output row: out[i] = Σ_r Σ_c t[r][c] · win[j + r][i + c],
+/// in constant-size register blocks (32, then 8, the tail as an overlapping block) so the
+/// compiler vectorises them for whatever baseline the target has (SSE2 on generic
+/// x86-64); 32 outputs are 8 independent accumulator chains, enough to hide the add
+/// latency.
+fn correlate_row_portable(out: &mut [f32], win: &WinView, j: usize, t: &[f32], tw: usize) {
     let sw = out.len();
     let mut i = 0;
+    while i + 32 <= sw {
+        out[i..i + 32].copy_from_slice(&portable_block::<32>(win, j, t, tw, i));
+        i += 32;
+    }
     while i + 8 <= sw {
-        block(i, 8, out);
+        out[i..i + 8].copy_from_slice(&portable_block::<8>(win, j, t, tw, i));
         i += 8;
     }
-    if i < sw {
-        if sw >= 8 {
-            block(sw - 8, 8, out);
-        } else {
-            block(i, sw - i, out);
-        }
+    if i < sw && sw >= 8 {
+        out[sw - 8..].copy_from_slice(&portable_block::<8>(win, j, t, tw, sw - 8));
+        i = sw;
+    }
+    while i < sw {
+        out[i] = portable_block::<1>(win, j, t, tw, i)[0];
+        i += 1;
     }
 }
 
@@ -546,11 +562,12 @@ pub fn ncc_surface_with(
         width: ww,
         height: wh,
     };
-    // Direct sums cost sw·sh·tw·th multiply–adds at ~7 per cycle (AVX2 kernel on a core
-    // with 128-bit FMA units; more on wider ones, which only favours direct); the FFT
-    // about k·N·log2 N for the padded size N; k was tuned with examples/ncc_timing.rs.
+    // Direct sums cost sw·sh·tw·th multiply–adds at ~7 per cycle with the AVX2 kernel
+    // (on a core with 128-bit FMA units; wider ones only favour direct) and ~2.5 with the
+    // portable SSE2 loop; the FFT about k·N·log2 N for the padded size N. Rates and k
+    // were measured with examples/ncc_timing.rs.
     let (nw, nh) = (fast_len(ww), fast_len(wh));
-    let direct_cost = (sw * sh * tw * th) as f64 / 7.0;
+    let direct_cost = (sw * sh * tw * th) as f64 / direct_macs_per_cycle();
     let fft_cost = FFT_COST * (nw * nh) as f64 * ((nw * nh) as f64).log2();
     let use_fft = match method {
         CorrelationMethod::Auto => direct_cost > fft_cost,
@@ -570,6 +587,14 @@ pub fn ncc_surface_with(
         height: sh,
         values,
     })
+}
+
+fn direct_macs_per_cycle() -> f64 {
+    #[cfg(target_arch = "x86_64")]
+    if std::arch::is_x86_feature_detected!("avx2") && std::arch::is_x86_feature_detected!("fma") {
+        return 7.0;
+    }
+    2.5
 }
 
 /// Cycles per N·log2 N of the FFT path (three passes of complex transforms, two
