@@ -34,6 +34,45 @@ fn time(f: impl Fn(), repeat: usize) -> f64 {
 fn main() {
     // `ncc_timing fft 64 21 2000`: loop one case (for a profiler).
     let args: Vec<String> = std::env::args().collect();
+    // `ncc_timing lsm 2000`: loop least-squares matching of a 31×31 patch.
+    if args.len() == 3 && args[1] == "lsm" {
+        let n: usize = args[2].parse().unwrap();
+        let img = texture(128, 7);
+        let smooth = cloudcontrol::matching::pyramid::downsample(&img);
+        let tpl = smooth.crop(16, 16, 31, 31).expect("tpl");
+        let opts = cloudcontrol::matching::LsmOptions::default();
+        let t0 = Instant::now();
+        for _ in 0..n {
+            std::hint::black_box(cloudcontrol::matching::lsm(
+                &smooth, &tpl, 31.8, 31.3, None, &opts,
+            ));
+        }
+        let r = cloudcontrol::matching::lsm(&smooth, &tpl, 31.8, 31.3, None, &opts);
+        println!(
+            "LSM {:.3} ms per patch, {} iterations",
+            t0.elapsed().as_secs_f64() * 1e3 / n as f64,
+            r.iterations
+        );
+        let t0 = Instant::now();
+        let mut acc = 0.0;
+        for _ in 0..n {
+            for r in 0..31 {
+                for c in 0..31 {
+                    let (x, y) = (17.3 + c as f64 * 0.98, 16.9 + r as f64 * 1.01);
+                    let (g, gx, gy) =
+                        cloudcontrol::matching::resample::bicubic_with_gradient(&smooth, x, y)
+                            .unwrap();
+                    acc += g + gx + gy;
+                }
+            }
+        }
+        std::hint::black_box(acc);
+        println!(
+            "961 samples with gradient: {:.3} ms",
+            t0.elapsed().as_secs_f64() * 1e3 / n as f64
+        );
+        return;
+    }
     if args.len() == 5 {
         let (win, t, n): (usize, usize, usize) = (
             args[2].parse().unwrap(),

@@ -108,3 +108,102 @@ fn io_subcommand_writes_io_json() {
     assert_eq!(m["accepted"], true);
     assert!((m["x"].as_f64().unwrap() - (c.x.floor() + 0.5)).abs() < 0.05);
 }
+
+/// `ties --block`: a strip of three photos of a textured plane, written as 16-bit TIFF
+/// with a block JSON whose EO is off by ~2 m / 0.3°; the command predicts through the
+/// mean height, writes the report and the block with tie points.
+#[test]
+fn ties_subcommand_uses_the_approximate_orientation() {
+    use cloudcontrol::block::{Block, BlockCamera, Photo, PosPrior};
+    use cloudcontrol::geometry::{back_project, Camera, FrameCamera, Pose};
+    use nalgebra::{Matrix3, Vector3};
+
+    let (w, h) = (320usize, 240usize);
+    let camera = Camera::Frame(FrameCamera::pinhole(w as u32, h as u32, 400.0));
+    let nadir = Matrix3::from_diagonal(&Vector3::new(1.0, -1.0, -1.0));
+    // Ground at z = 0, 400 m below: 1 m per pixel; base 128 m = 60 % overlap.
+    let tex = |x: f64, y: f64| {
+        100.0
+            + 30.0 * (x / 7.3 + 0.4 * y / 5.1).sin()
+            + 25.0 * (y / 6.7 - 0.3 * x / 9.9).cos()
+            + 20.0 * ((x + y) / 4.3).sin() * ((x - y) / 11.0).cos()
+    };
+    let dir = tempfile::tempdir().unwrap();
+    let mut block = Block::new();
+    block.cameras.insert(
+        1,
+        BlockCamera {
+            id: 1,
+            name: "cam".into(),
+            model: camera.clone(),
+            free_params: vec![],
+        },
+    );
+    for k in 0..3u32 {
+        let pose = Pose::new(nadir, Vector3::new(128.0 * k as f64, 0.0, 400.0));
+        let img = GreyImage::from_fn(w, h, |x, y| {
+            let ray = back_project(&camera, &pose, [x, y]).unwrap();
+            let p = ray.at(-ray.origin.z / ray.direction.z);
+            tex(p.x, p.y) * 200.0
+        });
+        let name = format!("p{k}.tif");
+        img.save(&dir.path().join(&name), true).unwrap();
+        let s = if k % 2 == 0 { 1.0 } else { -1.0 };
+        let approx = Pose::new(
+            cloudcontrol::geometry::rotation_from_vector(&Vector3::new(0.005 * s, -0.004, 0.005))
+                * nadir,
+            pose.center + Vector3::new(2.0 * s, -1.5, 2.0),
+        );
+        block.photos.insert(
+            k + 1,
+            Photo {
+                id: k + 1,
+                name,
+                camera: 1,
+                pose: approx,
+                oriented: false,
+                prior: Some(PosPrior {
+                    center: approx.center,
+                    center_sigma: [2.0; 3],
+                    rotation: Some(approx.rotation),
+                    rotation_sigma_rad: 0.3f64.to_radians(),
+                }),
+                date: None,
+            },
+        );
+    }
+    let bpath = dir.path().join("block.json");
+    std::fs::write(&bpath, serde_json::to_string(&block).unwrap()).unwrap();
+    let (out, out_block) = (dir.path().join("ties.json"), dir.path().join("tied.json"));
+    let st = Command::new(env!("CARGO_BIN_EXE_cloudcontrol"))
+        .args(["ties", "--block"])
+        .arg(&bpath)
+        .args(["--height", "0", "--height-sigma", "1", "--out"])
+        .arg(&out)
+        .arg("--out-block")
+        .arg(&out_block)
+        .output()
+        .unwrap();
+    assert!(
+        st.status.success(),
+        "{}",
+        String::from_utf8_lossy(&st.stderr)
+    );
+    let report: serde_json::Value =
+        serde_json::from_str(&std::fs::read_to_string(&out).unwrap()).unwrap();
+    assert_eq!(report["pairs"].as_array().unwrap().len(), 3);
+    let tied: Block = serde_json::from_str(&std::fs::read_to_string(&out_block).unwrap()).unwrap();
+    tied.validate().unwrap();
+    assert!(tied.points.len() >= 50, "{report}");
+    assert!(tied.points.values().any(|p| p.observations.len() == 3));
+    // Without a surface the guided path refuses with a clear message.
+    let st = Command::new(env!("CARGO_BIN_EXE_cloudcontrol"))
+        .args(["ties", "--block"])
+        .arg(&bpath)
+        .arg("--out")
+        .arg(dir.path().join("x.json"))
+        .output()
+        .unwrap();
+    assert!(!st.status.success());
+    assert!(String::from_utf8_lossy(&st.stderr).contains("--dem or --height"));
+}

@@ -390,3 +390,44 @@ fn correlation_matches_naive_reference_on_odd_shapes() {
         }
     }
 }
+
+#[test]
+fn bicubic_gradient_is_the_derivative_of_the_interpolant() {
+    use cloudcontrol::matching::resample::{bicubic, bicubic_with_gradient};
+    let img = GreyImage::from_fn(40, 40, texture(5));
+    for (x, y) in [(10.3, 12.7), (20.0, 20.5), (5.99, 30.01), (33.4, 6.6)] {
+        let (g, gx, gy) = bicubic_with_gradient(&img, x, y).unwrap();
+        let h = 1e-5;
+        let dx = (bicubic(&img, x + h, y).unwrap() - bicubic(&img, x - h, y).unwrap()) / (2.0 * h);
+        let dy = (bicubic(&img, x, y + h).unwrap() - bicubic(&img, x, y - h).unwrap()) / (2.0 * h);
+        assert!((g - bicubic(&img, x, y).unwrap()).abs() < 1e-9);
+        assert!(
+            (gx - dx).abs() < 1e-4 && (gy - dy).abs() < 1e-4,
+            "{gx} {dx} {gy} {dy}"
+        );
+    }
+    // Outside the 4×4 support: no value (callers fall back to differences).
+    assert!(bicubic_with_gradient(&img, 1.2, 20.0).is_none());
+    assert!(bicubic_with_gradient(&img, f64::NAN, 20.0).is_none());
+}
+
+/// Large FFT correlations run their passes on the rayon pool; called from inside an outer
+/// parallel loop (as tie matching does), a thread that steals a second correlation while
+/// waiting must not trip over its own reusable buffers. (Stealing is timing-dependent:
+/// this exercises the nesting, it cannot force it.)
+#[test]
+fn nested_parallel_fft_correlations() {
+    use cloudcontrol::matching::ncc::{ncc_surface_with, CorrelationMethod};
+    use rayon::prelude::*;
+    let img = GreyImage::from_fn(300, 280, texture(21));
+    let tpl = img.crop(120, 100, 41, 41).unwrap();
+    let reference =
+        ncc_surface_with(&img, &tpl, Window::whole(&img), CorrelationMethod::Fft).unwrap();
+    let all: Vec<_> = (0..16)
+        .into_par_iter()
+        .map(|_| ncc_surface_with(&img, &tpl, Window::whole(&img), CorrelationMethod::Fft).unwrap())
+        .collect();
+    for s in all {
+        assert_eq!(s.values, reference.values);
+    }
+}

@@ -258,3 +258,278 @@ fn global_shift_prediction_finds_the_strip_overlap() {
         "{q:?} vs {t:?}"
     );
 }
+
+/// End to end from approximate orientations: the block's photos carry EO perturbed by
+/// about 2 m and 0.5° (as from a POS), the matcher predicts each Förstner point through
+/// that EO and a DEM (or a mean height) into the overlapping photos, searches around
+/// the prediction, verifies pairs by robust relative orientation, links tracks and
+/// writes tie points into the block. Checked against the true orientations.
+#[test]
+fn block_ties_from_approximate_orientation() {
+    use cloudcontrol::block::{Block, BlockCamera, Photo, PosPrior};
+    use cloudcontrol::matching::{block_tie_points, BlockTieOptions, Surface};
+    use std::collections::BTreeMap;
+
+    let s = scene();
+    let mut rng = ChaCha8Rng::seed_from_u64(2024);
+    let mut signed = |m: f64| {
+        let v = rng.gen_range(0.5..1.0) * m;
+        if rng.gen_bool(0.5) {
+            v
+        } else {
+            -v
+        }
+    };
+    let deg = 0.5f64.to_radians();
+    let mut block = Block::new();
+    block.cameras.insert(
+        1,
+        BlockCamera {
+            id: 1,
+            name: "synthetic".into(),
+            model: s.camera.clone(),
+            free_params: vec![],
+        },
+    );
+    let mut images = BTreeMap::new();
+    for (k, (pose, img)) in s.poses.iter().zip(&s.photos).enumerate() {
+        let dr = Vector3::new(signed(deg), signed(deg), signed(deg));
+        let dc = Vector3::new(signed(2.0), signed(2.0), signed(2.0));
+        let approx = Pose::new(rotation_from_vector(&dr) * pose.rotation, pose.center + dc);
+        let id = k as u32 + 1;
+        block.photos.insert(
+            id,
+            Photo {
+                id,
+                name: format!("photo_{id}.tif"),
+                camera: 1,
+                pose: approx,
+                oriented: false,
+                prior: Some(PosPrior {
+                    center: approx.center,
+                    center_sigma: [2.0; 3],
+                    rotation: Some(approx.rotation),
+                    rotation_sigma_rad: deg,
+                }),
+                date: None,
+            },
+        );
+        images.insert(id, img.clone());
+    }
+    let surfaces = [
+        (
+            "DEM",
+            Surface::Dem {
+                dem: &s.dem,
+                origin: Vector3::zeros(),
+                sigma_m: 1.0,
+            },
+        ),
+        (
+            "mean height",
+            Surface::Plane {
+                height: 100.0,
+                sigma_m: 25.0,
+            },
+        ),
+    ];
+    const MIN_PER_POSITION: usize = 3;
+    for (label, surface) in surfaces {
+        let mut b = block.clone();
+        let t0 = std::time::Instant::now();
+        let report = block_tie_points(
+            &mut b,
+            &images,
+            &surface,
+            MIN_PER_POSITION,
+            &BlockTieOptions::default(),
+        )
+        .unwrap();
+        let elapsed = t0.elapsed().as_secs_f64();
+        b.validate().unwrap();
+        for p in &report.pairs {
+            eprintln!(
+                "{label}: pair {}–{}: overlap {:.2}, radius {:.1} px, {} points, {} candidates, {} accepted, σ {:.2} px{}",
+                p.a, p.b, p.overlap, p.search_radius_px, p.points, p.candidates, p.accepted, p.sigma_px,
+                p.skipped.as_deref().map(|r| format!(" (skipped: {r})")).unwrap_or_default()
+            );
+        }
+        // Truth: the object point under the first observation's true ray; every other
+        // observation must lie within 1 px of that point's true projection.
+        let (mut good, mut total) = (0usize, 0usize);
+        for pt in b.points.values() {
+            assert_eq!(pt.kind, cloudcontrol::block::PointKind::Tie);
+            let o0 = &pt.observations[0];
+            let k0 = (o0.photo - 1) as usize;
+            let x = s
+                .dem
+                .intersect(&back_project(&s.camera, &s.poses[k0], o0.pixel).unwrap())
+                .unwrap();
+            for o in &pt.observations[1..] {
+                assert!(o.sigma_px >= 0.25 && o.provenance.contains("approximate EO"));
+                let q = project(&s.camera, &s.poses[(o.photo - 1) as usize], &x).unwrap();
+                total += 1;
+                if (q.pixel.x - o.pixel[0]).hypot(q.pixel.y - o.pixel[1]) <= 1.0 {
+                    good += 1;
+                }
+            }
+        }
+        let frac = good as f64 / total as f64;
+        let triple = |ids: [u32; 3]| {
+            b.points
+                .values()
+                .filter(|p| {
+                    ids.iter()
+                        .all(|i| p.observations.iter().any(|o| o.photo == *i))
+                })
+                .count()
+        };
+        let (t1, t2) = (triple([1, 2, 3]), triple([4, 5, 6]));
+        eprintln!(
+            "{label}: {} points, {} observations, {:.1} % within 1 px of truth ({good}/{total}), track lengths {:?}, triple-overlap tracks {t1} / {t2}, {elapsed:.2} s",
+            report.points_added, report.observations_added, 100.0 * frac, report.track_lengths
+        );
+        assert!(
+            frac >= 0.95,
+            "{label}: only {:.1} % within 1 px",
+            100.0 * frac
+        );
+        assert!(report.points_added >= 200, "{label}: {report:?}");
+        assert!(
+            t1 >= 10 && t2 >= 10,
+            "{label}: triple-overlap tracks {t1}, {t2}"
+        );
+        for c in &report.coverage {
+            eprintln!(
+                "{label}: photo {} {} observations, counts {:?}, required {:?}",
+                c.photo,
+                c.observations,
+                c.counts,
+                c.required.map(|r| r as u8)
+            );
+            assert!(c.required.iter().filter(|&&r| r).count() >= 6, "{c:?}");
+            assert!(
+                c.missing.is_empty(),
+                "{label}: photo {}: standard positions with fewer than {MIN_PER_POSITION} points: {:?}",
+                c.photo,
+                c.missing
+            );
+        }
+    }
+}
+
+/// A photo turned by 35° about its axis against its neighbour (a crab angle or a cross
+/// strip): NCC alone is not rotation invariant, so the guided search resamples each
+/// template into the other photo's geometry from the approximate orientation.
+#[test]
+fn oriented_ties_handle_a_rotated_photo() {
+    use cloudcontrol::matching::{oriented_tie_points, BlockTieOptions, OrientedPhoto, Surface};
+
+    let s = scene();
+    let turn = rotation_from_vector(&Vector3::new(0.0, 0.0, 35f64.to_radians()));
+    let rotated = Pose::new(turn * s.poses[1].rotation, s.poses[1].center);
+    let tex = ground_texture();
+    let img1 = GreyImage::from_fn(W, H, |x, y| {
+        back_project(&s.camera, &rotated, [x, y])
+            .and_then(|ray| s.dem.intersect(&ray))
+            .map(|p| tex(p.x, p.y))
+            .unwrap_or(0.0)
+    });
+    let off = rotation_from_vector(&Vector3::new(0.004, -0.006, 0.005));
+    let photos = [
+        OrientedPhoto {
+            image: &s.photos[0],
+            camera: &s.camera,
+            pose: Pose::new(
+                off * s.poses[0].rotation,
+                s.poses[0].center + Vector3::new(1.5, -2.0, 1.0),
+            ),
+            center_sigma_m: 2.0,
+            angle_sigma_rad: 0.5f64.to_radians(),
+        },
+        OrientedPhoto {
+            image: &img1,
+            camera: &s.camera,
+            pose: Pose::new(off.transpose() * rotated.rotation, rotated.center),
+            center_sigma_m: 2.0,
+            angle_sigma_rad: 0.5f64.to_radians(),
+        },
+    ];
+    let surface = Surface::Dem {
+        dem: &s.dem,
+        origin: Vector3::zeros(),
+        sigma_m: 1.0,
+    };
+    let r = oriented_tie_points(&photos, &[1, 2], &surface, &BlockTieOptions::default()).unwrap();
+    assert_eq!(r.matches.len(), 1, "{:?}", r.reports);
+    let pm = &r.matches[0];
+    let (mut good, mut total) = (0, 0);
+    for c in pm.accepted() {
+        let x = s
+            .dem
+            .intersect(&back_project(&s.camera, &s.poses[0], c.a).unwrap())
+            .unwrap();
+        let q = project(&s.camera, &rotated, &x).unwrap().pixel;
+        total += 1;
+        good += ((q.x - c.b[0]).hypot(q.y - c.b[1]) <= 1.0) as usize;
+    }
+    eprintln!("rotated photo: {good}/{total} within 1 px; {:?}", r.reports);
+    assert!(total >= 40 && good as f64 >= 0.95 * total as f64);
+}
+
+/// Bad input on the guided path: an image that does not fit its camera and an unknown
+/// photo are clear errors; a textureless photo gives pairs skipped with their reason.
+#[test]
+fn block_ties_bad_input() {
+    use cloudcontrol::block::{Block, BlockCamera, Photo};
+    use cloudcontrol::matching::{block_tie_points, BlockTieOptions, Surface};
+    use std::collections::BTreeMap;
+
+    let s = scene();
+    let mut block = Block::new();
+    block.cameras.insert(
+        1,
+        BlockCamera {
+            id: 1,
+            name: "c".into(),
+            model: s.camera.clone(),
+            free_params: vec![],
+        },
+    );
+    for k in 0..2u32 {
+        block.photos.insert(
+            k + 1,
+            Photo {
+                id: k + 1,
+                name: format!("{k}"),
+                camera: 1,
+                pose: s.poses[k as usize],
+                oriented: false,
+                prior: None,
+                date: None,
+            },
+        );
+    }
+    let surface = Surface::Plane {
+        height: 100.0,
+        sigma_m: 20.0,
+    };
+    let opts = BlockTieOptions::default();
+    let mut images = BTreeMap::new();
+    images.insert(1, s.photos[0].clone());
+    images.insert(2, s.photos[1].crop(0, 0, W - 10, H).unwrap());
+    let e = block_tie_points(&mut block.clone(), &images, &surface, 1, &opts).unwrap_err();
+    assert!(e.to_string().contains("camera is 360×280"), "{e}");
+    images.insert(2, GreyImage::filled(W, H, 90.0));
+    let r = block_tie_points(&mut block.clone(), &images, &surface, 1, &opts).unwrap();
+    assert_eq!(r.points_added, 0);
+    let skipped = r.pairs[0].skipped.as_deref().unwrap();
+    assert!(skipped.contains("candidates"), "{skipped}");
+    images.insert(7, s.photos[2].clone());
+    let e = block_tie_points(&mut block.clone(), &images, &surface, 1, &opts).unwrap_err();
+    assert!(e.to_string().contains("photo 7"), "{e}");
+    images.clear();
+    images.insert(1, s.photos[0].clone());
+    let e = block_tie_points(&mut block, &images, &surface, 1, &opts).unwrap_err();
+    assert!(e.to_string().contains("at least 2"), "{e}");
+}

@@ -3,7 +3,7 @@
 //! parameters (A, p) and 2 radiometric ones (r0, r1), solved by Gauss–Newton. Only ever
 //! run at full resolution, starting from an NCC position.
 
-use super::resample::bicubic;
+use super::resample::{bicubic, bicubic_with_gradient};
 use super::GreyImage;
 use nalgebra::{SMatrix, SVector};
 
@@ -111,7 +111,7 @@ pub fn lsm(
     let mut last_sigma = f64::INFINITY;
     for it in 1..=opts.max_iterations {
         out.iterations = it;
-        let mut nmat = SMatrix::<f64, 8, 8>::zeros();
+        let mut nsum = [0.0f64; 64];
         let mut rhs = SVector::<f64, 8>::zeros();
         let (mut vv, mut n) = (0.0, 0usize);
         for r in 0..th {
@@ -119,26 +119,30 @@ pub fn lsm(
                 let (u, v) = (c as f64 + 0.5 - cx, r as f64 + 0.5 - cy);
                 let qx = p[0] + p[2] * u + p[3] * v;
                 let qy = p[1] + p[4] * u + p[5] * v;
-                let (Some(g), Some(gxp), Some(gxm), Some(gyp), Some(gym)) = (
-                    bicubic(img, qx, qy),
-                    bicubic(img, qx + 0.5, qy),
-                    bicubic(img, qx - 0.5, qy),
-                    bicubic(img, qx, qy + 0.5),
-                    bicubic(img, qx, qy - 0.5),
-                ) else {
+                // Value and gradient from one 4×4 neighbourhood; near the border,
+                // differences of the (bilinear) fallback samples.
+                let Some((g, gx, gy)) = bicubic_with_gradient(img, qx, qy).or_else(|| {
+                    Some((
+                        bicubic(img, qx, qy)?,
+                        bicubic(img, qx + 0.5, qy)? - bicubic(img, qx - 0.5, qy)?,
+                        bicubic(img, qx, qy + 0.5)? - bicubic(img, qx, qy - 0.5)?,
+                    ))
+                }) else {
                     continue;
                 };
-                let (gx, gy) = ((gxp - gxm) * p[7], (gyp - gym) * p[7]);
+                let (gx, gy) = (gx * p[7], gy * p[7]);
                 let res = tpl.at(c, r) as f64 - (p[6] + p[7] * g);
                 let row: [f64; 8] = if opts.affine {
                     [gx, gy, gx * u, gx * v, gy * u, gy * v, 1.0, g]
                 } else {
                     [gx, gy, 1.0, g, 0.0, 0.0, 0.0, 0.0]
                 };
-                for a in 0..np {
+                // Constant bounds so the loops unroll (upper triangle, mirrored below);
+                // the unused entries of the shift-only model are zero and add nothing.
+                for a in 0..8 {
                     rhs[a] += row[a] * res;
-                    for b in a..np {
-                        nmat[(a, b)] += row[a] * row[b];
+                    for b in a..8 {
+                        nsum[a * 8 + b] += row[a] * row[b];
                     }
                 }
                 vv += res * res;
@@ -149,9 +153,11 @@ pub fn lsm(
             out.reason = Some("patch left the image".into());
             return out;
         }
+        let mut nmat = SMatrix::<f64, 8, 8>::zeros();
         for a in 0..np {
-            for b in 0..a {
-                nmat[(a, b)] = nmat[(b, a)];
+            for b in a..np {
+                nmat[(a, b)] = nsum[a * 8 + b];
+                nmat[(b, a)] = nsum[a * 8 + b];
             }
         }
         for a in np..8 {

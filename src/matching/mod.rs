@@ -13,6 +13,7 @@ pub mod image;
 pub mod lsm;
 pub mod matcher;
 pub mod ncc;
+pub mod oriented;
 pub mod pyramid;
 pub mod resample;
 pub mod ties;
@@ -26,6 +27,9 @@ pub use image::GreyImage;
 pub use lsm::{lsm, LsmOptions, LsmResult};
 pub use matcher::{match_template, MatchOptions, MatchResult};
 pub use ncc::{ncc_search, ncc_search_pyramid, NccPeak, Window};
+pub use oriented::{
+    block_tie_points, oriented_tie_points, BlockTieOptions, BlockTieReport, OrientedPhoto, Surface,
+};
 pub use pyramid::Pyramid;
 pub use resample::{warp_patch, Interpolation, PatchWarp};
 pub use ties::{

@@ -106,37 +106,53 @@ impl WinView<'_> {
     }
 }
 
-/// Portable direct sums for one output row: out[i] = Σ_r Σ_c t[r][c] · win[j + r][i + c],
-/// in register blocks of 8 positions (tail as an overlapping block) so the compiler
-/// vectorises it for whatever baseline the target has (SSE2 on generic x86-64).
-fn correlate_row_portable(out: &mut [f32], win: &WinView, j: usize, t: &[f32], tw: usize) {
+/// B outputs of one row held in registers while the whole template streams past.
+#[inline(always)]
+fn portable_block<const B: usize>(
+    win: &WinView,
+    j: usize,
+    t: &[f32],
+    tw: usize,
+    i0: usize,
+) -> [f32; B] {
     let th = t.len() / tw;
-    let block = |i0: usize, n: usize, out: &mut [f32]| {
-        let mut acc = [0.0f32; 8];
-        for r in 0..th {
-            let row = &win.row(j + r)[i0..];
-            let trow = &t[r * tw..(r + 1) * tw];
-            for (c, &tv) in trow.iter().enumerate() {
-                let src = &row[c..c + n];
-                for k in 0..n {
-                    acc[k] += tv * src[k];
-                }
+    let mut acc = [0.0f32; B];
+    for r in 0..th {
+        let row = &win.row(j + r)[i0..];
+        let trow = &t[r * tw..(r + 1) * tw];
+        for (c, &tv) in trow.iter().enumerate() {
+            let src: &[f32; B] = row[c..c + B].try_into().expect("block inside the row");
+            for k in 0..B {
+                acc[k] += tv * src[k];
             }
         }
-        out[i0..i0 + n].copy_from_slice(&acc[..n]);
-    };
+    }
+    acc
+}
+
+/// Portable direct sums for one output row: out[i] = Σ_r Σ_c t[r][c] · win[j + r][i + c],
+/// in constant-size register blocks (32, then 8, the tail as an overlapping block) so the
+/// compiler vectorises them for whatever baseline the target has (SSE2 on generic
+/// x86-64); 32 outputs are 8 independent accumulator chains, enough to hide the add
+/// latency.
+fn correlate_row_portable(out: &mut [f32], win: &WinView, j: usize, t: &[f32], tw: usize) {
     let sw = out.len();
     let mut i = 0;
+    while i + 32 <= sw {
+        out[i..i + 32].copy_from_slice(&portable_block::<32>(win, j, t, tw, i));
+        i += 32;
+    }
     while i + 8 <= sw {
-        block(i, 8, out);
+        out[i..i + 8].copy_from_slice(&portable_block::<8>(win, j, t, tw, i));
         i += 8;
     }
-    if i < sw {
-        if sw >= 8 {
-            block(sw - 8, 8, out);
-        } else {
-            block(i, sw - i, out);
-        }
+    if i < sw && sw >= 8 {
+        out[sw - 8..].copy_from_slice(&portable_block::<8>(win, j, t, tw, sw - 8));
+        i = sw;
+    }
+    while i < sw {
+        out[i] = portable_block::<1>(win, j, t, tw, i)[0];
+        i += 1;
     }
 }
 
@@ -391,95 +407,108 @@ fn fft_rows(
 /// the sh output rows. The circular correlation equals the linear one on the valid
 /// positions because the template never wraps there.
 fn correlate_fft(win: &WinView, t: &[f32], tw: usize, th: usize, out: &mut [f32]) {
+    // While this thread waits inside a parallel FFT pass, rayon may hand it another
+    // correlation (work stealing from an outer parallel loop); the buffers are then in
+    // use, and that nested call works with fresh ones instead.
+    FFT_WORK.with(|w| match w.try_borrow_mut() {
+        Ok(mut guard) => correlate_fft_with(&mut guard, win, t, tw, th, out),
+        Err(_) => correlate_fft_with(&mut FftWork::default(), win, t, tw, th, out),
+    });
+}
+
+fn correlate_fft_with(
+    work: &mut FftWork,
+    win: &WinView,
+    t: &[f32],
+    tw: usize,
+    th: usize,
+    out: &mut [f32],
+) {
     let (ww, wh) = (win.width, win.height);
     let (sw, sh) = (ww + 1 - tw, wh + 1 - th);
     let (nw, nh) = (fast_len(ww), fast_len(wh));
     let parallel = nw * nh >= 160 * 160 && rayon::current_num_threads() > 1;
-    FFT_WORK.with(|w| {
-        let mut guard = w.borrow_mut();
-        let work = &mut *guard;
-        let planner = work.planner.get_or_insert_with(FftPlanner::new);
-        let (fw, fh) = (planner.plan_fft_forward(nw), planner.plan_fft_forward(nh));
-        let (iw, ih) = (planner.plan_fft_inverse(nw), planner.plan_fft_inverse(nh));
-        let n = nw * nh;
-        work.a.clear();
-        work.a.resize(n, Complex32::default());
-        if work.b.len() < n {
-            work.b.resize(n, Complex32::default());
+    let planner = work.planner.get_or_insert_with(FftPlanner::new);
+    let (fw, fh) = (planner.plan_fft_forward(nw), planner.plan_fft_forward(nh));
+    let (iw, ih) = (planner.plan_fft_inverse(nw), planner.plan_fft_inverse(nh));
+    let n = nw * nh;
+    work.a.clear();
+    work.a.resize(n, Complex32::default());
+    if work.b.len() < n {
+        work.b.resize(n, Complex32::default());
+    }
+    let (a, b) = (&mut work.a[..], &mut work.b[..n]);
+    for r in 0..wh {
+        for (d, &v) in a[r * nw..r * nw + ww].iter_mut().zip(win.row(r)) {
+            d.re = v;
         }
-        let (a, b) = (&mut work.a[..], &mut work.b[..n]);
-        for r in 0..wh {
-            for (d, &v) in a[r * nw..r * nw + ww].iter_mut().zip(win.row(r)) {
-                d.re = v;
-            }
+    }
+    for r in 0..th {
+        for (d, &v) in a[r * nw..r * nw + tw]
+            .iter_mut()
+            .zip(&t[r * tw..(r + 1) * tw])
+        {
+            d.im = v;
         }
-        for r in 0..th {
-            for (d, &v) in a[r * nw..r * nw + tw]
-                .iter_mut()
-                .zip(&t[r * tw..(r + 1) * tw])
-            {
-                d.im = v;
-            }
+    }
+    fft_rows(a, nw, nh, &fw, &mut work.scratch, parallel);
+    transpose(a, b, nw, nh, nw);
+    fft_rows(b, nh, nw, &fh, &mut work.scratch, parallel);
+    // b[u][v]: column frequency u, row frequency v. With Z₋ = conj Z(−u, −v):
+    // X = (Z + Z₋)/2, T = (Z − Z₋)/(2i), and the correlation spectrum is
+    // X · conj(T) = i (Z + Z₋) conj(Z − Z₋) / 4. It is Hermitian (the correlation
+    // is real), so only u ≤ nw/2 is formed and transformed back.
+    let hw = nw / 2 + 1;
+    for u in 0..hw {
+        let un = if u == 0 { 0 } else { nw - u };
+        let (row, rown) = (&b[u * nh..(u + 1) * nh], &b[un * nh..(un + 1) * nh]);
+        let dst = &mut a[u * nh..(u + 1) * nh];
+        let prod = |z: Complex32, zn: Complex32| {
+            let zn = zn.conj();
+            let s = z + zn;
+            let d = (z - zn).conj();
+            let p = s * d * 0.25;
+            Complex32::new(-p.im, p.re)
+        };
+        dst[0] = prod(row[0], rown[0]);
+        for ((d, &z), &zn) in dst[1..]
+            .iter_mut()
+            .zip(&row[1..])
+            .zip(rown[1..].iter().rev())
+        {
+            *d = prod(z, zn);
         }
-        fft_rows(a, nw, nh, &fw, &mut work.scratch, parallel);
-        transpose(a, b, nw, nh, nw);
-        fft_rows(b, nh, nw, &fh, &mut work.scratch, parallel);
-        // b[u][v]: column frequency u, row frequency v. With Z₋ = conj Z(−u, −v):
-        // X = (Z + Z₋)/2, T = (Z − Z₋)/(2i), and the correlation spectrum is
-        // X · conj(T) = i (Z + Z₋) conj(Z − Z₋) / 4. It is Hermitian (the correlation
-        // is real), so only u ≤ nw/2 is formed and transformed back.
-        let hw = nw / 2 + 1;
+    }
+    fft_rows(a, nh, hw, &ih, &mut work.scratch, parallel);
+    // a[u][y] for u ≤ nw/2; the rest of each output row is its conjugate mirror.
+    // Two real output rows share one complex inverse: row y1 + i·row y2.
+    let pairs = sh.div_ceil(2);
+    for m in 0..pairs {
+        let (y1, y2) = (2 * m, (2 * m + 1).min(nh - 1));
+        let dst = &mut b[m * nw..(m + 1) * nw];
         for u in 0..hw {
-            let un = if u == 0 { 0 } else { nw - u };
-            let (row, rown) = (&b[u * nh..(u + 1) * nh], &b[un * nh..(un + 1) * nh]);
-            let dst = &mut a[u * nh..(u + 1) * nh];
-            let prod = |z: Complex32, zn: Complex32| {
-                let zn = zn.conj();
-                let s = z + zn;
-                let d = (z - zn).conj();
-                let p = s * d * 0.25;
-                Complex32::new(-p.im, p.re)
-            };
-            dst[0] = prod(row[0], rown[0]);
-            for ((d, &z), &zn) in dst[1..]
-                .iter_mut()
-                .zip(&row[1..])
-                .zip(rown[1..].iter().rev())
-            {
-                *d = prod(z, zn);
+            let (q1, q2) = (a[u * nh + y1], a[u * nh + y2]);
+            dst[u] = Complex32::new(q1.re - q2.im, q1.im + q2.re);
+            if u != 0 && nw - u >= hw {
+                let (c1, c2) = (q1.conj(), q2.conj());
+                dst[nw - u] = Complex32::new(c1.re - c2.im, c1.im + c2.re);
             }
         }
-        fft_rows(a, nh, hw, &ih, &mut work.scratch, parallel);
-        // a[u][y] for u ≤ nw/2; the rest of each output row is its conjugate mirror.
-        // Two real output rows share one complex inverse: row y1 + i·row y2.
-        let pairs = sh.div_ceil(2);
-        for m in 0..pairs {
-            let (y1, y2) = (2 * m, (2 * m + 1).min(nh - 1));
-            let dst = &mut b[m * nw..(m + 1) * nw];
-            for u in 0..hw {
-                let (q1, q2) = (a[u * nh + y1], a[u * nh + y2]);
-                dst[u] = Complex32::new(q1.re - q2.im, q1.im + q2.re);
-                if u != 0 && nw - u >= hw {
-                    let (c1, c2) = (q1.conj(), q2.conj());
-                    dst[nw - u] = Complex32::new(c1.re - c2.im, c1.im + c2.re);
-                }
+    }
+    fft_rows(b, nw, pairs, &iw, &mut work.scratch, parallel);
+    let scale = 1.0 / n as f32;
+    for (j, o) in out.chunks_mut(sw).enumerate().take(sh) {
+        let src = &b[(j / 2) * nw..(j / 2) * nw + sw];
+        if j % 2 == 0 {
+            for (d, s) in o.iter_mut().zip(src) {
+                *d = s.re * scale;
+            }
+        } else {
+            for (d, s) in o.iter_mut().zip(src) {
+                *d = s.im * scale;
             }
         }
-        fft_rows(b, nw, pairs, &iw, &mut work.scratch, parallel);
-        let scale = 1.0 / n as f32;
-        for (j, o) in out.chunks_mut(sw).enumerate().take(sh) {
-            let src = &b[(j / 2) * nw..(j / 2) * nw + sw];
-            if j % 2 == 0 {
-                for (d, s) in o.iter_mut().zip(src) {
-                    *d = s.re * scale;
-                }
-            } else {
-                for (d, s) in o.iter_mut().zip(src) {
-                    *d = s.im * scale;
-                }
-            }
-        }
-    });
+    }
 }
 
 /// How the correlation numerator is computed.
@@ -533,11 +562,12 @@ pub fn ncc_surface_with(
         width: ww,
         height: wh,
     };
-    // Direct sums cost sw·sh·tw·th multiply–adds at ~7 per cycle (AVX2 kernel on a core
-    // with 128-bit FMA units; more on wider ones, which only favours direct); the FFT
-    // about k·N·log2 N for the padded size N; k was tuned with examples/ncc_timing.rs.
+    // Direct sums cost sw·sh·tw·th multiply–adds at ~7 per cycle with the AVX2 kernel
+    // (on a core with 128-bit FMA units; wider ones only favour direct) and ~2.5 with the
+    // portable SSE2 loop; the FFT about k·N·log2 N for the padded size N. Rates and k
+    // were measured with examples/ncc_timing.rs.
     let (nw, nh) = (fast_len(ww), fast_len(wh));
-    let direct_cost = (sw * sh * tw * th) as f64 / 7.0;
+    let direct_cost = (sw * sh * tw * th) as f64 / direct_macs_per_cycle();
     let fft_cost = FFT_COST * (nw * nh) as f64 * ((nw * nh) as f64).log2();
     let use_fft = match method {
         CorrelationMethod::Auto => direct_cost > fft_cost,
@@ -557,6 +587,14 @@ pub fn ncc_surface_with(
         height: sh,
         values,
     })
+}
+
+fn direct_macs_per_cycle() -> f64 {
+    #[cfg(target_arch = "x86_64")]
+    if std::arch::is_x86_feature_detected!("avx2") && std::arch::is_x86_feature_detected!("fma") {
+        return 7.0;
+    }
+    2.5
 }
 
 /// Cycles per N·log2 N of the FFT path (three passes of complex transforms, two

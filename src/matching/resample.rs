@@ -60,6 +60,19 @@ pub fn bilinear(img: &GreyImage, x: f64, y: f64) -> Option<f64> {
     Some(a + fy * (b - a))
 }
 
+/// floor() without the libm call that generic x86-64 (no SSE4.1 `roundsd`) makes of it.
+/// Exact for |x| < 2⁶³; NaN gives 0 and ±∞ saturate, all of which the callers' range
+/// checks send to their out-of-support paths.
+#[inline]
+fn fast_floor(x: f64) -> f64 {
+    let t = x as i64 as f64;
+    if t > x {
+        t - 1.0
+    } else {
+        t
+    }
+}
+
 #[inline]
 fn keys(t: f64) -> [f64; 4] {
     // Keys cubic convolution weights for the samples at −1, 0, 1, 2 relative to floor.
@@ -81,7 +94,7 @@ fn keys(t: f64) -> [f64; 4] {
 #[inline]
 pub fn bicubic(img: &GreyImage, x: f64, y: f64) -> Option<f64> {
     let (u, v) = (x - 0.5, y - 0.5);
-    let (fi, fj) = (u.floor(), v.floor());
+    let (fi, fj) = (fast_floor(u), fast_floor(v));
     if fi < 1.0 || fj < 1.0 || fi + 2.0 >= img.width as f64 || fj + 2.0 >= img.height as f64 {
         return bilinear(img, x, y);
     }
@@ -97,6 +110,49 @@ pub fn bicubic(img: &GreyImage, x: f64, y: f64) -> Option<f64> {
         s += wyv * r;
     }
     Some(s)
+}
+
+/// Derivatives of the Keys weights of [`keys`] with respect to the fractional position.
+#[inline]
+fn keys_derivative(t: f64) -> [f64; 4] {
+    let a = -0.5;
+    // w'(x) for x ≥ 0; w is even, so w' is odd.
+    let dw = |x: f64| {
+        if x <= 1.0 {
+            (3.0 * (a + 2.0) * x - 2.0 * (a + 3.0)) * x
+        } else if x < 2.0 {
+            (3.0 * a * x - 10.0 * a) * x + 8.0 * a
+        } else {
+            0.0
+        }
+    };
+    [dw(1.0 + t), dw(t), -dw(1.0 - t), -dw(2.0 - t)]
+}
+
+/// Bicubic sample and its analytic gradient (∂/∂x, ∂/∂y per pixel) from one 4×4
+/// neighbourhood; `None` when the support leaves the image (callers fall back to
+/// differences of [`bicubic`], which degrades to bilinear there).
+#[inline]
+pub fn bicubic_with_gradient(img: &GreyImage, x: f64, y: f64) -> Option<(f64, f64, f64)> {
+    let (u, v) = (x - 0.5, y - 0.5);
+    let (fi, fj) = (fast_floor(u), fast_floor(v));
+    if !(fi >= 1.0 && fj >= 1.0) || fi + 2.0 >= img.width as f64 || fj + 2.0 >= img.height as f64 {
+        return None;
+    }
+    let (i, j) = (fi as usize, fj as usize);
+    let (wx, wy) = (keys(u - fi), keys(v - fj));
+    let (dx, dy) = (keys_derivative(u - fi), keys_derivative(v - fj));
+    let (mut g, mut gx, mut gy) = (0.0, 0.0, 0.0);
+    for dj in 0..4 {
+        let row = &img.data[(j + dj - 1) * img.width + i - 1..][..4];
+        let (r0, r1, r2, r3) = (row[0] as f64, row[1] as f64, row[2] as f64, row[3] as f64);
+        let r = wx[0] * r0 + wx[1] * r1 + wx[2] * r2 + wx[3] * r3;
+        let rd = dx[0] * r0 + dx[1] * r1 + dx[2] * r2 + dx[3] * r3;
+        g += wy[dj] * r;
+        gx += wy[dj] * rd;
+        gy += dy[dj] * r;
+    }
+    Some((g, gx, gy))
 }
 
 #[inline]

@@ -9,6 +9,7 @@
 use super::forstner::{forstner, ForstnerOptions};
 use super::matcher::{match_template, MatchOptions};
 use super::ncc::{ncc_search, Window};
+use super::resample::{warp_patch, Interpolation, PatchWarp};
 use super::{GreyImage, MatchingError, Pyramid, Result};
 use crate::estimators::{lmeds, ransac, Estimator, RobustOptions};
 use nalgebra::{DMatrix, Matrix3, Vector3};
@@ -205,7 +206,8 @@ impl Estimator for FundamentalEstimator {
     }
 }
 
-/// NCC + LSM candidates of `points` (pixels of photo a) in photo b.
+/// NCC + LSM candidates of `points` (pixels of photo a) in photo b, each searched
+/// around its transfer through the pair's plane homography.
 pub fn candidates(
     a: &GreyImage,
     b: &Pyramid,
@@ -213,24 +215,109 @@ pub fn candidates(
     points: &[[f64; 2]],
     opts: &TieOptions,
 ) -> Vec<TieCandidate> {
+    let search: Vec<SearchPoint> = points
+        .iter()
+        .map(|&p| SearchPoint {
+            a: p,
+            predicted_b: pred.transfer(p),
+            affine: None,
+        })
+        .collect();
+    search_candidates(a, b, &search, pred.search_radius_px, opts)
+}
+
+/// A point of photo a to be found in photo b: its predicted position in b and, when
+/// known, the local affine shape of the a → b transfer (row-major 2×2, b offsets per a
+/// offset), e.g. from approximate orientations.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct SearchPoint {
+    pub a: [f64; 2],
+    pub predicted_b: [f64; 2],
+    pub affine: Option<[f64; 4]>,
+}
+
+/// Largest deviation of a transfer shape from the identity that still matches with an
+/// unwarped template: over a 21 px template it displaces the corners by ≤ 0.3 px.
+const SHAPE_TOLERANCE: f64 = 0.03;
+
+/// NCC + LSM candidates of each search point within `radius` px of its prediction. When
+/// the transfer shape departs from the identity (rotated or differently scaled photos)
+/// the template is resampled into b's geometry first, so that NCC, which is not
+/// rotation invariant, still sees the same pattern; its centre is then exactly `a`.
+pub fn search_candidates(
+    a: &GreyImage,
+    b: &Pyramid,
+    points: &[SearchPoint],
+    radius: f64,
+    opts: &TieOptions,
+) -> Vec<TieCandidate> {
     let h = opts.template_half;
     let n = 2 * h + 1;
     let bimg = &b.levels[0];
     points
         .par_iter()
-        .filter_map(|p| {
-            let (c0, r0) = (
-                (p[0] - 0.5).round() as isize - h as isize,
-                (p[1] - 0.5).round() as isize - h as isize,
-            );
-            if c0 < 0 || r0 < 0 {
-                return None;
-            }
-            let tpl = a.crop(c0 as usize, r0 as usize, n, n).ok()?;
-            // Template centre in a (corner origin) is exactly the pixel centre we cropped.
-            let ca = [c0 as f64 + h as f64 + 0.5, r0 as f64 + h as f64 + 0.5];
-            let q = pred.transfer(ca);
-            let half = pred.search_radius_px + h as f64 + 1.0;
+        .filter_map(|sp| {
+            let p = sp.a;
+            let shape = sp.affine.filter(|m| {
+                (m[0] - 1.0)
+                    .abs()
+                    .max(m[1].abs())
+                    .max(m[2].abs())
+                    .max((m[3] - 1.0).abs())
+                    > SHAPE_TOLERANCE
+            });
+            let (tpl, ca) = match shape {
+                None => {
+                    let (c0, r0) = (
+                        (p[0] - 0.5).round() as isize - h as isize,
+                        (p[1] - 0.5).round() as isize - h as isize,
+                    );
+                    if c0 < 0 || r0 < 0 {
+                        return None;
+                    }
+                    let tpl = a.crop(c0 as usize, r0 as usize, n, n).ok()?;
+                    // Template centre in a (corner origin) is the pixel centre cropped.
+                    (
+                        tpl,
+                        [c0 as f64 + h as f64 + 0.5, r0 as f64 + h as f64 + 0.5],
+                    )
+                }
+                Some(m) => {
+                    let det = m[0] * m[3] - m[1] * m[2];
+                    if det.abs() < 1e-6 {
+                        return None;
+                    }
+                    // a offset = shape⁻¹ · (template offset from the template centre).
+                    let inv = [m[3] / det, -m[1] / det, -m[2] / det, m[0] / det];
+                    let c = h as f64 + 0.5;
+                    let warp = PatchWarp::Affine([
+                        inv[0],
+                        inv[1],
+                        p[0] - inv[0] * c - inv[1] * c,
+                        inv[2],
+                        inv[3],
+                        p[1] - inv[2] * c - inv[3] * c,
+                    ]);
+                    let (tpl, outside) = warp_patch(a, &warp, n, n, Interpolation::Bicubic);
+                    if outside > 0 {
+                        return None;
+                    }
+                    (tpl, p)
+                }
+            };
+            let q = match shape {
+                // The crop moved the centre by < 0.5 px; move the prediction with it.
+                None => {
+                    let m = sp.affine.unwrap_or([1.0, 0.0, 0.0, 1.0]);
+                    let (dx, dy) = (ca[0] - p[0], ca[1] - p[1]);
+                    [
+                        sp.predicted_b[0] + m[0] * dx + m[1] * dy,
+                        sp.predicted_b[1] + m[2] * dx + m[3] * dy,
+                    ]
+                }
+                Some(_) => sp.predicted_b,
+            };
+            let half = radius + h as f64 + 1.0;
             let w = Window::around(bimg, q[0], q[1], half, half)?;
             let m = match_template(b, &tpl, w, None, &opts.matching).ok()?;
             m.accepted.then_some(TieCandidate {
@@ -334,10 +421,12 @@ pub fn match_pair(
     relative_orientation(pred.a, pred.b, c, opts)
 }
 
-/// A tie point: its observations (photo index, pixel).
+/// A tie point: its observations (photo index, pixel) and each observation's σ (px,
+/// from the match that produced it).
 #[derive(Debug, Clone, Serialize)]
 pub struct Track {
     pub observations: Vec<(usize, [f64; 2])>,
+    pub sigma_px: Vec<f64>,
 }
 
 /// Links the accepted pairwise matches into tracks: observations of one photo within
@@ -346,6 +435,8 @@ pub struct Track {
 /// and dropped.
 pub fn link_tracks(pairs: &[PairMatches], merge_px: f64) -> Vec<Track> {
     let mut nodes: Vec<(usize, [f64; 2])> = Vec::new();
+    // σ of each node: the first match that created it (merged ones are the same point).
+    let mut sigmas: Vec<f64> = Vec::new();
     let mut edges = Vec::new();
     let cell = merge_px.max(1e-6);
     let mut grid: std::collections::HashMap<(usize, i64, i64), Vec<usize>> = Default::default();
@@ -373,6 +464,8 @@ pub fn link_tracks(pairs: &[PairMatches], merge_px: f64) -> Vec<Track> {
         for c in pm.accepted() {
             let i = node_of(pm.a, c.a, &mut nodes);
             let j = node_of(pm.b, c.b, &mut nodes);
+            // New nodes get this match's σ.
+            sigmas.resize(nodes.len(), c.sigma_px);
             edges.push((i, j));
         }
     }
@@ -398,10 +491,13 @@ pub fn link_tracks(pairs: &[PairMatches], merge_px: f64) -> Vec<Track> {
     groups
         .into_values()
         .filter_map(|g| {
-            let mut obs: Vec<(usize, [f64; 2])> = g.iter().map(|&k| nodes[k]).collect();
-            obs.sort_by_key(|o| o.0);
-            let distinct = obs.windows(2).all(|w| w[0].0 != w[1].0);
-            (distinct && obs.len() >= 2).then_some(Track { observations: obs })
+            let mut g = g;
+            g.sort_by_key(|&k| nodes[k].0);
+            let distinct = g.windows(2).all(|w| nodes[w[0]].0 != nodes[w[1]].0);
+            (distinct && g.len() >= 2).then(|| Track {
+                observations: g.iter().map(|&k| nodes[k]).collect(),
+                sigma_px: g.iter().map(|&k| sigmas[k]).collect(),
+            })
         })
         .collect()
 }

@@ -2,6 +2,8 @@
 //! progress and output for the matching module.
 
 use clap::Args;
+use cloudcontrol::block::Block;
+use cloudcontrol::formats::raster::read_dem;
 use cloudcontrol::formats::write_bytes_atomically;
 use cloudcontrol::geometry::InteriorTransformKind;
 use cloudcontrol::matching::fiducial::{
@@ -9,8 +11,11 @@ use cloudcontrol::matching::fiducial::{
 };
 use cloudcontrol::matching::ncc::Window;
 use cloudcontrol::matching::ties::{coverage, link_tracks, match_pair, predict_shift, TieOptions};
+use cloudcontrol::matching::{block_tie_points, BlockTieOptions, Surface};
 use cloudcontrol::matching::{match_template, GreyImage, MatchOptions, Pyramid, RobustMethod};
 use indicatif::{ProgressBar, ProgressStyle};
+use nalgebra::Vector3;
+use std::collections::BTreeMap;
 use std::path::PathBuf;
 use std::process::ExitCode;
 
@@ -48,12 +53,39 @@ pub struct MatchArgs {
     ncc_threshold: f64,
 }
 
-/// Tie points between overlapping photos given in strip order.
+/// Tie points between overlapping photos: guided by the approximate orientations of a
+/// block (--block, from POS/EO), else blind along a strip of photos in flight order.
 #[derive(Args)]
 pub struct TiesArgs {
-    /// Photos in flight order along the strip.
-    #[arg(required = true, num_args = 2..)]
+    /// Photos in flight order along the strip (without --block).
+    #[arg(num_args = 0.., required_unless_present = "block")]
     photos: Vec<PathBuf>,
+    /// Block JSON (cameras, photos with approximate EO and POS priors): each photo's
+    /// points are predicted into the overlapping photos and searched around there.
+    #[arg(long, conflicts_with = "photos")]
+    block: Option<PathBuf>,
+    /// Folder of the block's images (photo names are relative to it); default: the
+    /// block file's folder.
+    #[arg(long, requires = "block")]
+    image_dir: Option<PathBuf>,
+    /// DEM GeoTIFF (world coordinates of the block's CRS) for the predictions.
+    #[arg(long, requires = "block", conflicts_with = "height")]
+    dem: Option<PathBuf>,
+    /// σ of the DEM heights (m).
+    #[arg(long, default_value_t = 2.0)]
+    dem_sigma: f64,
+    /// Mean terrain height (block-local) for the predictions, without a DEM.
+    #[arg(long, requires = "block")]
+    height: Option<f64>,
+    /// σ of the relief about the mean height (m).
+    #[arg(long, default_value_t = 30.0)]
+    height_sigma: f64,
+    /// Write the block with the new tie points here (atomically).
+    #[arg(long, requires = "block")]
+    out_block: Option<PathBuf>,
+    /// Points required near each standard position that lies in an overlap.
+    #[arg(long, default_value_t = 3)]
+    min_per_position: usize,
     /// Output JSON (tracks, pair statistics, coverage of the standard positions).
     #[arg(long)]
     out: PathBuf,
@@ -197,6 +229,12 @@ pub fn ties(a: TiesArgs, quiet: bool) -> ExitCode {
             )
         }
     };
+    if a.block.is_some() {
+        return ties_oriented(&a, robust, quiet);
+    }
+    if a.photos.len() < 2 {
+        return fail("ties", "at least two photos are needed");
+    }
     let mut photos = Vec::new();
     for p in &a.photos {
         match GreyImage::load(p) {
@@ -264,6 +302,89 @@ pub fn ties(a: TiesArgs, quiet: bool) -> ExitCode {
             "{} pairs, {} tracks, {missing} standard positions without points → {}",
             pairs.len(),
             tracks.len(),
+            a.out.display()
+        );
+    }
+    ExitCode::SUCCESS
+}
+
+/// `ties --block`: the approximate-orientation path of the library, reading the block,
+/// its images and the DEM (or mean height), writing the report and the extended block.
+fn ties_oriented(a: &TiesArgs, robust: RobustMethod, quiet: bool) -> ExitCode {
+    let path = a.block.as_ref().expect("checked by the caller");
+    let mut block: Block = match std::fs::read_to_string(path)
+        .map_err(|e| e.to_string())
+        .and_then(|t| serde_json::from_str(&t).map_err(|e| e.to_string()))
+    {
+        Ok(b) => b,
+        Err(e) => return fail("ties", format!("{}: {e}", path.display())),
+    };
+    if let Err(e) = block.validate() {
+        return fail("ties", format!("{}: {e}", path.display()));
+    }
+    let dir = a.image_dir.clone().unwrap_or_else(|| {
+        path.parent()
+            .map(|p| p.to_path_buf())
+            .unwrap_or_else(|| PathBuf::from("."))
+    });
+    let mut images = BTreeMap::new();
+    for (id, photo) in &block.photos {
+        match GreyImage::load(&dir.join(&photo.name)) {
+            Ok(i) => {
+                images.insert(*id, i);
+            }
+            Err(e) => return fail("ties", e),
+        }
+    }
+    let dem = match &a.dem {
+        Some(p) => match read_dem(p) {
+            Ok((d, _)) => Some(d),
+            Err(e) => return fail("ties", format!("{}: {e}", p.display())),
+        },
+        None => None,
+    };
+    let surface = match (&dem, a.height) {
+        (Some(dem), _) => Surface::Dem {
+            dem,
+            origin: Vector3::from(block.origin),
+            sigma_m: a.dem_sigma,
+        },
+        (None, Some(height)) => Surface::Plane {
+            height,
+            sigma_m: a.height_sigma,
+        },
+        (None, None) => {
+            return fail(
+                "ties",
+                "--block needs --dem or --height for the predictions",
+            )
+        }
+    };
+    let mut opts = BlockTieOptions::default();
+    opts.ties.robust = robust;
+    let report = match block_tie_points(&mut block, &images, &surface, a.min_per_position, &opts) {
+        Ok(r) => r,
+        Err(e) => return fail("ties", e),
+    };
+    let json = serde_json::to_string_pretty(&report).expect("json");
+    if let Err(e) = write_bytes_atomically(&a.out, json.as_bytes()) {
+        return fail("ties", e);
+    }
+    if let Some(out) = &a.out_block {
+        let json = serde_json::to_string_pretty(&block).expect("json");
+        if let Err(e) = write_bytes_atomically(out, json.as_bytes()) {
+            return fail("ties", e);
+        }
+    }
+    if !quiet {
+        let missing: usize = report.coverage.iter().map(|c| c.missing.len()).sum();
+        let skipped = report.pairs.iter().filter(|p| p.skipped.is_some()).count();
+        println!(
+            "{} pairs ({skipped} skipped), {} tie points with {} observations, {missing} standard positions with fewer than {} points → {}",
+            report.pairs.len(),
+            report.points_added,
+            report.observations_added,
+            report.min_per_position,
             a.out.display()
         );
     }

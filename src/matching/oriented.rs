@@ -1,0 +1,644 @@
+//! Tie points of a block from approximate orientations (POS/EO): each Förstner point of
+//! a photo is carried through its approximate exterior orientation onto a DEM (or a mean
+//! terrain height) and projected into every overlapping photo, and only a window around
+//! that prediction is searched, its radius from the orientation's uncertainty. The
+//! pairwise matches then pass the robust relative orientation (LMedS or RANSAC), are
+//! linked into multi-photo tracks, and are written into the [`Block`] as tie points with
+//! their observations, σ and provenance; each photo's coverage of the standard positions
+//! is reported.
+
+use super::forstner::forstner;
+use super::ties::{
+    coverage, link_tracks, relative_orientation, search_candidates, Coverage, PairMatches,
+    PairPrediction, RobustMethod, SearchPoint, TieOptions, Track,
+};
+use super::{invalid, GreyImage, Pyramid, Result};
+use crate::block::{Block, ObjectPoint, Observation, PhotoId, PointKind};
+use crate::geometry::{back_project, project, Camera, Dem, Pose, Ray};
+use nalgebra::{DMatrix, Matrix3, Vector3};
+use rayon::prelude::*;
+use serde::Serialize;
+use std::collections::BTreeMap;
+
+/// The terrain the predictions are carried over, in block-local coordinates.
+#[derive(Debug, Clone, Copy)]
+pub enum Surface<'a> {
+    /// A DEM in world coordinates; `origin` is the block's local origin (world = local +
+    /// origin). `sigma_m` is its height uncertainty.
+    Dem {
+        dem: &'a Dem,
+        origin: Vector3<f64>,
+        sigma_m: f64,
+    },
+    /// A horizontal plane at a mean terrain height (block-local), with the σ of the
+    /// relief about it (it enlarges the search by the parallax it causes).
+    Plane { height: f64, sigma_m: f64 },
+}
+
+impl Surface<'_> {
+    /// First intersection of a block-local ray with the surface.
+    pub fn intersect(&self, ray: &Ray) -> Option<Vector3<f64>> {
+        match self {
+            Surface::Dem { dem, origin, .. } => {
+                let world = Ray {
+                    origin: ray.origin + origin,
+                    direction: ray.direction,
+                };
+                dem.intersect(&world).ok().map(|x| x - origin)
+            }
+            Surface::Plane { height, .. } => {
+                if ray.direction.z.abs() < 1e-9 {
+                    return None;
+                }
+                let t = (height - ray.origin.z) / ray.direction.z;
+                (t > 0.0).then(|| ray.at(t))
+            }
+        }
+    }
+
+    fn sigma_m(&self) -> f64 {
+        match self {
+            Surface::Dem { sigma_m, .. } | Surface::Plane { sigma_m, .. } => *sigma_m,
+        }
+    }
+}
+
+/// A photo with its approximate orientation and that orientation's uncertainty.
+#[derive(Debug, Clone, Copy)]
+pub struct OrientedPhoto<'a> {
+    pub image: &'a GreyImage,
+    pub camera: &'a Camera,
+    pub pose: Pose,
+    /// σ of each coordinate of the projection centre (m).
+    pub center_sigma_m: f64,
+    /// σ of each attitude angle (rad).
+    pub angle_sigma_rad: f64,
+}
+
+impl OrientedPhoto<'_> {
+    /// Pixel of photo `b` seen at pixel `p` of `self`, through the surface.
+    pub fn transfer(&self, b: &OrientedPhoto, surface: &Surface, p: [f64; 2]) -> Option<[f64; 2]> {
+        let ray = back_project(self.camera, &self.pose, p).ok()?;
+        let x = surface.intersect(&ray)?;
+        let q = project(b.camera, &b.pose, &x).ok()?;
+        Some([q.pixel.x, q.pixel.y])
+    }
+}
+
+#[derive(Debug, Clone)]
+pub struct BlockTieOptions {
+    pub ties: TieOptions,
+    /// Search radius in multiples of the predicted position's σ.
+    pub n_sigma: f64,
+    /// Pairs whose predicted overlap is below this fraction of photo a are not matched.
+    pub min_overlap: f64,
+    pub min_radius_px: f64,
+    /// Larger predicted uncertainty than this means the orientation is too poor for a
+    /// guided search; the pair is skipped with that reason.
+    pub max_radius_px: f64,
+    /// Used for photos without a POS prior.
+    pub default_center_sigma_m: f64,
+    pub default_angle_sigma_rad: f64,
+    /// Lower bound of an observation's σ: the LSM a-posteriori σ of a well-textured
+    /// patch can be a few hundredths of a pixel, which overstates what a tie point
+    /// measures once the model errors of the adjustment are counted.
+    pub sigma_floor_px: f64,
+    /// Fewer accepted matches than this leave the relative orientation unverified; the
+    /// pair contributes nothing.
+    pub min_pair_matches: usize,
+}
+
+impl Default for BlockTieOptions {
+    fn default() -> Self {
+        Self {
+            ties: TieOptions::default(),
+            n_sigma: 3.0,
+            min_overlap: 0.05,
+            min_radius_px: 3.0,
+            max_radius_px: 150.0,
+            default_center_sigma_m: 5.0,
+            default_angle_sigma_rad: 1.0f64.to_radians(),
+            sigma_floor_px: 0.25,
+            min_pair_matches: 12,
+        }
+    }
+}
+
+/// The predicted geometry of a pair: the a → b plane homography fitted to the transfer
+/// over a grid (for coverage and reporting), the overlap, and the search radius.
+#[derive(Debug, Clone, Copy)]
+pub struct OrientedPair {
+    pub prediction: PairPrediction,
+    /// Fraction of a grid over photo a whose transfer lands inside photo b.
+    pub overlap: f64,
+}
+
+/// Predicts the pair (a, b) from the approximate orientations; `None` when the photos do
+/// not overlap (by at least `min_overlap`).
+pub fn predict_oriented_pair(
+    photos: &[OrientedPhoto],
+    ia: usize,
+    ib: usize,
+    surface: &Surface,
+    opts: &BlockTieOptions,
+) -> Option<OrientedPair> {
+    let (a, b) = (&photos[ia], &photos[ib]);
+    let (wa, ha) = (a.image.width as f64, a.image.height as f64);
+    let (wb, hb) = (b.image.width as f64, b.image.height as f64);
+    const N: usize = 11;
+    let (mut pa, mut pb, mut inside) = (Vec::new(), Vec::new(), 0usize);
+    for r in 0..N {
+        for c in 0..N {
+            let p = [
+                (c as f64 + 0.5) / N as f64 * wa,
+                (r as f64 + 0.5) / N as f64 * ha,
+            ];
+            if let Some(q) = a.transfer(b, surface, p) {
+                if q[0] >= 0.0 && q[1] >= 0.0 && q[0] <= wb && q[1] <= hb {
+                    inside += 1;
+                }
+                pa.push(p);
+                pb.push(q);
+            }
+        }
+    }
+    let overlap = inside as f64 / (N * N) as f64;
+    if overlap < opts.min_overlap || pa.len() < 4 {
+        return None;
+    }
+    let homography = fit_homography(&pa, &pb)?;
+    // Uncertainty of the predicted position in b, per image axis: an attitude error of
+    // either photo moves the point by f·δθ; a centre error by f·δC/H; a height error by
+    // the parallax f·B·δh/H² it causes over the base B.
+    let ca = back_project(a.camera, &a.pose, [wa / 2.0, ha / 2.0]).ok()?;
+    let ground = surface.intersect(&ca)?;
+    let height = (a.pose.center - ground).norm().max(1.0);
+    let base = (a.pose.center - b.pose.center).norm();
+    let f = b.camera.focal_px();
+    let angle = f * a.angle_sigma_rad.hypot(b.angle_sigma_rad);
+    let centre = f / height * a.center_sigma_m.hypot(b.center_sigma_m);
+    let relief = f * base * surface.sigma_m() / (height * height);
+    let sigma = (angle * angle + centre * centre + relief * relief).sqrt();
+    let radius = (opts.n_sigma * sigma).max(opts.min_radius_px);
+    Some(OrientedPair {
+        prediction: PairPrediction {
+            a: ia,
+            b: ib,
+            homography,
+            search_radius_px: radius,
+        },
+        overlap,
+    })
+}
+
+/// Normalised DLT homography from point correspondences (least squares over all).
+fn fit_homography(pa: &[[f64; 2]], pb: &[[f64; 2]]) -> Option<Matrix3<f64>> {
+    let norm = |p: &[[f64; 2]]| {
+        let n = p.len() as f64;
+        let (mx, my) = p
+            .iter()
+            .fold((0.0, 0.0), |s, q| (s.0 + q[0] / n, s.1 + q[1] / n));
+        let d = p.iter().map(|q| (q[0] - mx).hypot(q[1] - my)).sum::<f64>() / n;
+        let s = if d > 0.0 {
+            std::f64::consts::SQRT_2 / d
+        } else {
+            1.0
+        };
+        Matrix3::new(s, 0.0, -s * mx, 0.0, s, -s * my, 0.0, 0.0, 1.0)
+    };
+    let (ta, tb) = (norm(pa), norm(pb));
+    let mut m = DMatrix::<f64>::zeros(2 * pa.len(), 9);
+    for (k, (p, q)) in pa.iter().zip(pb).enumerate() {
+        let u = ta * Vector3::new(p[0], p[1], 1.0);
+        let v = tb * Vector3::new(q[0], q[1], 1.0);
+        let (x, y, xp, yp) = (u.x, u.y, v.x, v.y);
+        let r0 = [-x, -y, -1.0, 0.0, 0.0, 0.0, xp * x, xp * y, xp];
+        let r1 = [0.0, 0.0, 0.0, -x, -y, -1.0, yp * x, yp * y, yp];
+        for j in 0..9 {
+            m[(2 * k, j)] = r0[j];
+            m[(2 * k + 1, j)] = r1[j];
+        }
+    }
+    let svd = m.svd(false, true);
+    let vt = svd.v_t?;
+    let (imin, _) = svd
+        .singular_values
+        .iter()
+        .enumerate()
+        .min_by(|x, y| x.1.total_cmp(y.1))?;
+    let h = vt.row(imin);
+    let hn = Matrix3::new(h[0], h[1], h[2], h[3], h[4], h[5], h[6], h[7], h[8]);
+    let hm = tb.try_inverse()? * hn * ta;
+    let s = hm[(2, 2)];
+    (s.abs() > 1e-12 && hm.iter().all(|v| v.is_finite())).then(|| hm / s)
+}
+
+/// Search points of photo a for photo b: each point's own transfer through the surface
+/// and the local shape of the transfer (central differences over ±2 px).
+fn search_points(
+    a: &OrientedPhoto,
+    b: &OrientedPhoto,
+    surface: &Surface,
+    points: &[[f64; 2]],
+    margin: f64,
+) -> Vec<SearchPoint> {
+    let (wb, hb) = (b.image.width as f64, b.image.height as f64);
+    points
+        .par_iter()
+        .filter_map(|&p| {
+            let q = a.transfer(b, surface, p)?;
+            if q[0] < margin || q[1] < margin || q[0] > wb - margin || q[1] > hb - margin {
+                return None;
+            }
+            const D: f64 = 2.0;
+            let xp = a.transfer(b, surface, [p[0] + D, p[1]])?;
+            let xm = a.transfer(b, surface, [p[0] - D, p[1]])?;
+            let yp = a.transfer(b, surface, [p[0], p[1] + D])?;
+            let ym = a.transfer(b, surface, [p[0], p[1] - D])?;
+            let s = 1.0 / (2.0 * D);
+            Some(SearchPoint {
+                a: p,
+                predicted_b: q,
+                affine: Some([
+                    (xp[0] - xm[0]) * s,
+                    (yp[0] - ym[0]) * s,
+                    (xp[1] - xm[1]) * s,
+                    (yp[1] - ym[1]) * s,
+                ]),
+            })
+        })
+        .collect()
+}
+
+/// What happened to one pair.
+#[derive(Debug, Clone, Serialize)]
+pub struct PairReport {
+    pub a: PhotoId,
+    pub b: PhotoId,
+    pub overlap: f64,
+    pub search_radius_px: f64,
+    /// Förstner points of a predicted inside b.
+    pub points: usize,
+    pub candidates: usize,
+    pub accepted: usize,
+    /// Robust σ of the epipolar distances (px).
+    pub sigma_px: f64,
+    /// Why the pair contributed nothing, if it did not.
+    pub skipped: Option<String>,
+}
+
+/// Coverage of one photo's standard positions by the tie points written.
+#[derive(Debug, Clone, Serialize)]
+pub struct PhotoCoverage {
+    pub photo: PhotoId,
+    pub name: String,
+    pub observations: usize,
+    /// Positions in row order (top-left, top-centre, …, bottom-right): whether each lies
+    /// in an overlap (so needs points) and how many points lie near it.
+    pub required: [bool; 9],
+    pub counts: [usize; 9],
+    /// Required positions with fewer than `min_per_position` points.
+    pub missing: Vec<usize>,
+}
+
+#[derive(Debug, Clone, Serialize)]
+pub struct BlockTieReport {
+    pub pairs: Vec<PairReport>,
+    pub tracks: usize,
+    pub points_added: usize,
+    pub observations_added: usize,
+    /// Number of tracks by their number of photos.
+    pub track_lengths: BTreeMap<usize, usize>,
+    pub coverage: Vec<PhotoCoverage>,
+    pub min_per_position: usize,
+}
+
+/// Pairwise matches and tracks of a set of oriented photos (indices into `photos`).
+#[derive(Debug, Clone)]
+pub struct OrientedTies {
+    pub pairs: Vec<OrientedPair>,
+    pub matches: Vec<PairMatches>,
+    pub reports: Vec<PairReport>,
+    pub tracks: Vec<Track>,
+    pub coverage: Vec<Coverage>,
+}
+
+/// Tie points of oriented photos: every overlapping pair (a < b) is matched a → b by a
+/// guided search, filtered by robust relative orientation, and linked into tracks.
+/// `ids` name the photos in the reports.
+pub fn oriented_tie_points(
+    photos: &[OrientedPhoto],
+    ids: &[PhotoId],
+    surface: &Surface,
+    opts: &BlockTieOptions,
+) -> Result<OrientedTies> {
+    if ids.len() != photos.len() {
+        return Err(invalid(
+            "photo ids",
+            format!("{} ids for {} photos", ids.len(), photos.len()),
+        ));
+    }
+    for (p, id) in photos.iter().zip(ids) {
+        let (w, h) = p.camera.image_size();
+        if (w as usize, h as usize) != (p.image.width, p.image.height) {
+            return Err(invalid(
+                format!("photo {id}"),
+                format!(
+                    "image is {}×{} px but its camera is {w}×{h} px",
+                    p.image.width, p.image.height
+                ),
+            ));
+        }
+    }
+    let t = &opts.ties;
+    let pyrs: Vec<Pyramid> = photos
+        .par_iter()
+        .map(|p| Pyramid::new(p.image, 6, 32))
+        .collect();
+    let points: Vec<Vec<[f64; 2]>> = photos
+        .par_iter()
+        .map(|p| {
+            forstner(p.image, &t.forstner)
+                .iter()
+                .map(|q| [q.x, q.y])
+                .collect()
+        })
+        .collect();
+    // Ground footprints (centre and radius) screen the pairs cheaply, so that a block of
+    // thousands of photos does not transfer a grid for every one of its n² pairs.
+    let footprints: Vec<Option<(Vector3<f64>, f64)>> =
+        photos.par_iter().map(|p| footprint(p, surface)).collect();
+    let mut pairs = Vec::new();
+    let mut matches = Vec::new();
+    let mut reports = Vec::new();
+    for ia in 0..photos.len() {
+        for ib in ia + 1..photos.len() {
+            if let (Some((ca, ra)), Some((cb, rb))) = (footprints[ia], footprints[ib]) {
+                if (ca.xy() - cb.xy()).norm() > ra + rb {
+                    continue;
+                }
+            }
+            let Some(pair) = predict_oriented_pair(photos, ia, ib, surface, opts) else {
+                continue;
+            };
+            let radius = pair.prediction.search_radius_px;
+            let mut report = PairReport {
+                a: ids[ia],
+                b: ids[ib],
+                overlap: pair.overlap,
+                search_radius_px: radius,
+                points: 0,
+                candidates: 0,
+                accepted: 0,
+                sigma_px: f64::NAN,
+                skipped: None,
+            };
+            pairs.push(pair);
+            if radius > opts.max_radius_px {
+                report.skipped = Some(format!(
+                    "predicted uncertainty needs a {radius:.0} px search (limit {:.0} px)",
+                    opts.max_radius_px
+                ));
+                reports.push(report);
+                continue;
+            }
+            let margin = t.template_half as f64 + 2.0;
+            let sp = search_points(&photos[ia], &photos[ib], surface, &points[ia], margin);
+            report.points = sp.len();
+            let cands = search_candidates(photos[ia].image, &pyrs[ib], &sp, radius, t);
+            report.candidates = cands.len();
+            if cands.len() < opts.min_pair_matches {
+                report.skipped = Some(format!(
+                    "{} candidates, fewer than {} needed for a verified relative orientation",
+                    cands.len(),
+                    opts.min_pair_matches
+                ));
+                reports.push(report);
+                continue;
+            }
+            match relative_orientation(ia, ib, cands, t) {
+                Ok(pm) => {
+                    let n = pm.inliers.iter().filter(|&&i| i).count();
+                    report.accepted = n;
+                    report.sigma_px = pm.sigma_px;
+                    if n < opts.min_pair_matches {
+                        report.skipped = Some(format!(
+                            "{n} matches consistent with the relative orientation, fewer than {}",
+                            opts.min_pair_matches
+                        ));
+                    } else {
+                        matches.push(pm);
+                    }
+                }
+                Err(e) => report.skipped = Some(e.to_string()),
+            }
+            tracing::debug!(
+                a = report.a,
+                b = report.b,
+                radius,
+                points = report.points,
+                candidates = report.candidates,
+                accepted = report.accepted,
+                "oriented tie pair"
+            );
+            reports.push(report);
+        }
+    }
+    let tracks = link_tracks(&matches, t.merge_px);
+    let sizes: Vec<(usize, usize)> = photos
+        .iter()
+        .map(|p| (p.image.width, p.image.height))
+        .collect();
+    let preds: Vec<PairPrediction> = pairs.iter().map(|p| p.prediction).collect();
+    let coverage = coverage(&sizes, &preds, &tracks);
+    Ok(OrientedTies {
+        pairs,
+        matches,
+        reports,
+        tracks,
+        coverage,
+    })
+}
+
+/// Ground centre of a photo and the radius that contains its footprint (image centre and
+/// corners carried onto the surface); `None` when a ray misses the surface (the pair is
+/// then judged by the grid transfer alone).
+fn footprint(p: &OrientedPhoto, surface: &Surface) -> Option<(Vector3<f64>, f64)> {
+    let (w, h) = (p.image.width as f64, p.image.height as f64);
+    let ground = |q: [f64; 2]| {
+        back_project(p.camera, &p.pose, q)
+            .ok()
+            .and_then(|r| surface.intersect(&r))
+    };
+    let c = ground([w / 2.0, h / 2.0])?;
+    let mut r: f64 = 0.0;
+    for q in [[0.0, 0.0], [w, 0.0], [0.0, h], [w, h]] {
+        r = r.max((ground(q)?.xy() - c.xy()).norm());
+    }
+    Some((c, r))
+}
+
+/// Least-squares intersection of the observation rays (the point nearest to all of
+/// them); `None` when the rays are (nearly) parallel or the point lies behind a camera.
+fn intersect_rays(rays: &[Ray]) -> Option<Vector3<f64>> {
+    let mut a = Matrix3::zeros();
+    let mut r = Vector3::zeros();
+    for ray in rays {
+        let d = ray.direction.normalize();
+        let m = Matrix3::identity() - d * d.transpose();
+        a += m;
+        r += m * ray.origin;
+    }
+    let eig = a.symmetric_eigen();
+    let min = eig
+        .eigenvalues
+        .iter()
+        .cloned()
+        .fold(f64::INFINITY, f64::min);
+    // Smallest eigenvalue ~ sin² of the intersection angle summed over rays; below
+    // ~1.5° the depth is too weak to trust.
+    if min < 1e-3 {
+        return None;
+    }
+    let x = a.try_inverse()? * r;
+    rays.iter()
+        .all(|ray| (x - ray.origin).dot(&ray.direction) > 0.0)
+        .then_some(x)
+}
+
+/// Tie points for a whole block from its approximate orientations: matches every
+/// overlapping pair of the photos that have an image, and appends one tie
+/// [`ObjectPoint`] per track with its observations (σ from the match, at least
+/// `sigma_floor_px`; provenance naming the method). The object point's initial position
+/// is the intersection of its rays through the approximate orientations, or the
+/// surface point under its first observation when the rays intersect too obliquely.
+pub fn block_tie_points(
+    block: &mut Block,
+    images: &BTreeMap<PhotoId, GreyImage>,
+    surface: &Surface,
+    min_per_position: usize,
+    opts: &BlockTieOptions,
+) -> Result<BlockTieReport> {
+    // Cameras are cloned so the block can take the new points while they are in use.
+    let mut ids = Vec::new();
+    let mut setup: Vec<(&GreyImage, Camera, Pose, f64, f64)> = Vec::new();
+    for (id, img) in images {
+        let photo = block.photos.get(id).ok_or_else(|| {
+            invalid(
+                format!("image for photo {id}"),
+                "no such photo in the block",
+            )
+        })?;
+        let cam = block.camera_of(photo).ok_or_else(|| {
+            invalid(
+                format!("photo {id} ({})", photo.name),
+                format!("unknown camera {}", photo.camera),
+            )
+        })?;
+        let (cs, rs) = match &photo.prior {
+            Some(p) => (
+                p.center_sigma.iter().cloned().fold(0.0, f64::max),
+                if p.rotation.is_some() {
+                    p.rotation_sigma_rad
+                } else {
+                    opts.default_angle_sigma_rad
+                },
+            ),
+            None => (opts.default_center_sigma_m, opts.default_angle_sigma_rad),
+        };
+        ids.push(*id);
+        setup.push((img, cam.model.clone(), photo.pose, cs, rs));
+    }
+    let photos: Vec<OrientedPhoto> = setup
+        .iter()
+        .map(|(image, camera, pose, cs, rs)| OrientedPhoto {
+            image,
+            camera,
+            pose: *pose,
+            center_sigma_m: *cs,
+            angle_sigma_rad: *rs,
+        })
+        .collect();
+    if photos.len() < 2 {
+        return Err(invalid(
+            "tie points",
+            format!("{} photo(s) with an image; at least 2 needed", photos.len()),
+        ));
+    }
+    let ties = oriented_tie_points(&photos, &ids, surface, opts)?;
+    let provenance = format!(
+        "ties: Förstner + NCC + LSM, guided by approximate EO, {} relative orientation",
+        match opts.ties.robust {
+            RobustMethod::Lmeds => "LMedS",
+            RobustMethod::Ransac => "RANSAC",
+        }
+    );
+    let mut next = block.next_point_id();
+    let (mut added, mut observations) = (0usize, 0usize);
+    let mut lengths = BTreeMap::new();
+    for t in &ties.tracks {
+        let rays: Vec<Ray> = t
+            .observations
+            .iter()
+            .filter_map(|(k, p)| back_project(photos[*k].camera, &photos[*k].pose, *p).ok())
+            .collect();
+        if rays.len() != t.observations.len() {
+            continue;
+        }
+        let Some(position) = intersect_rays(&rays).or_else(|| surface.intersect(&rays[0])) else {
+            continue;
+        };
+        *lengths.entry(t.observations.len()).or_insert(0) += 1;
+        let obs: Vec<Observation> = t
+            .observations
+            .iter()
+            .zip(&t.sigma_px)
+            .map(|((k, p), s)| Observation {
+                photo: ids[*k],
+                pixel: *p,
+                sigma_px: if s.is_finite() {
+                    s.max(opts.sigma_floor_px)
+                } else {
+                    opts.sigma_floor_px
+                },
+                provenance: provenance.clone(),
+            })
+            .collect();
+        observations += obs.len();
+        block.points.insert(
+            next,
+            ObjectPoint {
+                id: next,
+                name: String::new(),
+                kind: PointKind::Tie,
+                position,
+                sigma: None,
+                color: [0, 0, 0],
+                observations: obs,
+            },
+        );
+        next += 1;
+        added += 1;
+    }
+    let coverage = ties
+        .coverage
+        .iter()
+        .map(|c| PhotoCoverage {
+            photo: ids[c.photo],
+            name: block.photos[&ids[c.photo]].name.clone(),
+            observations: c.total,
+            required: c.required,
+            counts: c.counts,
+            missing: c.missing(min_per_position),
+        })
+        .collect();
+    Ok(BlockTieReport {
+        pairs: ties.reports,
+        tracks: ties.tracks.len(),
+        points_added: added,
+        observations_added: observations,
+        track_lengths: lengths,
+        coverage,
+        min_per_position,
+    })
+}
