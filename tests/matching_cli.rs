@@ -206,4 +206,16 @@ fn ties_subcommand_uses_the_approximate_orientation() {
         .unwrap();
     assert!(!st.status.success());
     assert!(String::from_utf8_lossy(&st.stderr).contains("--dem or --height"));
+    // An unreadable image of the block is a clear error naming the file.
+    std::fs::write(dir.path().join("p1.tif"), b"not a tiff").unwrap();
+    let st = Command::new(env!("CARGO_BIN_EXE_cloudcontrol"))
+        .args(["ties", "--block"])
+        .arg(&bpath)
+        .args(["--height", "0", "--out"])
+        .arg(dir.path().join("y.json"))
+        .output()
+        .unwrap();
+    assert!(!st.status.success());
+    assert!(String::from_utf8_lossy(&st.stderr).contains("p1.tif"));
+    assert!(!dir.path().join("y.json").exists());
 }

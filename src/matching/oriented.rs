@@ -576,6 +576,9 @@ pub fn block_tie_points(
     let mut next = block.next_point_id();
     let (mut added, mut observations) = (0usize, 0usize);
     let mut lengths = BTreeMap::new();
+    // Tracks whose rays meet neither each other nor the surface are not written; the
+    // coverage is then counted over the written ones only.
+    let mut written: Vec<Track> = Vec::new();
     for t in &ties.tracks {
         let rays: Vec<Ray> = t
             .observations
@@ -589,6 +592,7 @@ pub fn block_tie_points(
             continue;
         };
         *lengths.entry(t.observations.len()).or_insert(0) += 1;
+        written.push(t.clone());
         let obs: Vec<Observation> = t
             .observations
             .iter()
@@ -620,8 +624,12 @@ pub fn block_tie_points(
         next += 1;
         added += 1;
     }
-    let coverage = ties
-        .coverage
+    let sizes: Vec<(usize, usize)> = photos
+        .iter()
+        .map(|p| (p.image.width, p.image.height))
+        .collect();
+    let preds: Vec<PairPrediction> = ties.pairs.iter().map(|p| p.prediction).collect();
+    let coverage = coverage(&sizes, &preds, &written)
         .iter()
         .map(|c| PhotoCoverage {
             photo: ids[c.photo],
