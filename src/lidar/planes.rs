@@ -127,6 +127,10 @@ impl PlaneIndex {
         })
     }
 
+    pub fn options(&self) -> PlaneOptions {
+        self.options
+    }
+
     /// Planes fitted so far (cache size).
     pub fn fitted_planes(&self) -> usize {
         self.arena.read().map(|a| a.len()).unwrap_or(0)
