@@ -5,6 +5,7 @@ use cloudcontrol::formats::raster::{write_dem, GeoTiffOptions};
 use cloudcontrol::formats::write_bytes_atomically;
 use cloudcontrol::geometry::Similarity;
 use cloudcontrol::lidar::clean::{clean_tiles, CleanOptions, OffsetModel};
+use cloudcontrol::lidar::dem::grid_dem_tiles;
 use cloudcontrol::lidar::eval::evaluate_checkpoints_store;
 use cloudcontrol::lidar::points_io::read_xyz;
 use cloudcontrol::lidar::{
@@ -447,26 +448,34 @@ pub fn run_lidar(cmd: LidarCommand, json_out: bool, quiet: bool) -> Result<(), S
                 Some(v) => Bbox::new(v[0], v[1], v[2], v[3]),
                 None => Bbox::new(cat.bounds[0], cat.bounds[1], cat.bounds[3], cat.bounds[4]),
             };
-            let mut store = TileStore::new(cat, source.max_points);
             let cls = classes(&ground_class, all_classes);
-            let pts = store.query(&b, cls.as_deref()).map_err(|e| e.to_string())?;
-            let opts = DemOptions {
+            let mut opts = DemOptions {
                 cell,
-                method: match method {
-                    DemArg::Mean => DemMethod::Mean,
-                    DemArg::Idw => DemMethod::Idw { power },
-                },
+                method: DemMethod::Mean,
                 max_fill_cells: fill,
                 bbox: Some(b),
                 ..Default::default()
             };
-            let dem = grid_dem(&pts.xyz, &opts).map_err(|e| e.to_string())?;
+            // Mean: tiles are streamed into the grid (memory: the grid). IDW needs the
+            // points of neighbouring cells, so the extent is loaded.
+            let (dem, n_points) = match method {
+                DemArg::Mean => {
+                    grid_dem_tiles(&cat, &b, cls.as_deref(), &opts).map_err(|e| e.to_string())?
+                }
+                DemArg::Idw => {
+                    opts.method = DemMethod::Idw { power };
+                    let mut store = TileStore::new(cat, source.max_points);
+                    let pts = store.query(&b, cls.as_deref()).map_err(|e| e.to_string())?;
+                    let dem = grid_dem(&pts.xyz, &opts).map_err(|e| e.to_string())?;
+                    (dem, pts.len() as u64)
+                }
+            };
             write_dem(&out, &dem, &crs, &GeoTiffOptions::default()).map_err(|e| e.to_string())?;
             let nodata = dem.data.iter().filter(|v| !v.is_finite()).count();
             let (z0, z1) = dem.z_range();
             let v = json!({
                 "out": out, "width": dem.width, "height": dem.height, "cell_m": cell,
-                "points": pts.len(), "nodata_cells": nodata, "z_min": z0, "z_max": z1, "crs": crs.label(),
+                "points": n_points, "nodata_cells": nodata, "z_min": z0, "z_max": z1, "crs": crs.label(),
             });
             if json_out {
                 println!("{}", serde_json::to_string_pretty(&v).unwrap());
@@ -476,7 +485,7 @@ pub fn run_lidar(cmd: LidarCommand, json_out: bool, quiet: bool) -> Result<(), S
                     dem.width,
                     dem.height,
                     cell,
-                    pts.len(),
+                    n_points,
                     z0,
                     z1,
                     nodata,
