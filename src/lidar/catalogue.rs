@@ -140,9 +140,9 @@ impl BlockStats {
             t1: f64::NEG_INFINITY,
         };
         for p in xyz {
-            for k in 0..3 {
-                s.bounds[k] = s.bounds[k].min(p[k]);
-                s.bounds[k + 3] = s.bounds[k + 3].max(p[k]);
+            for (k, &v) in p.iter().enumerate() {
+                s.bounds[k] = s.bounds[k].min(v);
+                s.bounds[k + 3] = s.bounds[k + 3].max(v);
             }
         }
         for &c in class {
