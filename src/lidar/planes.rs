@@ -1,5 +1,5 @@
-//! k-d tree over LiDAR points with PCA plane fits of the k nearest points, the coplanarity
-//! measure λmin/Σλ and a weight derived from it (seed 000 §2.2 (2)).
+//! Local planes over LiDAR points: exact nearest-neighbour queries (plan-grid index), PCA
+//! plane fits of the k nearest points, the coplanarity λmin/Σλ and a weight from it (seed 000 §2.2 (2)).
 
 use super::grid_index::{GridIndex, Neighbour};
 use super::{LidarError, Result};

@@ -7,6 +7,7 @@ use cloudcontrol::geometry::Similarity;
 use cloudcontrol::lidar::clean::{clean_tiles, CleanOptions, OffsetModel};
 use cloudcontrol::lidar::dem::grid_dem_tiles;
 use cloudcontrol::lidar::eval::evaluate_checkpoints_store;
+use cloudcontrol::lidar::las::read_points;
 use cloudcontrol::lidar::points_io::read_xyz;
 use cloudcontrol::lidar::{
     grid_dem, icp_point_to_plane, Bbox, Catalogue, CheckpointOptions, DemMethod, DemOptions,
@@ -511,10 +512,22 @@ pub fn run_icp(a: IcpArgs, json_out: bool, quiet: bool) -> Result<(), String> {
     )
     .map_err(|e| e.to_string())?;
     let bbox = Bbox::of_points(&src, a.initial_gate).expect("source is not empty");
-    let mut store = TileStore::new(cat, a.max_points);
-    let lidar = store.query(&bbox, None).map_err(|e| e.to_string())?;
+    // Stream the tiles around the source, keeping only the coordinates inside the extent
+    // (no tile cache: the index is the one copy of the points).
+    let mut xyz: Vec<[f64; 3]> = Vec::new();
+    for i in cat.tiles_in(&bbox) {
+        let mut part = read_points(&cat.tiles[i].file, Some(bbox.as_array()), None)
+            .map_err(|e| e.to_string())?;
+        xyz.append(&mut part.xyz);
+        if xyz.len() as u64 > a.max_points {
+            return Err(format!(
+                "more than --max-points {} LiDAR points around the source; raise it or split the source",
+                a.max_points
+            ));
+        }
+    }
     let read_lidar_s = secs(t);
-    if lidar.is_empty() {
+    if xyz.is_empty() {
         return Err(format!(
             "no LiDAR point within {} m of the source points' extent (check the CRS of {})",
             a.initial_gate,
@@ -522,16 +535,15 @@ pub fn run_icp(a: IcpArgs, json_out: bool, quiet: bool) -> Result<(), String> {
         ));
     }
     let t = Instant::now();
-    let c = Bbox::of_points(&lidar.xyz, 0.0).expect("non-empty");
+    let c = Bbox::of_points(&xyz, 0.0).expect("non-empty");
     let origin = Vector3::new(
         0.5 * (c.min_x + c.max_x),
         0.5 * (c.min_y + c.max_y),
-        lidar.xyz[0][2],
+        xyz[0][2],
     );
-    // Move the coordinates into the index (local frame, in place): no second copy.
-    let n_lidar = lidar.len();
-    let mut local = lidar.xyz;
-    drop((lidar.class, lidar.source, lidar.gps_time));
+    // Move the coordinates into the index (local frame, in place).
+    let n_lidar = xyz.len();
+    let mut local = xyz;
     for p in local.iter_mut() {
         p[0] -= origin.x;
         p[1] -= origin.y;
