@@ -152,3 +152,45 @@ fn bad_dem_options_are_errors() {
     assert!(e.to_string().contains("exceeds"), "{e}");
     assert!(grid_dem(&[], &DemOptions::default()).is_err());
 }
+
+#[test]
+fn streamed_tiles_give_the_in_memory_mean_dem() {
+    use cloudcontrol::lidar::dem::grid_dem_tiles;
+    use cloudcontrol::lidar::{Catalogue, ScanOptions};
+    let dir = tempfile::tempdir().unwrap();
+    let (pts, _) = two_strips(2.0, 0.0, 0.0, 43);
+    let (a, b): (Vec<P>, Vec<P>) = pts.iter().partition(|p| p.x - E0 < 100.0);
+    write_las(&dir.path().join("a.las"), &a, 4, CrsVlr::Wkt(EPSG), false);
+    write_las(&dir.path().join("b.laz"), &b, 4, CrsVlr::Wkt(EPSG), true);
+    let cat = Catalogue::scan(&[dir.path().to_path_buf()], &ScanOptions::default()).unwrap();
+    let bbox = Bbox::new(E0 + 10.0, N0 + 10.0, E0 + 190.0, N0 + 90.0);
+    let opts = DemOptions {
+        cell: 2.0,
+        bbox: Some(bbox),
+        ..Default::default()
+    };
+    let (streamed, n) = grid_dem_tiles(&cat, &bbox, Some(&[2]), &opts).unwrap();
+    let inside: Vec<[f64; 3]> = pts
+        .iter()
+        .filter(|p| bbox.contains(p.x, p.y))
+        .map(|p| [p.x, p.y, p.z])
+        .collect();
+    assert!((n as i64 - inside.len() as i64).abs() <= 2);
+    let mem = grid_dem(&inside, &opts).unwrap();
+    assert_eq!((streamed.width, streamed.height), (mem.width, mem.height));
+    // The last column and row lie on the bbox edge (cells only partly inside it).
+    let w = mem.width;
+    let (mut worst, mut differ, mut cells) = (0.0f32, 0, 0);
+    for r in 0..mem.height - 1 {
+        for c in 0..w - 1 {
+            let d = (streamed.data[r * w + c] - mem.data[r * w + c]).abs();
+            worst = worst.max(d);
+            differ += (d > 0.001) as usize;
+            cells += 1;
+        }
+    }
+    assert!(differ * 100 < cells, "{differ} of {cells} cells differ");
+    // Only the mm quantisation of the tiles differs (a point may change cells).
+    assert!(worst < 0.05, "worst {worst}");
+    assert!(grid_dem_tiles(&cat, &bbox, Some(&[9]), &opts).is_err());
+}

@@ -117,6 +117,45 @@ struct Scanned {
     crs_wkt: Option<String>,
 }
 
+struct BlockStats {
+    bounds: [f64; 6],
+    classes: [u64; 256],
+    t0: f64,
+    t1: f64,
+}
+
+impl BlockStats {
+    fn of(xyz: &[[f64; 3]], class: &[u8], gps: &[f64]) -> Self {
+        let mut s = BlockStats {
+            bounds: [
+                f64::INFINITY,
+                f64::INFINITY,
+                f64::INFINITY,
+                f64::NEG_INFINITY,
+                f64::NEG_INFINITY,
+                f64::NEG_INFINITY,
+            ],
+            classes: [0; 256],
+            t0: f64::INFINITY,
+            t1: f64::NEG_INFINITY,
+        };
+        for p in xyz {
+            for (k, &v) in p.iter().enumerate() {
+                s.bounds[k] = s.bounds[k].min(v);
+                s.bounds[k + 3] = s.bounds[k + 3].max(v);
+            }
+        }
+        for &c in class {
+            s.classes[c as usize] += 1;
+        }
+        for &t in gps.iter().filter(|t| t.is_finite()) {
+            s.t0 = s.t0.min(t);
+            s.t1 = s.t1.max(t);
+        }
+        s
+    }
+}
+
 fn scan_file(path: &Path) -> Result<Scanned> {
     let mut s = LasStream::open(path)?;
     let info = s.info().clone();
@@ -142,17 +181,25 @@ fn scan_file(path: &Path) -> Result<Scanned> {
             break;
         }
         count += batch.len() as u64;
-        for (i, p) in batch.xyz.iter().enumerate() {
+        // Block statistics in parallel, merged in block order (min/max/counts: exact).
+        const BLOCK: usize = 1 << 15;
+        let parts: Vec<BlockStats> = batch
+            .xyz
+            .par_chunks(BLOCK)
+            .zip(batch.class.par_chunks(BLOCK))
+            .zip(batch.gps_time.par_chunks(BLOCK))
+            .map(|((xyz, cls), gps)| BlockStats::of(xyz, cls, gps))
+            .collect();
+        for part in parts {
             for k in 0..3 {
-                b[k] = b[k].min(p[k]);
-                b[k + 3] = b[k + 3].max(p[k]);
+                b[k] = b[k].min(part.bounds[k]);
+                b[k + 3] = b[k + 3].max(part.bounds[k + 3]);
             }
-            classes[batch.class[i] as usize] += 1;
-            let t = batch.gps_time[i];
-            if t.is_finite() {
-                t0 = t0.min(t);
-                t1 = t1.max(t);
+            for (c, n) in classes.iter_mut().zip(part.classes.iter()) {
+                *c += n;
             }
+            t0 = t0.min(part.t0);
+            t1 = t1.max(part.t1);
         }
         // Strips are long runs: count runs instead of a map lookup per point.
         let mut i = 0;

@@ -2,14 +2,13 @@
 //! filter on the mean distance to the k nearest neighbours) and estimation / correction of
 //! per-strip (point source id) systematic offsets from overlapping planar surfaces.
 
+use super::grid_index::GridIndex;
 use super::planes::{PlaneIndex, PlaneOptions};
 use super::{LidarError, Result};
-use kiddo::{ImmutableKdTree, SquaredEuclidean};
 use nalgebra::{DMatrix, DVector, Vector3};
 use rayon::prelude::*;
 use serde::{Deserialize, Serialize};
 use std::collections::BTreeMap;
-use std::num::NonZero;
 
 /// Statistical outlier filter settings.
 #[derive(Debug, Clone, Copy, Serialize, Deserialize)]
@@ -66,14 +65,15 @@ pub fn statistical_outlier_filter(
         .iter()
         .map(|p| [p[0] - o[0], p[1] - o[1], p[2] - o[2]])
         .collect();
-    let tree = ImmutableKdTree::new_from_slice(&local);
-    let k1 = NonZero::new(opts.k + 1).expect("k + 1 > 0");
+    // The grid index reorders its points; queries go point by point in input order.
+    let grid = GridIndex::new(local.clone(), 8.0);
+    let k1 = opts.k + 1;
     let mean_d: Vec<f64> = local
         .par_iter()
-        .map(|p| {
-            let nn = tree.nearest_n::<SquaredEuclidean>(p, k1);
+        .map_init(Vec::new, |nn, p| {
+            grid.nearest_k(p, k1, nn);
             // The query point itself is among the neighbours at distance 0; drop one zero.
-            let s: f64 = nn.iter().map(|n| n.distance.sqrt()).sum();
+            let s: f64 = nn.iter().map(|n| n.distance2.sqrt()).sum();
             s / (nn.len().saturating_sub(1)).max(1) as f64
         })
         .collect();

@@ -73,40 +73,15 @@ pub fn grid_dem(points: &[[f64; 3]], opts: &DemOptions) -> Result<Dem> {
     let b = opts
         .bbox
         .unwrap_or_else(|| Bbox::of_points(points, 0.0).expect("non-empty"));
-    let c = opts.cell;
-    let x0 = (b.min_x / c).floor() * c;
-    let y1 = (b.max_y / c).ceil() * c;
-    let w = (((b.max_x - x0) / c).floor() as usize + 1).max(1);
-    let h = (((y1 - b.min_y) / c).floor() as usize + 1).max(1);
-    if w.saturating_mul(h) > opts.max_cells {
-        return Err(LidarError::InvalidOption(format!(
-            "DEM of {w}×{h} cells exceeds the limit of {} cells; use a larger cell or a smaller extent",
-            opts.max_cells
-        )));
-    }
-    let t = GeoTransform::north_up(x0, y1, c);
-    let cell_of = |p: &[f64; 3]| -> Option<usize> {
-        let col = ((p[0] - x0) / c).floor();
-        let row = ((y1 - p[1]) / c).floor();
-        (col >= 0.0 && row >= 0.0 && (col as usize) < w && (row as usize) < h)
-            .then(|| row as usize * w + col as usize)
-    };
+    let g = GridGeometry::new(&b, opts)?;
+    let (w, h, t) = (g.w, g.h, g.transform());
+    let cell_of = |p: &[f64; 3]| g.cell_of(p);
     let mut data = vec![f32::NAN; w * h];
     match opts.method {
         DemMethod::Mean => {
-            let mut sum = vec![0.0f64; w * h];
-            let mut cnt = vec![0u32; w * h];
-            for p in points {
-                if let Some(i) = cell_of(p) {
-                    sum[i] += p[2];
-                    cnt[i] += 1;
-                }
-            }
-            for i in 0..w * h {
-                if cnt[i] > 0 {
-                    data[i] = (sum[i] / cnt[i] as f64) as f32;
-                }
-            }
+            let mut acc = MeanGrid::new(g);
+            acc.add(points);
+            data = acc.means();
         }
         DemMethod::Idw { power } => {
             // Bucket points by cell (counting sort), then weight the 3×3 neighbourhood.
@@ -190,4 +165,150 @@ fn fill_holes(data: &mut [f32], w: usize, h: usize, passes: usize) {
             break;
         }
     }
+}
+
+/// A north-up grid whose top-left corner is the bbox's (min_x, max_y) snapped outward to
+/// the cell size.
+#[derive(Debug, Clone, Copy)]
+pub struct GridGeometry {
+    pub x0: f64,
+    pub y1: f64,
+    pub cell: f64,
+    pub w: usize,
+    pub h: usize,
+}
+
+impl GridGeometry {
+    pub fn new(b: &Bbox, opts: &DemOptions) -> Result<Self> {
+        let c = opts.cell;
+        if !(c.is_finite() && c > 0.0) {
+            return Err(LidarError::InvalidOption(format!(
+                "DEM cell size {c} must be positive"
+            )));
+        }
+        let x0 = (b.min_x / c).floor() * c;
+        let y1 = (b.max_y / c).ceil() * c;
+        let w = (((b.max_x - x0) / c).floor() as usize + 1).max(1);
+        let h = (((y1 - b.min_y) / c).floor() as usize + 1).max(1);
+        if w.saturating_mul(h) > opts.max_cells {
+            return Err(LidarError::InvalidOption(format!(
+                "DEM of {w}×{h} cells exceeds the limit of {} cells; use a larger cell or a smaller extent",
+                opts.max_cells
+            )));
+        }
+        Ok(Self {
+            x0,
+            y1,
+            cell: c,
+            w,
+            h,
+        })
+    }
+
+    pub fn transform(&self) -> GeoTransform {
+        GeoTransform::north_up(self.x0, self.y1, self.cell)
+    }
+
+    #[inline]
+    pub fn cell_of(&self, p: &[f64; 3]) -> Option<usize> {
+        let col = ((p[0] - self.x0) / self.cell).floor();
+        let row = ((self.y1 - p[1]) / self.cell).floor();
+        (col >= 0.0 && row >= 0.0 && (col as usize) < self.w && (row as usize) < self.h)
+            .then(|| row as usize * self.w + col as usize)
+    }
+}
+
+/// Per-cell mean heights accumulated batch by batch, so a DEM over many tiles needs memory
+/// for the grid only.
+pub struct MeanGrid {
+    pub geometry: GridGeometry,
+    sum: Vec<f64>,
+    count: Vec<u32>,
+}
+
+impl MeanGrid {
+    pub fn new(geometry: GridGeometry) -> Self {
+        let n = geometry.w * geometry.h;
+        Self {
+            geometry,
+            sum: vec![0.0; n],
+            count: vec![0; n],
+        }
+    }
+
+    /// Adds points (outside the grid they are ignored).
+    pub fn add(&mut self, points: &[[f64; 3]]) {
+        for p in points {
+            if let Some(i) = self.geometry.cell_of(p) {
+                self.sum[i] += p[2];
+                self.count[i] += 1;
+            }
+        }
+    }
+
+    fn means(&self) -> Vec<f32> {
+        self.sum
+            .iter()
+            .zip(&self.count)
+            .map(|(s, &n)| {
+                if n > 0 {
+                    (s / n as f64) as f32
+                } else {
+                    f32::NAN
+                }
+            })
+            .collect()
+    }
+
+    /// The DEM, holes filled up to `max_fill_cells`.
+    pub fn finish(self, max_fill_cells: usize) -> Result<Dem> {
+        let g = self.geometry;
+        let mut data = self.means();
+        fill_holes(&mut data, g.w, g.h, max_fill_cells);
+        Dem::new(g.w, g.h, g.transform(), data).map_err(|e| LidarError::data("DEM", e.to_string()))
+    }
+}
+
+/// Mean DEM over the tiles of a catalogue that intersect `bbox`, streaming each tile in
+/// batches (memory: the grid plus one batch). `classes`: e.g. [2] for ground. Returns the
+/// DEM and the number of points gridded.
+pub fn grid_dem_tiles(
+    catalogue: &super::catalogue::Catalogue,
+    bbox: &Bbox,
+    classes: Option<&[u8]>,
+    opts: &DemOptions,
+) -> Result<(Dem, u64)> {
+    use super::las::{LasStream, PointBatch};
+    let mut acc = MeanGrid::new(GridGeometry::new(bbox, opts)?);
+    let mut used = 0u64;
+    let mut batch = PointBatch::with_capacity(1 << 18);
+    let mut kept = Vec::with_capacity(1 << 18);
+    for t in catalogue.tiles_in(bbox) {
+        let mut s = LasStream::open(&catalogue.tiles[t].file)?;
+        loop {
+            batch.xyz.clear();
+            batch.class.clear();
+            batch.source.clear();
+            batch.gps_time.clear();
+            if s.read_into(1 << 18, &mut batch)? == 0 {
+                break;
+            }
+            kept.clear();
+            for (p, c) in batch.xyz.iter().zip(&batch.class) {
+                if bbox.contains(p[0], p[1]) && classes.is_none_or(|k| k.contains(c)) {
+                    kept.push(*p);
+                }
+            }
+            used += kept.len() as u64;
+            acc.add(&kept);
+        }
+    }
+    if used == 0 {
+        return Err(LidarError::TooFewPoints {
+            what: "DEM points in the extent (check the ground class)".into(),
+            got: 0,
+            need: 1,
+        });
+    }
+    Ok((acc.finish(opts.max_fill_cells)?, used))
 }

@@ -9,6 +9,7 @@
 
 use super::{LidarError, Result};
 use crate::formats::crs::Crs;
+use rayon::prelude::*;
 use serde::{Deserialize, Serialize};
 use std::fs::File;
 use std::io::{BufReader, Read};
@@ -327,25 +328,38 @@ impl LasStream {
                 })?;
                 let (s, o) = (self.info.scale, self.info.offset);
                 let l = *layout;
-                out.xyz.reserve(n);
-                out.class.reserve(n);
-                out.source.reserve(n);
-                out.gps_time.reserve(n);
-                for rec in buf.chunks_exact(l.len) {
-                    let i32_at = |k: usize| i32::from_le_bytes(rec[k..k + 4].try_into().unwrap());
-                    out.xyz.push([
-                        i32_at(0) as f64 * s[0] + o[0],
-                        i32_at(4) as f64 * s[1] + o[1],
-                        i32_at(8) as f64 * s[2] + o[2],
-                    ]);
-                    out.class.push(rec[l.class_at] & l.class_mask);
-                    out.source
-                        .push(u16::from_le_bytes([rec[l.source_at], rec[l.source_at + 1]]));
-                    out.gps_time.push(match l.gps_at {
-                        Some(g) => f64::from_le_bytes(rec[g..g + 8].try_into().unwrap()),
-                        None => f64::NAN,
+                let base = out.xyz.len();
+                out.xyz.resize(base + n, [0.0; 3]);
+                out.class.resize(base + n, 0);
+                out.source.resize(base + n, 0);
+                out.gps_time.resize(base + n, 0.0);
+                // Decode in parallel blocks of records (pure per-record work: deterministic).
+                const BLOCK: usize = 1 << 15;
+                out.xyz[base..]
+                    .par_chunks_mut(BLOCK)
+                    .zip(out.class[base..].par_chunks_mut(BLOCK))
+                    .zip(out.source[base..].par_chunks_mut(BLOCK))
+                    .zip(out.gps_time[base..].par_chunks_mut(BLOCK))
+                    .zip(buf.par_chunks(BLOCK * l.len))
+                    .for_each(|((((xyz, class), source), gps), bytes)| {
+                        for (k, rec) in bytes.chunks_exact(l.len).enumerate() {
+                            let i32_at = |k: usize| {
+                                i32::from_le_bytes([rec[k], rec[k + 1], rec[k + 2], rec[k + 3]])
+                            };
+                            xyz[k] = [
+                                i32_at(0) as f64 * s[0] + o[0],
+                                i32_at(4) as f64 * s[1] + o[1],
+                                i32_at(8) as f64 * s[2] + o[2],
+                            ];
+                            class[k] = rec[l.class_at] & l.class_mask;
+                            source[k] =
+                                u16::from_le_bytes([rec[l.source_at], rec[l.source_at + 1]]);
+                            gps[k] = match l.gps_at {
+                                Some(g) => f64::from_le_bytes(rec[g..g + 8].try_into().unwrap()),
+                                None => f64::NAN,
+                            };
+                        }
                     });
-                }
             }
             Inner::Laz(reader) => {
                 let mut pts = Vec::with_capacity(n);

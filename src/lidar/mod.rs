@@ -10,6 +10,7 @@ pub mod catalogue;
 pub mod clean;
 pub mod dem;
 pub mod eval;
+pub mod grid_index;
 pub mod icp;
 pub mod las;
 pub mod planes;

@@ -1,10 +1,9 @@
-//! k-d tree over LiDAR points with PCA plane fits of the k nearest points, the coplanarity
-//! measure λmin/Σλ and a weight derived from it (seed 000 §2.2 (2)).
+//! Local planes over LiDAR points: exact nearest-neighbour queries (plan-grid index), PCA
+//! plane fits of the k nearest points, the coplanarity λmin/Σλ and a weight from it (seed 000 §2.2 (2)).
 
+use super::grid_index::{GridIndex, Neighbour};
 use super::{LidarError, Result};
-use kiddo::{ImmutableKdTree, SquaredEuclidean};
 use nalgebra::{Matrix3, SymmetricEigen, Vector3};
-use std::num::NonZero;
 use std::sync::atomic::{AtomicU32, Ordering};
 use std::sync::RwLock;
 
@@ -64,8 +63,8 @@ const FIRST: u32 = 2;
 /// points and the tree.
 pub struct PlaneIndex {
     origin: Vector3<f64>,
-    points: Vec<[f64; 3]>,
-    tree: ImmutableKdTree<f64, 3>,
+    /// Points in the local frame, bucketed for exact nearest-neighbour queries.
+    grid: GridIndex,
     options: PlaneOptions,
     slots: Vec<AtomicU32>,
     arena: RwLock<Vec<LocalPlane>>,
@@ -115,16 +114,19 @@ impl PlaneIndex {
         if !(origin.iter().all(|v| v.is_finite())) {
             return Err(LidarError::InvalidOption("origin is not finite".into()));
         }
-        let tree = ImmutableKdTree::new_from_slice(&points);
         let slots = (0..points.len()).map(|_| AtomicU32::new(UNKNOWN)).collect();
+        let grid = GridIndex::new(points, 8.0);
         Ok(Self {
             origin,
-            points,
-            tree,
+            grid,
             options,
             slots,
             arena: RwLock::new(Vec::new()),
         })
+    }
+
+    pub fn options(&self) -> PlaneOptions {
+        self.options
     }
 
     /// Planes fitted so far (cache size).
@@ -137,17 +139,16 @@ impl PlaneIndex {
     }
 
     pub fn len(&self) -> usize {
-        self.points.len()
+        self.grid.len()
     }
 
     pub fn is_empty(&self) -> bool {
-        self.points.is_empty()
+        self.grid.is_empty()
     }
 
     /// The plane for a local-frame query point, or None where the surface is not planar.
     pub fn plane_at(&self, q: &Vector3<f64>) -> Option<LocalPlane> {
-        let nn = self.tree.nearest_one::<SquaredEuclidean>(&[q.x, q.y, q.z]);
-        let idx = nn.item as usize;
+        let idx = self.grid.nearest_one(&[q.x, q.y, q.z])?.index;
         match self.slots[idx].load(Ordering::Acquire) {
             NOT_PLANAR => return None,
             UNKNOWN => {}
@@ -175,26 +176,34 @@ impl PlaneIndex {
     }
 
     fn fit(&self, idx: usize) -> Option<LocalPlane> {
-        let k = NonZero::new(self.options.k).expect("k >= 3 checked in new");
-        let nbrs = self
-            .tree
-            .nearest_n::<SquaredEuclidean>(&self.points[idx], k);
+        thread_local! {
+            static NBRS: std::cell::RefCell<Vec<Neighbour>> = const { std::cell::RefCell::new(Vec::new()) };
+        }
+        NBRS.with(|buf| {
+            let mut nbrs = buf.borrow_mut();
+            let pts = self.grid.points();
+            self.grid.nearest_k(&pts[idx], self.options.k, &mut nbrs);
+            self.fit_neighbours(pts, &nbrs)
+        })
+    }
+
+    fn fit_neighbours(&self, points: &[[f64; 3]], nbrs: &[Neighbour]) -> Option<LocalPlane> {
         if nbrs.len() < 3 {
             return None;
         }
-        let far = nbrs.iter().map(|n| n.distance).fold(0.0, f64::max).sqrt();
+        let far = nbrs.iter().map(|n| n.distance2).fold(0.0, f64::max).sqrt();
         if far > self.options.max_radius {
             return None;
         }
         let mut c = Vector3::zeros();
-        for n in &nbrs {
-            let p = self.points[n.item as usize];
+        for n in nbrs {
+            let p = points[n.index];
             c += Vector3::new(p[0], p[1], p[2]);
         }
         c /= nbrs.len() as f64;
         let mut cov = Matrix3::zeros();
-        for n in &nbrs {
-            let p = self.points[n.item as usize];
+        for n in nbrs {
+            let p = points[n.index];
             let d = Vector3::new(p[0], p[1], p[2]) - c;
             cov += d * d.transpose();
         }

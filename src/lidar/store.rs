@@ -60,12 +60,102 @@ impl Bbox {
     }
 }
 
+/// A loaded tile: its points bucketed on a plan grid (about 64 points per cell) so a small
+/// query touches only the cells it overlaps. The bucket index costs 4 bytes per point.
+pub struct LoadedTile {
+    pub points: PointBatch,
+    x0: f64,
+    y0: f64,
+    cell: f64,
+    nx: usize,
+    ny: usize,
+    /// Point indices ordered by cell; cell c holds order[starts[c]..starts[c + 1]].
+    order: Vec<u32>,
+    starts: Vec<u32>,
+}
+
+impl LoadedTile {
+    pub fn new(points: PointBatch) -> Self {
+        let b = Bbox::of_points(&points.xyz, 0.0).unwrap_or(Bbox::new(0.0, 0.0, 0.0, 0.0));
+        let area = ((b.max_x - b.min_x) * (b.max_y - b.min_y)).max(1.0);
+        let n = points.len().max(1) as f64;
+        let mut cell = (64.0 * area / n).sqrt().max(0.5);
+        // Keep the grid to at most ~4 M cells whatever the point layout.
+        while ((b.max_x - b.min_x) / cell + 1.0) * ((b.max_y - b.min_y) / cell + 1.0) > 4.0e6 {
+            cell *= 2.0;
+        }
+        let nx = ((b.max_x - b.min_x) / cell) as usize + 1;
+        let ny = ((b.max_y - b.min_y) / cell) as usize + 1;
+        let cell_of = |p: &[f64; 3]| {
+            let cx = (((p[0] - b.min_x) / cell) as usize).min(nx - 1);
+            let cy = (((p[1] - b.min_y) / cell) as usize).min(ny - 1);
+            cy * nx + cx
+        };
+        let mut starts = vec![0u32; nx * ny + 1];
+        for p in &points.xyz {
+            starts[cell_of(p) + 1] += 1;
+        }
+        for i in 0..nx * ny {
+            starts[i + 1] += starts[i];
+        }
+        let mut fill = starts.clone();
+        let mut order = vec![0u32; points.len()];
+        for (i, p) in points.xyz.iter().enumerate() {
+            let c = cell_of(p);
+            order[fill[c] as usize] = i as u32;
+            fill[c] += 1;
+        }
+        Self {
+            points,
+            x0: b.min_x,
+            y0: b.min_y,
+            cell,
+            nx,
+            ny,
+            order,
+            starts,
+        }
+    }
+
+    pub fn len(&self) -> usize {
+        self.points.len()
+    }
+
+    pub fn is_empty(&self) -> bool {
+        self.points.is_empty()
+    }
+
+    /// Indices of the points inside `bbox` (cell order, ascending within a cell).
+    pub fn indices_in(&self, bbox: &Bbox, mut f: impl FnMut(usize)) {
+        let cx0 = ((bbox.min_x - self.x0) / self.cell).floor().max(0.0) as usize;
+        let cy0 = ((bbox.min_y - self.y0) / self.cell).floor().max(0.0) as usize;
+        let cx1 = ((bbox.max_x - self.x0) / self.cell).floor();
+        let cy1 = ((bbox.max_y - self.y0) / self.cell).floor();
+        if cx1 < 0.0 || cy1 < 0.0 || cx0 >= self.nx || cy0 >= self.ny {
+            return;
+        }
+        let cx1 = (cx1 as usize).min(self.nx - 1);
+        let cy1 = (cy1 as usize).min(self.ny - 1);
+        for cy in cy0..=cy1 {
+            for cx in cx0..=cx1 {
+                let c = cy * self.nx + cx;
+                for &i in &self.order[self.starts[c] as usize..self.starts[c + 1] as usize] {
+                    let p = self.points.xyz[i as usize];
+                    if bbox.contains(p[0], p[1]) {
+                        f(i as usize);
+                    }
+                }
+            }
+        }
+    }
+}
+
 /// Loads tiles of a catalogue on demand with an LRU bound on the points held.
 pub struct TileStore {
     catalogue: Catalogue,
     max_points: u64,
     /// (tile index, points), most recently used last.
-    cache: Vec<(usize, Arc<PointBatch>)>,
+    cache: Vec<(usize, Arc<LoadedTile>)>,
     loads: usize,
 }
 
@@ -96,7 +186,7 @@ impl TileStore {
     }
 
     /// A tile's points, from the cache or read from its file.
-    pub fn tile(&mut self, index: usize) -> Result<Arc<PointBatch>> {
+    pub fn tile(&mut self, index: usize) -> Result<Arc<LoadedTile>> {
         if index >= self.catalogue.tiles.len() {
             return Err(LidarError::InvalidOption(format!(
                 "tile index {index} out of range"
@@ -109,7 +199,7 @@ impl TileStore {
             return Ok(b);
         }
         let entry = &self.catalogue.tiles[index];
-        let pts = Arc::new(read_points(&entry.file, None, None)?);
+        let pts = read_points(&entry.file, None, None)?;
         if pts.len() as u64 != entry.point_count {
             return Err(LidarError::CountMismatch {
                 path: entry.file.clone(),
@@ -118,6 +208,7 @@ impl TileStore {
             });
         }
         self.loads += 1;
+        let pts = Arc::new(LoadedTile::new(pts));
         let n = pts.len() as u64;
         let mut held = self.cached_points();
         while held + n > self.max_points && !self.cache.is_empty() {
@@ -133,12 +224,18 @@ impl TileStore {
     pub fn query(&mut self, bbox: &Bbox, classes: Option<&[u8]>) -> Result<PointBatch> {
         let mut out = PointBatch::default();
         for t in self.catalogue.tiles_in(bbox) {
-            let pts = self.tile(t)?;
-            for i in 0..pts.len() {
-                let p = pts.xyz[i];
-                if bbox.contains(p[0], p[1]) && classes.is_none_or(|c| c.contains(&pts.class[i])) {
-                    out.push(p, pts.class[i], pts.source[i], pts.gps_time[i]);
+            let tile = self.tile(t)?;
+            let pts = &tile.points;
+            let mut idx = Vec::new();
+            tile.indices_in(bbox, |i| {
+                if classes.is_none_or(|c| c.contains(&pts.class[i])) {
+                    idx.push(i);
                 }
+            });
+            // File order, whatever the bucket layout.
+            idx.sort_unstable();
+            for i in idx {
+                out.push(pts.xyz[i], pts.class[i], pts.source[i], pts.gps_time[i]);
             }
         }
         Ok(out)

@@ -129,3 +129,30 @@ def test_laspy_reads_the_tiles_we_write(tmp_path):
     cps = checkpoints()
     _, after = lidar.evaluate_checkpoints(out / "tile.las", cps)
     assert after["rmse_m"] < 0.05
+
+
+def test_source_planes_and_icp(tmp_path):
+    f = tmp_path / "tile.las"
+    write_tile(f, offset2=0.0)
+    src = lidar.LidarSource(f, bbox=(E0, N0, E0 + 120, N0 + 100))
+    assert 30_000 < len(src) < 60_000
+    q = np.array([[E0 + 50.0, N0 + 50.0, ground(E0 + 50.0, N0 + 50.0) + 1.0]])
+    pl = src.planes(q)
+    n_true = np.array([-0.02, -0.01, 1.0]) / np.linalg.norm([-0.02, -0.01, 1.0])
+    # 12 neighbours within ~1 m at σ 5 cm: the normal is good to ~1–2°.
+    assert np.degrees(np.arccos(pl["normal"][0] @ n_true)) < 3.0
+    assert pl["distance"][0] == pytest.approx(1.0, abs=0.05)
+    assert 0 < pl["weight"][0] <= 1
+    # Far from the data: no plane (NaN row), not an error.
+    assert np.isnan(src.planes([[E0 - 500, N0, 50]])["distance"]).all()
+    rng = np.random.default_rng(3)
+    x = E0 + rng.uniform(10, 110, 3000)
+    y = N0 + rng.uniform(10, 90, 3000)
+    pts = np.column_stack([x, y, ground(x, y) + 0.8])
+    m, st = src.icp(pts, rigid=True, initial_gate=3.0)
+    moved = pts @ m[:3, :3].T + m[:3, 3]
+    assert np.abs(moved[:, 2] - ground(moved[:, 0], moved[:, 1])).max() < 0.05
+    assert st["rmse_m"] < 0.05 and st["scale"] == 1.0 and st["inliers"] > 2000
+    with pytest.raises(cloudcontrol.CloudControlError) as e:
+        lidar.LidarSource(f, bbox=(E0 - 1000, N0 - 1000, E0 - 900, N0 - 900))
+    assert "no LiDAR point" in str(e.value)

@@ -5,7 +5,9 @@ use cloudcontrol::formats::raster::{write_dem, GeoTiffOptions};
 use cloudcontrol::formats::write_bytes_atomically;
 use cloudcontrol::geometry::Similarity;
 use cloudcontrol::lidar::clean::{clean_tiles, CleanOptions, OffsetModel};
+use cloudcontrol::lidar::dem::grid_dem_tiles;
 use cloudcontrol::lidar::eval::evaluate_checkpoints_store;
+use cloudcontrol::lidar::las::read_points;
 use cloudcontrol::lidar::points_io::read_xyz;
 use cloudcontrol::lidar::{
     grid_dem, icp_point_to_plane, Bbox, Catalogue, CheckpointOptions, DemMethod, DemOptions,
@@ -447,26 +449,34 @@ pub fn run_lidar(cmd: LidarCommand, json_out: bool, quiet: bool) -> Result<(), S
                 Some(v) => Bbox::new(v[0], v[1], v[2], v[3]),
                 None => Bbox::new(cat.bounds[0], cat.bounds[1], cat.bounds[3], cat.bounds[4]),
             };
-            let mut store = TileStore::new(cat, source.max_points);
             let cls = classes(&ground_class, all_classes);
-            let pts = store.query(&b, cls.as_deref()).map_err(|e| e.to_string())?;
-            let opts = DemOptions {
+            let mut opts = DemOptions {
                 cell,
-                method: match method {
-                    DemArg::Mean => DemMethod::Mean,
-                    DemArg::Idw => DemMethod::Idw { power },
-                },
+                method: DemMethod::Mean,
                 max_fill_cells: fill,
                 bbox: Some(b),
                 ..Default::default()
             };
-            let dem = grid_dem(&pts.xyz, &opts).map_err(|e| e.to_string())?;
+            // Mean: tiles are streamed into the grid (memory: the grid). IDW needs the
+            // points of neighbouring cells, so the extent is loaded.
+            let (dem, n_points) = match method {
+                DemArg::Mean => {
+                    grid_dem_tiles(&cat, &b, cls.as_deref(), &opts).map_err(|e| e.to_string())?
+                }
+                DemArg::Idw => {
+                    opts.method = DemMethod::Idw { power };
+                    let mut store = TileStore::new(cat, source.max_points);
+                    let pts = store.query(&b, cls.as_deref()).map_err(|e| e.to_string())?;
+                    let dem = grid_dem(&pts.xyz, &opts).map_err(|e| e.to_string())?;
+                    (dem, pts.len() as u64)
+                }
+            };
             write_dem(&out, &dem, &crs, &GeoTiffOptions::default()).map_err(|e| e.to_string())?;
             let nodata = dem.data.iter().filter(|v| !v.is_finite()).count();
             let (z0, z1) = dem.z_range();
             let v = json!({
                 "out": out, "width": dem.width, "height": dem.height, "cell_m": cell,
-                "points": pts.len(), "nodata_cells": nodata, "z_min": z0, "z_max": z1, "crs": crs.label(),
+                "points": n_points, "nodata_cells": nodata, "z_min": z0, "z_max": z1, "crs": crs.label(),
             });
             if json_out {
                 println!("{}", serde_json::to_string_pretty(&v).unwrap());
@@ -476,7 +486,7 @@ pub fn run_lidar(cmd: LidarCommand, json_out: bool, quiet: bool) -> Result<(), S
                     dem.width,
                     dem.height,
                     cell,
-                    pts.len(),
+                    n_points,
                     z0,
                     z1,
                     nodata,
@@ -502,10 +512,22 @@ pub fn run_icp(a: IcpArgs, json_out: bool, quiet: bool) -> Result<(), String> {
     )
     .map_err(|e| e.to_string())?;
     let bbox = Bbox::of_points(&src, a.initial_gate).expect("source is not empty");
-    let mut store = TileStore::new(cat, a.max_points);
-    let lidar = store.query(&bbox, None).map_err(|e| e.to_string())?;
+    // Stream the tiles around the source, keeping only the coordinates inside the extent
+    // (no tile cache: the index is the one copy of the points).
+    let mut xyz: Vec<[f64; 3]> = Vec::new();
+    for i in cat.tiles_in(&bbox) {
+        let mut part = read_points(&cat.tiles[i].file, Some(bbox.as_array()), None)
+            .map_err(|e| e.to_string())?;
+        xyz.append(&mut part.xyz);
+        if xyz.len() as u64 > a.max_points {
+            return Err(format!(
+                "more than --max-points {} LiDAR points around the source; raise it or split the source",
+                a.max_points
+            ));
+        }
+    }
     let read_lidar_s = secs(t);
-    if lidar.is_empty() {
+    if xyz.is_empty() {
         return Err(format!(
             "no LiDAR point within {} m of the source points' extent (check the CRS of {})",
             a.initial_gate,
@@ -513,16 +535,15 @@ pub fn run_icp(a: IcpArgs, json_out: bool, quiet: bool) -> Result<(), String> {
         ));
     }
     let t = Instant::now();
-    let c = Bbox::of_points(&lidar.xyz, 0.0).expect("non-empty");
+    let c = Bbox::of_points(&xyz, 0.0).expect("non-empty");
     let origin = Vector3::new(
         0.5 * (c.min_x + c.max_x),
         0.5 * (c.min_y + c.max_y),
-        lidar.xyz[0][2],
+        xyz[0][2],
     );
-    // Move the coordinates into the index (local frame, in place): no second copy.
-    let n_lidar = lidar.len();
-    let mut local = lidar.xyz;
-    drop((lidar.class, lidar.source, lidar.gps_time));
+    // Move the coordinates into the index (local frame, in place).
+    let n_lidar = xyz.len();
+    let mut local = xyz;
     for p in local.iter_mut() {
         p[0] -= origin.x;
         p[1] -= origin.y;
