@@ -323,8 +323,10 @@ impl EpochInput {
 pub struct ArchiveOptions {
     pub orient: OrientOptions,
     pub matching: MatchOptions,
-    /// Template half size in target pixels (template = 2·h + 1).
+    /// Largest template half size in target pixels (template = 2·h + 1); smaller when the
+    /// chip does not hold it at the target's scale, but never below `min_template_half`.
     pub template_half: usize,
+    pub min_template_half: usize,
     /// Smallest RANSAC threshold of the resection (px); the threshold is also ≥ 4σ.
     pub resection_threshold_px: f64,
     /// Least number of resection inliers for a photo to count as oriented: three points
@@ -363,7 +365,8 @@ impl Default for ArchiveOptions {
                 agreement_px: 1.0,
                 ..MatchOptions::default()
             },
-            template_half: 12,
+            template_half: 20,
+            min_template_half: 7,
             resection_threshold_px: 3.0,
             min_inliers: 4,
             sigma_floor_px: 0.3,
@@ -516,7 +519,15 @@ impl<'a> DcpPatchMatcher<'a> {
         let (x0, y0) = (ms.chip.x0 as f64, ms.chip.y0 as f64);
         let s = Vector2::new(ms.pixel[0] - x0, ms.pixel[1] - y0);
         let l = a.fixed_view::<2, 2>(0, 0).into_owned();
-        let t = (2 * self.opts.template_half + 1) as f64;
+        // The largest template (up to the option) whose footprint stays inside the chip:
+        // a coarser target needs more chip pixels per template pixel.
+        let stretch = l.column(0).norm().max(l.column(1).norm()).max(1e-9);
+        let room = (ms.chip.width.min(ms.chip.height) as f64 / 2.0 - 3.0) / (stretch * 1.05);
+        let th = (self.opts.template_half as f64).min(room.floor() - 1.0);
+        if th < self.opts.min_template_half as f64 {
+            return None;
+        }
+        let t = 2.0 * th + 1.0;
         let chip = self.chip(k, i, j)?;
         let level = (predict::pyramid_level(&a) as usize).min(chip.levels.len() - 1);
         let f = (1u64 << level) as f64;
@@ -570,7 +581,7 @@ impl PatchMatcher for DcpPatchMatcher<'_> {
             return None;
         }
         let img = &self.pyramid.levels[0];
-        let th = self.opts.template_half as f64 + 0.5;
+        let th = tpl.width as f64 / 2.0;
         let window = Window::around(
             img,
             prediction.pixel.x,
@@ -578,7 +589,30 @@ impl PatchMatcher for DcpPatchMatcher<'_> {
             half_size[0] + th,
             half_size[1] + th,
         )?;
-        let r = match match_template(self.pyramid, &tpl, window, None, &self.opts.matching) {
+        let rr = match_template(self.pyramid, &tpl, window, None, &self.opts.matching);
+        if std::env::var_os("CC_ARCHIVE_DEBUG").is_some() {
+            let tag = format!("/tmp/ccdbg/{}_{}_{:.0}", k, i, half_size[0]);
+            let _ = std::fs::create_dir_all("/tmp/ccdbg");
+            let _ = tpl.save(Path::new(&format!("{tag}_tpl.png")), false);
+            if let Ok(c) = img.crop(window.col, window.row, window.width, window.height) {
+                let _ = c.save(Path::new(&format!("{tag}_win.png")), false);
+            }
+            match &rr {
+                Ok(r) => eprintln!(
+                    "{tag}: pred ({:.1},{:.1}) half {:?} -> ({:.1},{:.1}) ncc {:.2} amb {:.2} {:?}",
+                    prediction.pixel.x,
+                    prediction.pixel.y,
+                    half_size,
+                    r.x,
+                    r.y,
+                    r.ncc,
+                    r.ambiguity,
+                    r.reason
+                ),
+                Err(e) => eprintln!("{tag}: {e}"),
+            }
+        }
+        let r = match rr {
             Ok(r) if r.accepted => r,
             _ => {
                 self.stats.rejected += 1;
@@ -881,7 +915,13 @@ fn orient_one(
     };
     let margin = 3.0 * cov0[(3, 3)].max(cov0[(4, 4)]).sqrt();
     let patches: Vec<ControlPatch> = index
-        .query_polygon(&grow(&fp, margin))
+        // The index holds world coordinates.
+        .query_polygon(
+            &grow(&fp, margin)
+                .iter()
+                .map(|p| [p[0] + origin.x, p[1] + origin.y])
+                .collect::<Vec<_>>(),
+        )
         .into_iter()
         .map(|(k, i)| {
             let p = &packages[k].manifest.points[i];
@@ -1284,6 +1324,9 @@ pub struct DcpExportOptions {
     pub chip_size: u32,
     pub accuracy: Accuracy,
     pub source: String,
+    /// Pyramid level of the reference photos the interest operator runs on (2 = 4×
+    /// coarser ground pixel).
+    pub interest_level: usize,
 }
 
 impl Default for DcpExportOptions {
@@ -1296,6 +1339,7 @@ impl Default for DcpExportOptions {
                 height_m: 0.05,
             },
             source: "photos oriented against LiDAR".into(),
+            interest_level: 2,
         }
     }
 }
@@ -1320,20 +1364,27 @@ pub fn export_dcp(
         let Some(ph) = block.photos.get(&pid).filter(|p| p.oriented) else {
             continue;
         };
-        let img = GreyImage::load(path).map_err(|e| input_err(path, e.to_string()))?;
-        let cell = opts.cloud.interval_px.max(8.0);
+        let full = GreyImage::load(path).map_err(|e| input_err(path, e.to_string()))?;
+        // Interest is taken at the scale of the coarser archive photos the package is
+        // for: fine texture (crop rows, tiles) that is distinct at the reference scale
+        // aliases into ambiguous patterns there, while corners of parcels and roads stay.
+        let pyr = Pyramid::new(&full, opts.interest_level + 1, 32);
+        let level = pyr.levels.len() - 1;
+        let f = (1usize << level) as f64;
+        let img = &pyr.levels[level];
+        let cell = (opts.cloud.interval_px / f).max(4.0);
         let fo = ForstnerOptions {
             grid: (
                 ((img.width as f64 / cell).ceil() as usize).max(1),
                 ((img.height as f64 / cell).ceil() as usize).max(1),
             ),
             per_cell: 8,
-            border: (opts.chip_size / 2 + 2) as usize,
+            border: ((opts.chip_size / 2 + 2) as f64 / f).ceil() as usize,
             ..ForstnerOptions::default()
         };
-        let cands: Vec<cloud::Candidate> = forstner(&img, &fo)
+        let cands: Vec<cloud::Candidate> = forstner(img, &fo)
             .into_iter()
-            .map(|p| ([p.x, p.y], p.w))
+            .map(|p| ([p.x * f, p.y * f], p.w))
             .collect();
         interest.insert(pid, cands);
         if let Some(c) = block.cameras.get(&ph.camera) {
