@@ -361,11 +361,14 @@ impl Default for ArchiveOptions {
             },
             matching: MatchOptions {
                 ncc_threshold: 0.6,
-                max_ambiguity: 0.9,
+                // Large first-round windows over fields and roads hold near-repeats of
+                // a patch; the best peak is still mostly right, and the resection's
+                // RANSAC removes the rest.
+                max_ambiguity: 0.97,
                 agreement_px: 1.0,
                 ..MatchOptions::default()
             },
-            template_half: 20,
+            template_half: 30,
             min_template_half: 7,
             resection_threshold_px: 3.0,
             min_inliers: 4,
@@ -709,18 +712,49 @@ pub fn film_camera(
     io: &IoOptions,
 ) -> Result<(FilmCamera, f64), String> {
     let r = matching::interior_orientation(def, img, name, io).map_err(|e| e.to_string())?;
+    Ok((film_from_io(def, img, &r), r.rmse_um))
+}
+
+/// Film cameras of one scan: the best fiducial interior orientation first, then, when the
+/// fiducial layout is symmetric, every other scan orientation whose marks fit within
+/// twice the best RMSE (plus 10 µm).
+pub fn film_cameras(
+    def: &CameraDefinition,
+    img: &GreyImage,
+    name: &str,
+    io: &IoOptions,
+) -> Result<Vec<(FilmCamera, f64)>, String> {
+    let r = matching::interior_orientation(def, img, name, io).map_err(|e| e.to_string())?;
+    let mut out = vec![(film_from_io(def, img, &r), r.rmse_um)];
+    if r.orientation_ambiguous && io.orientation.is_none() {
+        for o in matching::ScanOrientation::all() {
+            if o == r.orientation {
+                continue;
+            }
+            let forced = IoOptions {
+                orientation: Some(o),
+                ..io.clone()
+            };
+            if let Ok(r2) = matching::interior_orientation(def, img, name, &forced) {
+                if r2.rmse_um <= 2.0 * r.rmse_um + 10.0 {
+                    out.push((film_from_io(def, img, &r2), r2.rmse_um));
+                }
+            }
+        }
+    }
+    Ok(out)
+}
+
+fn film_from_io(def: &CameraDefinition, img: &GreyImage, r: &matching::IoResult) -> FilmCamera {
     let d = &def.distortion;
-    Ok((
-        FilmCamera {
-            width: img.width as u32,
-            height: img.height as u32,
-            focal_mm: def.focal_mm,
-            principal_point_mm: def.principal_point_mm,
-            distortion: Brown::from_array([d.k1, d.k2, d.k3, d.p1, d.p2]),
-            interior: r.transform,
-        },
-        r.rmse_um,
-    ))
+    FilmCamera {
+        width: img.width as u32,
+        height: img.height as u32,
+        focal_mm: def.focal_mm,
+        principal_point_mm: def.principal_point_mm,
+        distortion: Brown::from_array([d.k1, d.k2, d.k3, d.p1, d.p2]),
+        interior: r.transform.clone(),
+    }
 }
 
 /// Approximate orientation (block-local) and its 6×6 covariance per photo name.
@@ -882,8 +916,11 @@ fn orient_one(
         Ok(i) => i,
         Err(e) => return failed(name, format!("image: {e}")),
     };
-    let mut io_rmse = None;
-    let camera = match &input.camera {
+    // Candidate cameras: one for a frame photo; for a film scan the fiducial interior
+    // orientation, plus the other scan orientations that fit the marks equally well when
+    // the fiducial layout is symmetric (corner crosses and side dots of many metric
+    // cameras): the control patches then decide which one is right.
+    let candidates: Vec<(Camera, Option<f64>)> = match &input.camera {
         EpochCamera::Frame(f) => {
             if (f.width as usize, f.height as usize) != (img.width, img.height) {
                 return failed(
@@ -898,16 +935,58 @@ fn orient_one(
                     ),
                 );
             }
-            Camera::Frame(f.clone())
+            vec![(Camera::Frame(f.clone()), None)]
         }
-        EpochCamera::Film(def) => match film_camera(def, &img, name, &opts.io) {
-            Ok((c, rmse)) => {
-                io_rmse = Some(rmse);
-                Camera::Film(c)
-            }
+        EpochCamera::Film(def) => match film_cameras(def, &img, name, &opts.io) {
+            Ok(v) => v
+                .into_iter()
+                .map(|(c, r)| (Camera::Film(c), Some(r)))
+                .collect(),
             Err(e) => return failed(name, format!("fiducial interior orientation failed: {e}")),
         },
     };
+    let pyramid = Pyramid::new(&img, 6, 16);
+    let mut best: Option<PhotoOutcome> = None;
+    for (camera, io_rmse) in candidates {
+        let out = orient_with_camera(
+            name, camera, io_rmse, pose0, cov0, packages, index, dem, &pyramid, input, opts,
+        );
+        let score = |o: &PhotoOutcome| (o.report.oriented, o.report.control_matches);
+        // A wrong scan orientation cannot gather many consistent patches: stop early
+        // when one clearly works.
+        let done = out.report.oriented && out.report.control_matches >= 8;
+        if out
+            .report
+            .reason
+            .as_ref()
+            .is_some_and(|r| r.starts_with("DCP chip"))
+        {
+            return out;
+        }
+        if best.as_ref().is_none_or(|b| score(&out) > score(b)) {
+            best = Some(out);
+        }
+        if done {
+            break;
+        }
+    }
+    best.unwrap_or_else(|| failed(name, "no camera candidate".into()))
+}
+
+#[allow(clippy::too_many_arguments)]
+fn orient_with_camera(
+    name: &str,
+    camera: Camera,
+    io_rmse: Option<f64>,
+    pose0: &Pose,
+    cov0: &SMatrix<f64, 6, 6>,
+    packages: &[DcpPackage],
+    index: &DcpIndex,
+    dem: &Dem,
+    pyramid: &Pyramid,
+    input: &EpochInput,
+    opts: &ArchiveOptions,
+) -> PhotoOutcome {
     let origin = Vector3::from(input.origin);
     let fp = match predict::footprint(&camera, pose0, dem, 8) {
         Ok(f) => f,
@@ -937,8 +1016,7 @@ fn orient_one(
             }
         })
         .collect();
-    let pyramid = Pyramid::new(&img, 6, 16);
-    let mut matcher = DcpPatchMatcher::new(&camera, &pyramid, packages, origin, opts);
+    let mut matcher = DcpPatchMatcher::new(&camera, pyramid, packages, origin, opts);
     let mut resector = AdjustResector::new(opts);
     let o = orient::orient_photo(
         &camera,
@@ -1102,7 +1180,8 @@ pub fn orient_epoch(
         );
     }
     let mut photos: Vec<PhotoReport> = outcomes.into_iter().map(|o| o.report).collect();
-    let adjustment = if block.photos.is_empty() {
+    // A single oriented photo keeps its resection: there is nothing to adjust jointly.
+    let adjustment = if block.photos.len() < 2 {
         None
     } else {
         // Self-calibration needs more observations than a handful per photo.
