@@ -593,27 +593,19 @@ impl PatchMatcher for DcpPatchMatcher<'_> {
             half_size[1] + th,
         )?;
         let rr = match_template(self.pyramid, &tpl, window, None, &self.opts.matching);
-        if std::env::var_os("CC_ARCHIVE_DEBUG").is_some() {
-            let tag = format!("/tmp/ccdbg/{}_{}_{:.0}", k, i, half_size[0]);
-            let _ = std::fs::create_dir_all("/tmp/ccdbg");
-            let _ = tpl.save(Path::new(&format!("{tag}_tpl.png")), false);
-            if let Ok(c) = img.crop(window.col, window.row, window.width, window.height) {
-                let _ = c.save(Path::new(&format!("{tag}_win.png")), false);
-            }
-            match &rr {
-                Ok(r) => eprintln!(
-                    "{tag}: pred ({:.1},{:.1}) half {:?} -> ({:.1},{:.1}) ncc {:.2} amb {:.2} {:?}",
-                    prediction.pixel.x,
-                    prediction.pixel.y,
-                    half_size,
-                    r.x,
-                    r.y,
-                    r.ncc,
-                    r.ambiguity,
-                    r.reason
-                ),
-                Err(e) => eprintln!("{tag}: {e}"),
-            }
+        if let Ok(r) = &rr {
+            tracing::debug!(
+                patch = patch.id,
+                pred_x = prediction.pixel.x,
+                pred_y = prediction.pixel.y,
+                half = half_size[0],
+                x = r.x,
+                y = r.y,
+                ncc = r.ncc,
+                ambiguity = r.ambiguity,
+                reason = r.reason.as_deref().unwrap_or(""),
+                "control patch match"
+            );
         }
         let r = match rr {
             Ok(r) if r.accepted => r,
@@ -1577,6 +1569,41 @@ pub fn dem_to_local(dem: &Dem, origin: [f64; 3]) -> Result<Dem, String> {
         .map(|v| (*v as f64 - origin[2]) as f32)
         .collect();
     Dem::new(dem.width, dem.height, tr, data).map_err(|e| e.to_string())
+}
+
+/// A POS made from known orientations perturbed by Gaussian noise of σ `center_sigma_m`
+/// per centre coordinate and `attitude_sigma_rad` per angle (deterministic in `seed`),
+/// stating those σ: approximate orientations of a chosen quality, e.g. the EO groups of
+/// seed 001's table 1.3.
+pub fn perturbed_navigation(
+    block: &Block,
+    center_sigma_m: f64,
+    attitude_sigma_rad: f64,
+    seed: u64,
+) -> Navigation {
+    use rand::SeedableRng;
+    use rand_distr::{Distribution, Normal};
+    let mut rng = rand_chacha::ChaCha8Rng::seed_from_u64(seed);
+    let nc = Normal::new(0.0, center_sigma_m.max(0.0)).ok();
+    let na = Normal::new(0.0, attitude_sigma_rad.max(0.0)).ok();
+    let origin = Vector3::from(block.origin);
+    let mut recs = Vec::new();
+    for p in block.photos.values() {
+        let mut draw = |n: &Option<Normal<f64>>| n.map_or(0.0, |d| d.sample(&mut rng));
+        let dt = Vector3::new(draw(&na), draw(&na), draw(&na));
+        let dc = Vector3::new(draw(&nc), draw(&nc), draw(&nc));
+        let q = p.pose.perturbed(&dt, &dc);
+        let (o, ph, k) = geometry::opk_from_matrix(&q.rotation);
+        let c = q.center + origin;
+        recs.push(PosRecord {
+            name: p.name.clone(),
+            center: [c.x, c.y, c.z],
+            opk: [o, ph, k],
+            sigma_xyz: Some(center_sigma_m),
+            sigma_angle: Some(attitude_sigma_rad),
+        });
+    }
+    Navigation::Pos(recs)
 }
 
 // ---------------------------------------------------------------------------------------

@@ -6,6 +6,7 @@ mod convert;
 mod dcp;
 mod lidar;
 mod matching;
+mod orient;
 mod ortho;
 mod synth;
 
@@ -72,6 +73,12 @@ enum Command {
     Match(matching::MatchArgs),
     /// Tie points between overlapping photos of a strip.
     Ties(matching::TiesArgs),
+    /// Orient an archive epoch (film scans or digital photos) from DCP packages.
+    Orient(orient::OrientArgs),
+    /// Seed 001 table 1.3 on a synthetic block: patch success per EO group, with and
+    /// without iterative refinement, and the relative time.
+    #[command(name = "bench-table13")]
+    BenchTable13(orient::BenchArgs),
 }
 
 fn init_logging(quiet: bool, verbose: u8) {
@@ -113,6 +120,8 @@ fn main() -> ExitCode {
         Command::Io(a) => matching::io(a, cli.quiet),
         Command::Match(a) => matching::matching(a),
         Command::Ties(a) => matching::ties(a, cli.quiet),
+        Command::Orient(a) => finish("orient", orient::run_orient(&a, cli.json, cli.quiet)),
+        Command::BenchTable13(a) => finish("bench-table13", orient::run_bench(&a, cli.json)),
         Command::Version => {
             println!("cloudcontrol {}", cloudcontrol::VERSION);
             ExitCode::SUCCESS
