@@ -30,7 +30,7 @@ use std::time::Instant;
 /// (per photo: oriented or why not, per-iteration success ratios; the adjustment report).
 #[derive(Args)]
 pub struct OrientArgs {
-    /// DCP package folder(s); several are merged in memory.
+    /// DCP package folder(s); all are verified and used together (e.g. several epochs).
     #[arg(long, required = true, num_args = 1..)]
     dcp: Vec<PathBuf>,
     /// A synthetic block folder (`cloudcontrol synth`); use with --epoch.
