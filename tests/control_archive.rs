@@ -223,6 +223,24 @@ fn digital_archive_epoch_is_oriented_with_self_calibration() {
 fn time_series_reference_digital_film() {
     let s = rough();
     let opts = ArchiveOptions::default();
+    // The reference epoch (here its true orientation stands for the LiDAR-oriented block).
+    let (refb, _) = archive::synth_truth_block(&s.dir, "reference_2024").unwrap();
+    let meas = archive::read_checkpoint_images(
+        &s.dir.join("truth/checkpoint_images.csv"),
+        "reference_2024",
+    )
+    .unwrap();
+    let surveyed = archive::read_checkpoints(&s.dir.join("checkpoints.csv")).unwrap();
+    let reference = archive::evaluate_checkpoints(&refb, &meas, &surveyed, 0.1).unwrap();
+    println!(
+        "reference_2024: checkpoints {} — plan {:.3} m ({:.2} px), height {:.3} m ({:.2} px)",
+        reference.count,
+        reference.rmse_plan_m,
+        reference.rmse_plan_px,
+        reference.rmse_height_m,
+        reference.rmse_height_px
+    );
+    assert!(reference.rmse_plan_px <= 1.0 && reference.rmse_height_px <= 1.0);
     // The digital archive from the reference DCPs ...
     let digital = orient(s, "digital_2012", std::slice::from_ref(&s.reference), &opts);
     assert_accuracy(&digital, "time series: digital_2012");

@@ -94,19 +94,23 @@ fn orient_cli_writes_the_oriented_epoch_and_refuses_a_damaged_package() {
     let photos = report["photos"].as_array().unwrap();
     assert_eq!(photos.len(), 2);
     for p in photos {
-        assert!(p["iterations"].as_array().is_some_and(|i| !i.is_empty()), "{p}");
-        assert!(p["oriented"].as_bool().unwrap() || p["reason"].is_string(), "{p}");
+        assert!(
+            p["iterations"].as_array().is_some_and(|i| !i.is_empty()),
+            "{p}"
+        );
+        assert!(
+            p["oriented"].as_bool().unwrap() || p["reason"].is_string(),
+            "{p}"
+        );
     }
     // The written block (world = local + origin) reproduces the checkpoints.
     let block: cloudcontrol::block::Block =
         serde_json::from_slice(&std::fs::read(out.join("block.json")).unwrap()).unwrap();
     assert_eq!(block.origin, synth::ORIGIN);
     assert!(!block.photos.is_empty(), "no photo oriented:\n{stdout}");
-    let meas = archive::read_checkpoint_images(
-        &dir.join("truth/checkpoint_images.csv"),
-        "digital_2012",
-    )
-    .unwrap();
+    let meas =
+        archive::read_checkpoint_images(&dir.join("truth/checkpoint_images.csv"), "digital_2012")
+            .unwrap();
     let surveyed = archive::read_checkpoints(&dir.join("checkpoints.csv")).unwrap();
     let gsd = report["gsd_m"].as_f64().unwrap();
     let e = archive::evaluate_checkpoints(&block, &meas, &surveyed, gsd).unwrap();
@@ -143,7 +147,10 @@ fn orient_cli_writes_the_oriented_epoch_and_refuses_a_damaged_package() {
         .unwrap();
     let err = String::from_utf8_lossy(&o.stderr);
     assert!(!o.status.success());
-    assert!(err.contains("checksum mismatch") && err.contains(&chip), "{err}");
+    assert!(
+        err.contains("checksum mismatch") && err.contains(&chip),
+        "{err}"
+    );
     assert!(!out2.exists(), "nothing is written for a refused package");
     // --help carries an example.
     let h = bin().args(["orient", "--help"]).output().unwrap();

@@ -349,6 +349,11 @@ pub struct ArchiveOptions {
     /// Minimum grey-value standard deviation of an aligned chip (textureless chips are
     /// not offered to NCC).
     pub min_chip_std: f64,
+    /// Retry a photo that could not be oriented with every patch's best peak (however
+    /// ambiguous) and let RANSAC sort them, requiring `relaxed_min_inliers`.
+    pub relaxed_retry: bool,
+    pub relaxed_ncc_threshold: f64,
+    pub relaxed_min_inliers: usize,
 }
 
 impl Default for ArchiveOptions {
@@ -381,6 +386,9 @@ impl Default for ArchiveOptions {
             pos_sigma_override: None,
             io: IoOptions::default(),
             min_chip_std: 2.0,
+            relaxed_retry: true,
+            relaxed_ncc_threshold: 0.5,
+            relaxed_min_inliers: 6,
         }
     }
 }
@@ -816,6 +824,8 @@ pub struct PhotoReport {
     /// DCP points predicted inside the photo in the first round.
     pub predicted: usize,
     pub matching: MatchStats,
+    /// Oriented only by the relaxed retry (ambiguous first-round matches).
+    pub relaxed: bool,
 }
 
 /// An oriented epoch.
@@ -864,6 +874,7 @@ fn failed(name: &str, reason: String) -> PhotoOutcome {
             io_rmse_um: None,
             predicted: 0,
             matching: MatchStats::default(),
+            relaxed: false,
         },
         camera: None,
         pose: Pose::new(Matrix3::identity(), Vector3::zeros()),
@@ -962,7 +973,47 @@ fn orient_one(
             break;
         }
     }
-    best.unwrap_or_else(|| failed(name, "no camera candidate".into()))
+    let best = best.unwrap_or_else(|| failed(name, "no camera candidate".into()));
+    if best.report.oriented || !opts.relaxed_retry || best.report.predicted == 0 {
+        return best;
+    }
+    // Second chance for a photo whose first round found too few unambiguous patches: take
+    // every patch's best correlation peak, however ambiguous, and let the resection's
+    // RANSAC find the consistent ones — with a stricter inlier count, since most of the
+    // candidates are now wrong.
+    let relaxed = ArchiveOptions {
+        matching: MatchOptions {
+            max_ambiguity: 1.01,
+            ncc_threshold: opts.relaxed_ncc_threshold,
+            ..opts.matching.clone()
+        },
+        min_inliers: opts.relaxed_min_inliers,
+        relaxed_retry: false,
+        ..opts.clone()
+    };
+    let Some(camera) = best.camera.clone() else {
+        return best;
+    };
+    let retry = orient_with_camera(
+        name,
+        camera,
+        best.report.io_rmse_um,
+        pose0,
+        cov0,
+        packages,
+        index,
+        dem,
+        &pyramid,
+        input,
+        &relaxed,
+    );
+    if retry.report.oriented {
+        let mut r = retry;
+        r.report.relaxed = true;
+        r
+    } else {
+        best
+    }
 }
 
 #[allow(clippy::too_many_arguments)]
@@ -1049,6 +1100,7 @@ fn orient_with_camera(
             io_rmse_um: io_rmse,
             predicted,
             matching: matcher.stats.clone(),
+            relaxed: false,
         },
         camera: Some(camera),
         pose: o.pose,

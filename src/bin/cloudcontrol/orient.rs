@@ -65,9 +65,13 @@ pub struct OrientArgs {
     reject_k: f64,
 }
 
-fn load_dem(path: &Path, origin: [f64; 3]) -> Result<(cloudcontrol::geometry::Dem, Option<String>), String> {
+fn load_dem(
+    path: &Path,
+    origin: [f64; 3],
+) -> Result<(cloudcontrol::geometry::Dem, Option<String>), String> {
     let (dem, crs) = formats::raster::read_dem(path).map_err(|e| e.to_string())?;
-    let local = archive::dem_to_local(&dem, origin).map_err(|e| format!("{}: {e}", path.display()))?;
+    let local =
+        archive::dem_to_local(&dem, origin).map_err(|e| format!("{}: {e}", path.display()))?;
     Ok((local, crs.map(|c| c.label())))
 }
 
@@ -75,7 +79,8 @@ fn explicit_input(a: &OrientArgs, dem_crs: Option<String>) -> Result<EpochInput,
     let (Some(cam_path), Some(images)) = (&a.camera, &a.images) else {
         return Err("give either --synth DIR --epoch NAME, or --camera and --images".into());
     };
-    let text = std::fs::read_to_string(cam_path).map_err(|e| format!("{}: {e}", cam_path.display()))?;
+    let text =
+        std::fs::read_to_string(cam_path).map_err(|e| format!("{}: {e}", cam_path.display()))?;
     let camera = match serde_json::from_str::<Camera>(&text) {
         Ok(Camera::Frame(f)) => EpochCamera::Frame(f),
         _ => EpochCamera::Film(CameraDefinition::load(cam_path).map_err(|e| e.to_string())?),
@@ -85,17 +90,27 @@ fn explicit_input(a: &OrientArgs, dem_crs: Option<String>) -> Result<EpochInput,
         .filter_map(|e| e.ok().map(|e| e.path()))
         .filter(|p| {
             p.extension().and_then(|e| e.to_str()).is_some_and(|e| {
-                matches!(e.to_ascii_lowercase().as_str(), "png" | "tif" | "tiff" | "jpg" | "jpeg")
+                matches!(
+                    e.to_ascii_lowercase().as_str(),
+                    "png" | "tif" | "tiff" | "jpg" | "jpeg"
+                )
             })
         })
         .map(|p| PhotoInput {
-            name: p.file_stem().unwrap_or_default().to_string_lossy().into_owned(),
+            name: p
+                .file_stem()
+                .unwrap_or_default()
+                .to_string_lossy()
+                .into_owned(),
             image: p,
         })
         .collect();
     photos.sort_by(|x, y| x.name.cmp(&y.name));
     if photos.is_empty() {
-        return Err(format!("{}: no photo (PNG/TIFF/JPEG) found", images.display()));
+        return Err(format!(
+            "{}: no photo (PNG/TIFF/JPEG) found",
+            images.display()
+        ));
     }
     let navigation = match (&a.pos, &a.strips) {
         (Some(p), _) => Navigation::Pos(formats::pos::read_pos(p).map_err(|e| e.to_string())?),
@@ -122,7 +137,11 @@ fn explicit_input(a: &OrientArgs, dem_crs: Option<String>) -> Result<EpochInput,
             .unwrap_or_else(|| "epoch".into()),
         date: None,
         crs,
-        origin: [(c0[0] / 1000.0).round() * 1000.0, (c0[1] / 1000.0).round() * 1000.0, 0.0],
+        origin: [
+            (c0[0] / 1000.0).round() * 1000.0,
+            (c0[1] / 1000.0).round() * 1000.0,
+            0.0,
+        ],
         camera,
         photos,
         navigation,
@@ -198,7 +217,10 @@ pub fn run_orient(a: &OrientArgs, json_out: bool, quiet: bool) -> Result<(), Str
     let r = archive::orient_epoch(&input, &packages, &dem, &opts).map_err(|e| e.to_string())?;
     let report = write_outputs(&a.out, &r)?;
     if json_out {
-        println!("{}", serde_json::to_string_pretty(&report).map_err(|e| e.to_string())?);
+        println!(
+            "{}",
+            serde_json::to_string_pretty(&report).map_err(|e| e.to_string())?
+        );
     } else if !quiet {
         println!(
             "cloudcontrol orient — epoch {}: {} of {} photos oriented ({:.1} s)",
@@ -220,7 +242,10 @@ pub fn run_orient(a: &OrientArgs, json_out: bool, quiet: bool) -> Result<(), Str
                 p.control_matches,
                 p.sigma_px,
                 ratios.join(", "),
-                p.reason.as_ref().map(|r| format!("  ({r})")).unwrap_or_default()
+                p.reason
+                    .as_ref()
+                    .map(|r| format!("  ({r})"))
+                    .unwrap_or_default()
             );
         }
         if let Some(adj) = &r.adjustment {
@@ -268,6 +293,8 @@ struct GroupRow {
     checkpoint_height_px: f64,
     time_s: f64,
     relative_time: f64,
+    /// Photos not oriented: "epoch/photo (draw d): reason".
+    failures: Vec<String>,
 }
 
 pub fn run_bench(a: &BenchArgs, json_out: bool) -> Result<(), String> {
@@ -297,8 +324,7 @@ pub fn run_bench(a: &BenchArgs, json_out: bool) -> Result<(), String> {
         .filter(|p| p.extension().is_some_and(|e| e == "las" || e == "laz"))
         .collect();
     tiles.sort();
-    let surface =
-        archive::lidar_surfaces(&tiles, synth::ORIGIN, 1.0).map_err(|e| e.to_string())?;
+    let surface = archive::lidar_surfaces(&tiles, synth::ORIGIN, 1.0).map_err(|e| e.to_string())?;
     let (refb, refi) =
         archive::synth_truth_block(&dir, "reference_2024").map_err(|e| e.to_string())?;
     let pkg = archive::export_dcp(
@@ -340,6 +366,7 @@ pub fn run_bench(a: &BenchArgs, json_out: bool) -> Result<(), String> {
         let mut last = Vec::new();
         let mut rounds = Vec::new();
         let (mut oriented, mut photos) = (0usize, 0usize);
+        let mut failures = Vec::new();
         let (mut plan, mut height, mut n_eval) = (0.0, 0.0, 0usize);
         let t = Instant::now();
         for epoch in epochs {
@@ -359,6 +386,13 @@ pub fn run_bench(a: &BenchArgs, json_out: bool) -> Result<(), String> {
                 for p in &r.photos {
                     photos += 1;
                     oriented += p.oriented as usize;
+                    if !p.oriented {
+                        failures.push(format!(
+                            "{epoch}/{} (draw {d}): {}",
+                            p.name,
+                            p.reason.as_deref().unwrap_or("")
+                        ));
+                    }
                     if let (Some(f), Some(l)) = (p.iterations.first(), p.iterations.last()) {
                         first.push(f.success_ratio);
                         last.push(l.success_ratio);
@@ -398,6 +432,7 @@ pub fn run_bench(a: &BenchArgs, json_out: bool) -> Result<(), String> {
             checkpoint_height_px: (height / n_eval.max(1) as f64).sqrt(),
             time_s: t.elapsed().as_secs_f64(),
             relative_time: 0.0,
+            failures,
         });
     }
     let t0 = rows[0].time_s.max(1e-9);
@@ -427,6 +462,15 @@ pub fn run_bench(a: &BenchArgs, json_out: bool) -> Result<(), String> {
             r.time_s,
             r.relative_time
         ));
+    }
+    for r in &rows {
+        for f in &r.failures {
+            table.push_str(&format!(
+                "  not oriented in {} ({}): {f}\n",
+                r.group,
+                if r.refinement { "refined" } else { "one round" }
+            ));
+        }
     }
     write_bytes_atomically(&a.out.join("table13.txt"), table.as_bytes())
         .map_err(|e| e.to_string())?;
