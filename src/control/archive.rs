@@ -91,7 +91,10 @@ pub struct EpochInput {
     pub navigation: Navigation,
 }
 
-fn csv_rows(path: &Path) -> Result<(Vec<String>, Vec<(usize, Vec<String>)>), ArchiveError> {
+/// A CSV line: its 1-based line number and its fields.
+type CsvRow = (usize, Vec<String>);
+
+fn csv_rows(path: &Path) -> Result<(Vec<String>, Vec<CsvRow>), ArchiveError> {
     let text = std::fs::read_to_string(path).map_err(|e| input_err(path, e.to_string()))?;
     let mut lines = text
         .lines()
@@ -121,7 +124,7 @@ impl Csv<'_> {
             .ok_or_else(|| input_err(self.path, format!("no column {name:?} in the header")))
     }
 
-    fn num(&self, row: &(usize, Vec<String>), name: &str) -> Result<f64, ArchiveError> {
+    fn num(&self, row: &CsvRow, name: &str) -> Result<f64, ArchiveError> {
         let c = self.col(name)?;
         let s = row
             .1
@@ -142,7 +145,7 @@ impl Csv<'_> {
         Ok(v)
     }
 
-    fn text<'r>(&self, row: &'r (usize, Vec<String>), name: &str) -> Result<&'r str, ArchiveError> {
+    fn text<'r>(&self, row: &'r CsvRow, name: &str) -> Result<&'r str, ArchiveError> {
         let c = self.col(name)?;
         row.1
             .get(c)

@@ -168,12 +168,10 @@ fn write_outputs(out: &Path, r: &EpochResult) -> Result<serde_json::Value, Strin
             Err(e) => json!({"skipped": e.to_string()}),
         },
     );
-    let bx = formats::blocks_exchange::to_string(&r.block, &Default::default())
-        .map_err(|e| e)
-        .and_then(|s| {
-            write_bytes_atomically(&out.join("blocks_exchange.xml"), s.as_bytes())
-                .map_err(|e| e.to_string())
-        });
+    let bx = formats::blocks_exchange::to_string(&r.block, &Default::default()).and_then(|s| {
+        write_bytes_atomically(&out.join("blocks_exchange.xml"), s.as_bytes())
+            .map_err(|e| e.to_string())
+    });
     exports.insert(
         "blocks_exchange".into(),
         match bx {
