@@ -373,7 +373,9 @@ impl Default for ArchiveOptions {
                 // a patch; the best peak is still mostly right, and the resection's
                 // RANSAC removes the rest.
                 max_ambiguity: 0.97,
-                agreement_px: 1.0,
+                // The NCC peak of a rescaled template is good to a pixel or two; LSM is
+                // the precise one, the cross-check only has to catch its divergence.
+                agreement_px: 2.0,
                 ..MatchOptions::default()
             },
             template_half: 30,
