@@ -357,6 +357,9 @@ pub struct ArchiveOptions {
     pub relaxed_retry: bool,
     pub relaxed_ncc_threshold: f64,
     pub relaxed_min_inliers: usize,
+    /// Photos not oriented from the packages try again with the control points as the
+    /// epoch's own oriented photos show them.
+    pub epoch_second_pass: bool,
 }
 
 impl Default for ArchiveOptions {
@@ -394,6 +397,7 @@ impl Default for ArchiveOptions {
             relaxed_retry: true,
             relaxed_ncc_threshold: 0.5,
             relaxed_min_inliers: 6,
+            epoch_second_pass: true,
         }
     }
 }
@@ -450,6 +454,13 @@ impl<'a> DcpPatchMatcher<'a> {
             chips: HashMap::new(),
             stats: MatchStats::default(),
             chip_error: None,
+        }
+    }
+
+    /// Chips already in memory, by (package, point, measurement).
+    fn preload(&mut self, chips: &HashMap<(usize, usize, usize), Pyramid>) {
+        for (k, v) in chips {
+            self.chips.insert(*k, Some(v.clone()));
         }
     }
 
@@ -831,6 +842,8 @@ pub struct PhotoReport {
     pub matching: MatchStats,
     /// Oriented only by the relaxed retry (ambiguous first-round matches).
     pub relaxed: bool,
+    /// Oriented in the second pass, from the epoch's own oriented photos.
+    pub second_pass: bool,
 }
 
 /// An oriented epoch.
@@ -880,6 +893,7 @@ fn failed(name: &str, reason: String) -> PhotoOutcome {
             predicted: 0,
             matching: MatchStats::default(),
             relaxed: false,
+            second_pass: false,
         },
         camera: None,
         pose: Pose::new(Matrix3::identity(), Vector3::zeros()),
@@ -903,13 +917,19 @@ fn grow(poly: &[[f64; 2]], margin: f64) -> Vec<[f64; 2]> {
         .collect()
 }
 
-#[allow(clippy::too_many_arguments)]
+/// Where control patches come from: packages, their spatial index, and chips already in
+/// memory (the epoch's own oriented photos, see [`orient_epoch`]'s second pass).
+struct ControlSource<'a> {
+    packages: &'a [DcpPackage],
+    index: &'a DcpIndex,
+    preloaded: Option<&'a HashMap<(usize, usize, usize), Pyramid>>,
+}
+
 fn orient_one(
     input: &EpochInput,
     photo: &PhotoInput,
     approx: Option<&(Pose, SMatrix<f64, 6, 6>)>,
-    packages: &[DcpPackage],
-    index: &DcpIndex,
+    src: &ControlSource,
     dem: &Dem,
     opts: &ArchiveOptions,
 ) -> PhotoOutcome {
@@ -957,7 +977,7 @@ fn orient_one(
     let mut best: Option<PhotoOutcome> = None;
     for (camera, io_rmse) in candidates {
         let out = orient_with_camera(
-            name, camera, io_rmse, pose0, cov0, packages, index, dem, &pyramid, input, opts,
+            name, camera, io_rmse, pose0, cov0, src, dem, &pyramid, input, opts,
         );
         let score = |o: &PhotoOutcome| (o.report.oriented, o.report.control_matches);
         // A wrong scan orientation cannot gather many consistent patches: stop early
@@ -1005,8 +1025,7 @@ fn orient_one(
         best.report.io_rmse_um,
         pose0,
         cov0,
-        packages,
-        index,
+        src,
         dem,
         &pyramid,
         input,
@@ -1028,13 +1047,13 @@ fn orient_with_camera(
     io_rmse: Option<f64>,
     pose0: &Pose,
     cov0: &SMatrix<f64, 6, 6>,
-    packages: &[DcpPackage],
-    index: &DcpIndex,
+    src: &ControlSource,
     dem: &Dem,
     pyramid: &Pyramid,
     input: &EpochInput,
     opts: &ArchiveOptions,
 ) -> PhotoOutcome {
+    let (packages, index) = (src.packages, src.index);
     let origin = Vector3::from(input.origin);
     let fp = match predict::footprint(&camera, pose0, dem, 8) {
         Ok(f) => f,
@@ -1065,6 +1084,9 @@ fn orient_with_camera(
         })
         .collect();
     let mut matcher = DcpPatchMatcher::new(&camera, pyramid, packages, origin, opts);
+    if let Some(pre) = src.preloaded {
+        matcher.preload(pre);
+    }
     let mut resector = AdjustResector::new(opts);
     let o = orient::orient_photo(
         &camera,
@@ -1106,11 +1128,142 @@ fn orient_with_camera(
             predicted,
             matching: matcher.stats.clone(),
             relaxed: false,
+            second_pass: false,
         },
         camera: Some(camera),
         pose: o.pose,
         matches: if oriented { o.matches } else { Vec::new() },
     }
+}
+
+/// An in-memory package of the control points matched in the epoch's oriented photos,
+/// with chips cut from those photos; also the original patch id of each of its points.
+type EpochPackage = (
+    DcpPackage,
+    HashMap<(usize, usize, usize), Pyramid>,
+    Vec<u64>,
+);
+
+fn epoch_package(
+    input: &EpochInput,
+    outcomes: &[PhotoOutcome],
+    dcp: &[DcpPackage],
+    opts: &ArchiveOptions,
+) -> Option<EpochPackage> {
+    let origin = Vector3::from(input.origin);
+    let mut seen: BTreeMap<u64, Vec<(usize, Vector2<f64>)>> = BTreeMap::new();
+    for (n, o) in outcomes
+        .iter()
+        .enumerate()
+        .filter(|(_, o)| o.report.oriented)
+    {
+        for (id, px, _) in &o.matches {
+            seen.entry(*id).or_default().push((n, *px));
+        }
+    }
+    if seen.is_empty() {
+        return None;
+    }
+    let first = &dcp.first()?.manifest;
+    let mut m = super::dcp::Manifest::new(
+        &input.crs,
+        EpochInfo {
+            name: input.name.clone(),
+            date: input.date.clone(),
+        },
+        "control points matched in the epoch's own oriented photos",
+        first.gsd_m,
+        first.accuracy,
+    );
+    let mut images: BTreeMap<usize, GreyImage> = BTreeMap::new();
+    for (n, o) in outcomes
+        .iter()
+        .enumerate()
+        .filter(|(_, o)| o.report.oriented)
+    {
+        let (Some(cam), Ok(img)) = (&o.camera, GreyImage::load(&input.photos[n].image)) else {
+            continue;
+        };
+        let r = o.pose.rotation;
+        let c = o.pose.center + origin;
+        m.photos.push(super::dcp::DcpPhoto {
+            id: n as u32 + 1,
+            name: input.photos[n].name.clone(),
+            camera: cam.clone(),
+            rotation: [
+                r[(0, 0)],
+                r[(0, 1)],
+                r[(0, 2)],
+                r[(1, 0)],
+                r[(1, 1)],
+                r[(1, 2)],
+                r[(2, 0)],
+                r[(2, 1)],
+                r[(2, 2)],
+            ],
+            center: [c.x, c.y, c.z],
+            date: input.date.clone(),
+        });
+        images.insert(n, img);
+    }
+    // Same epoch, similar scale: the chip needs little more than the largest template.
+    let half = opts.template_half as i64 + 8;
+    let size = (2 * half + 1) as usize;
+    let mut chips = HashMap::new();
+    let mut original = Vec::new();
+    for (id, list) in seen {
+        let (k, i) = patch_index(id);
+        let Some(p) = dcp.get(k).and_then(|d| d.manifest.points.get(i)) else {
+            continue;
+        };
+        let point_index = m.points.len();
+        let mut measurements = Vec::new();
+        for (n, px) in list {
+            let Some(img) = images.get(&n) else { continue };
+            let (x0, y0) = (px.x.floor() as i64 - half, px.y.floor() as i64 - half);
+            if x0 < 0 || y0 < 0 {
+                continue;
+            }
+            let Ok(crop) = img.crop(x0 as usize, y0 as usize, size, size) else {
+                continue;
+            };
+            chips.insert(
+                (0, point_index, measurements.len()),
+                Pyramid::new(&crop, 5, 8),
+            );
+            measurements.push(super::dcp::DcpMeasurement {
+                photo: n as u32 + 1,
+                pixel: [px.x, px.y],
+                chip: super::dcp::ChipRef {
+                    file: format!("memory/{id}_{n}"),
+                    x0: x0 as u32,
+                    y0: y0 as u32,
+                    width: size as u32,
+                    height: size as u32,
+                },
+            });
+        }
+        if measurements.is_empty() {
+            continue;
+        }
+        m.points.push(super::dcp::DcpPoint {
+            id: point_index as u64 + 1,
+            measurements,
+            ..p.clone()
+        });
+        original.push(id);
+    }
+    if m.points.is_empty() {
+        return None;
+    }
+    Some((
+        DcpPackage {
+            dir: PathBuf::from(format!("(epoch {} in memory)", input.name)),
+            manifest: m,
+        },
+        chips,
+        original,
+    ))
 }
 
 /// Orients an archive epoch from DCP packages over a DEM (block-local coordinates with the
@@ -1150,7 +1303,14 @@ pub fn orient_epoch(
     let outcomes: Vec<PhotoOutcome> = input
         .photos
         .par_iter()
-        .map(|ph| orient_one(input, ph, approx.get(&ph.name), dcp, &index, dem, opts))
+        .map(|ph| {
+            let src = ControlSource {
+                packages: dcp,
+                index: &index,
+                preloaded: None,
+            };
+            orient_one(input, ph, approx.get(&ph.name), &src, dem, opts)
+        })
         .collect();
     if let Some(e) = outcomes.iter().find_map(|o| {
         o.report
@@ -1159,6 +1319,53 @@ pub fn orient_epoch(
             .filter(|r| r.starts_with("DCP chip"))
     }) {
         return Err(ep(e.clone()));
+    }
+
+    // Second pass: photos left unoriented (scene change, ambiguity) try again with the
+    // control points as the epoch's own oriented photos show them — same scene state,
+    // same radiometry, similar scale — with chips cut from those photos.
+    let mut outcomes = outcomes;
+    let unoriented: Vec<usize> = (0..outcomes.len())
+        .filter(|&i| !outcomes[i].report.oriented)
+        .collect();
+    if opts.epoch_second_pass
+        && !unoriented.is_empty()
+        && outcomes.iter().any(|o| o.report.oriented)
+    {
+        if let Some((pkg, chips, original)) = epoch_package(input, &outcomes, dcp, opts) {
+            let pkgs = [pkg];
+            let idx = DcpIndex::new(&pkgs);
+            let retried: Vec<(usize, PhotoOutcome)> = unoriented
+                .par_iter()
+                .map(|&i| {
+                    let src = ControlSource {
+                        packages: &pkgs,
+                        index: &idx,
+                        preloaded: Some(&chips),
+                    };
+                    let ph = &input.photos[i];
+                    (
+                        i,
+                        orient_one(input, ph, approx.get(&ph.name), &src, dem, opts),
+                    )
+                })
+                .collect();
+            for (i, mut o) in retried {
+                if o.report.oriented {
+                    for m in &mut o.matches {
+                        m.0 = original[patch_index(m.0).1];
+                    }
+                    o.report.second_pass = true;
+                    outcomes[i] = o;
+                } else if let (Some(first), Some(second)) =
+                    (&outcomes[i].report.reason, &o.report.reason)
+                {
+                    outcomes[i].report.reason = Some(format!(
+                        "{first}; with the epoch's own oriented photos as control: {second}"
+                    ));
+                }
+            }
+        }
     }
 
     // The archive block: oriented photos, DCP control points with all their matches.
