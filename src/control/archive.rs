@@ -360,6 +360,13 @@ pub struct ArchiveOptions {
     /// Photos not oriented from the packages try again with the control points as the
     /// epoch's own oriented photos show them.
     pub epoch_second_pass: bool,
+    /// Image tie points among the oriented photos of the epoch in the block adjustment,
+    /// one per `tie_interval_px` cell, searched ±`tie_window_px` around their prediction
+    /// (off by default: the DCP points observed in several photos already tie the block).
+    pub ties: bool,
+    pub tie_interval_px: f64,
+    pub tie_window_px: f64,
+    pub tie_ncc_threshold: f64,
 }
 
 impl Default for ArchiveOptions {
@@ -398,6 +405,12 @@ impl Default for ArchiveOptions {
             relaxed_ncc_threshold: 0.5,
             relaxed_min_inliers: 6,
             epoch_second_pass: true,
+            // Measured on the small synthetic block: no gain yet over the DCP points seen
+            // in several photos, and worse heights in the time series (see the report).
+            ties: false,
+            tie_interval_px: 100.0,
+            tie_window_px: 10.0,
+            tie_ncc_threshold: 0.8,
         }
     }
 }
@@ -1136,6 +1149,225 @@ fn orient_with_camera(
     }
 }
 
+fn dcp_photo(
+    id: u32,
+    name: &str,
+    camera: &Camera,
+    pose: &Pose,
+    origin: &Vector3<f64>,
+    date: &Option<String>,
+) -> super::dcp::DcpPhoto {
+    let r = pose.rotation;
+    let c = pose.center + origin;
+    super::dcp::DcpPhoto {
+        id,
+        name: name.to_string(),
+        camera: camera.clone(),
+        rotation: [
+            r[(0, 0)],
+            r[(0, 1)],
+            r[(0, 2)],
+            r[(1, 0)],
+            r[(1, 1)],
+            r[(1, 2)],
+            r[(2, 0)],
+            r[(2, 1)],
+            r[(2, 2)],
+        ],
+        center: [c.x, c.y, c.z],
+        date: date.clone(),
+    }
+}
+
+/// A tie point among the epoch's photos: approximate position (block-local, on the DEM)
+/// and its image observations (photo index, pixel, σ).
+type TieTrack = (Vector3<f64>, Vec<(usize, Vector2<f64>, f64)>);
+
+/// Tie points among the oriented photos of the epoch: Förstner points of each photo, put
+/// on the DEM through their ray, predicted in every other oriented photo and matched
+/// there with the same alignment, NCC and LSM as the control patches (the chip is cut
+/// from the source photo). Points off the DEM (roofs, trees) are still true
+/// correspondences; the block adjustment intersects them anew.
+fn epoch_ties(
+    input: &EpochInput,
+    outcomes: &[PhotoOutcome],
+    dem: &Dem,
+    opts: &ArchiveOptions,
+) -> Vec<TieTrack> {
+    let origin = Vector3::from(input.origin);
+    let oriented: Vec<usize> = (0..outcomes.len())
+        .filter(|&n| outcomes[n].report.oriented && outcomes[n].camera.is_some())
+        .collect();
+    if oriented.len() < 2 || !opts.ties {
+        return Vec::new();
+    }
+    let mut images: BTreeMap<usize, (GreyImage, Pyramid)> = BTreeMap::new();
+    for &n in &oriented {
+        if let Ok(img) = GreyImage::load(&input.photos[n].image) {
+            let pyr = Pyramid::new(&img, 6, 16);
+            images.insert(n, (img, pyr));
+        }
+    }
+    let mut m = super::dcp::Manifest::new(
+        &input.crs,
+        EpochInfo {
+            name: input.name.clone(),
+            date: input.date.clone(),
+        },
+        "tie points of the epoch",
+        1.0,
+        Accuracy {
+            plan_m: 1.0,
+            height_m: 1.0,
+        },
+    );
+    let half = opts.template_half as i64 + 8;
+    let size = (2 * half + 1) as usize;
+    let mut chips = HashMap::new();
+    let mut sources: Vec<(usize, Vector2<f64>)> = Vec::new();
+    for &a in &oriented {
+        let (Some((img, _)), Some(cam)) = (images.get(&a), &outcomes[a].camera) else {
+            continue;
+        };
+        let pose = &outcomes[a].pose;
+        m.photos.push(dcp_photo(
+            a as u32 + 1,
+            &input.photos[a].name,
+            cam,
+            pose,
+            &origin,
+            &input.date,
+        ));
+        let cell = opts.tie_interval_px.max(16.0);
+        let fo = ForstnerOptions {
+            grid: (
+                ((img.width as f64 / cell).ceil() as usize).max(1),
+                ((img.height as f64 / cell).ceil() as usize).max(1),
+            ),
+            per_cell: 1,
+            border: half as usize + 2,
+            ..ForstnerOptions::default()
+        };
+        for ip in forstner(img, &fo) {
+            let Ok(ray) = geometry::back_project(cam, pose, [ip.x, ip.y]) else {
+                continue;
+            };
+            let Ok(x) = dem.intersect(&ray) else {
+                continue;
+            };
+            let (x0, y0) = (ip.x.floor() as i64 - half, ip.y.floor() as i64 - half);
+            let Ok(crop) = img.crop(x0.max(0) as usize, y0.max(0) as usize, size, size) else {
+                continue;
+            };
+            if x0 < 0 || y0 < 0 {
+                continue;
+            }
+            let i = m.points.len();
+            chips.insert((0, i, 0), Pyramid::new(&crop, 5, 8));
+            let w = x + origin;
+            m.points.push(super::dcp::DcpPoint {
+                id: i as u64 + 1,
+                name: format!("tie{}", i + 1),
+                xyz: [w.x, w.y, w.z],
+                sigma: [1.0, 1.0, 1.0],
+                normal: Some([0.0, 0.0, 1.0]),
+                quality: Default::default(),
+                measurements: vec![super::dcp::DcpMeasurement {
+                    photo: a as u32 + 1,
+                    pixel: [ip.x, ip.y],
+                    chip: super::dcp::ChipRef {
+                        file: format!("memory/tie_{a}_{i}"),
+                        x0: x0 as u32,
+                        y0: y0 as u32,
+                        width: size as u32,
+                        height: size as u32,
+                    },
+                }],
+            });
+            sources.push((a, Vector2::new(ip.x, ip.y)));
+        }
+    }
+    if m.points.is_empty() {
+        return Vec::new();
+    }
+    let pkgs = [DcpPackage {
+        dir: PathBuf::from(format!("(epoch {} tie points in memory)", input.name)),
+        manifest: m,
+    }];
+    // Same epoch, same scene: a tie must correlate clearly and unambiguously, there is no
+    // resection behind it to catch a mismatch.
+    let tie_opts = ArchiveOptions {
+        matching: MatchOptions {
+            ncc_threshold: opts.tie_ncc_threshold,
+            max_ambiguity: 0.8,
+            ..opts.matching.clone()
+        },
+        template_half: opts.template_half.min(15),
+        ..opts.clone()
+    };
+    // Every oriented photo looks for the points of all the others.
+    let found: Vec<Vec<(usize, usize, Vector2<f64>, f64)>> = oriented
+        .par_iter()
+        .filter_map(|&b| {
+            let (_, pyr) = images.get(&b)?;
+            let cam = outcomes[b].camera.as_ref()?;
+            let pose = &outcomes[b].pose;
+            let (w, h) = cam.image_size();
+            let mut matcher = DcpPatchMatcher::new(cam, pyr, &pkgs, origin, &tie_opts);
+            matcher.preload(&chips);
+            let mut out = Vec::new();
+            for (i, p) in pkgs[0].manifest.points.iter().enumerate() {
+                if sources[i].0 == b {
+                    continue;
+                }
+                let x = Vector3::from(p.xyz) - origin;
+                let Ok(px) = geometry::project(cam, pose, &x) else {
+                    continue;
+                };
+                let px = px.pixel;
+                let margin = opts.tie_window_px + opts.template_half as f64 + 1.0;
+                if px.x < margin
+                    || px.y < margin
+                    || px.x > w as f64 - margin
+                    || px.y > h as f64 - margin
+                {
+                    continue;
+                }
+                let pred = Prediction {
+                    pixel: px,
+                    covariance: nalgebra::Matrix2::identity(),
+                };
+                let patch = ControlPatch {
+                    id: patch_id(0, i),
+                    position: x,
+                    covariance: Matrix3::zeros(),
+                };
+                if let Some(mt) = matcher.find(
+                    &patch,
+                    pose,
+                    &pred,
+                    [opts.tie_window_px, opts.tie_window_px],
+                ) {
+                    out.push((i, b, mt.pixel, mt.sigma_px.max(opts.sigma_floor_px)));
+                }
+            }
+            Some(out)
+        })
+        .collect();
+    let mut tracks: BTreeMap<usize, TieTrack> = BTreeMap::new();
+    for (i, b, px, s) in found.into_iter().flatten() {
+        let t = tracks.entry(i).or_insert_with(|| {
+            let p = &pkgs[0].manifest.points[i];
+            (
+                Vector3::from(p.xyz) - origin,
+                vec![(sources[i].0, sources[i].1, opts.sigma_floor_px)],
+            )
+        });
+        t.1.push((b, px, s));
+    }
+    tracks.into_values().collect()
+}
+
 /// An in-memory package of the control points matched in the epoch's oriented photos,
 /// with chips cut from those photos; also the original patch id of each of its points.
 type EpochPackage = (
@@ -1435,6 +1667,39 @@ pub fn orient_epoch(
             },
         );
     }
+    let n_ties = {
+        let ties = epoch_ties(input, &outcomes, dem, opts);
+        let mut next: u64 = 1 << 48;
+        for (x, obs) in &ties {
+            next += 1;
+            block.points.insert(
+                next,
+                ObjectPoint {
+                    id: next,
+                    name: String::new(),
+                    kind: PointKind::Tie,
+                    position: *x,
+                    sigma: None,
+                    color: [0; 3],
+                    observations: obs
+                        .iter()
+                        .map(|(n, px, s)| Observation {
+                            photo: *n as PhotoId + 1,
+                            pixel: [px.x, px.y],
+                            sigma_px: *s,
+                            provenance: "tie".into(),
+                        })
+                        .collect(),
+                },
+            );
+        }
+        ties.len()
+    };
+    tracing::info!(
+        epoch = input.name,
+        ties = n_ties,
+        "tie points among the epoch's photos"
+    );
     let mut photos: Vec<PhotoReport> = outcomes.into_iter().map(|o| o.report).collect();
     // A single oriented photo keeps its resection: there is nothing to adjust jointly.
     let adjustment = if block.photos.len() < 2 {
