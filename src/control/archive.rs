@@ -1306,7 +1306,9 @@ fn epoch_ties(
         ..opts.clone()
     };
     // Every oriented photo looks for the points of all the others.
-    let found: Vec<Vec<(usize, usize, Vector2<f64>, f64)>> = oriented
+    // (point, photo, pixel, σ) per searching photo.
+    type TieMatch = (usize, usize, Vector2<f64>, f64);
+    let found: Vec<Vec<TieMatch>> = oriented
         .par_iter()
         .filter_map(|&b| {
             let (_, pyr) = images.get(&b)?;
