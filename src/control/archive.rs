@@ -695,6 +695,9 @@ impl Resector for AdjustResector {
         approximate: &Pose,
         observations: &[(Vector3<f64>, Vector2<f64>, f64)],
     ) -> Result<Resection, String> {
+        if observations.is_empty() {
+            return Err("resection without observations".into());
+        }
         let mut sig: Vec<f64> = observations
             .iter()
             .map(|o| o.2.max(self.sigma_floor_px))
