@@ -17,6 +17,7 @@ mod robust;
 mod solver;
 pub mod synthetic;
 
+pub use precision::intersect;
 pub use problem::adjust;
 pub use resection::{resect, ResectionOptions, ResectionResult};
 pub use residual::Loss;

@@ -121,7 +121,7 @@ pub(crate) fn cofactors(st: &Structure, factor: &Factor, want_photos: bool) -> C
 /// Intersects an object point from its rays by least squares on the reprojection error
 /// (midpoint start, then Gauss–Newton); `None` with fewer than two usable rays or a
 /// glancing intersection.
-pub(crate) fn intersect(rays: &[(&Camera, &Pose, [f64; 2], f64)]) -> Option<Vector3<f64>> {
+pub fn intersect(rays: &[(&Camera, &Pose, [f64; 2], f64)]) -> Option<Vector3<f64>> {
     if rays.len() < 2 {
         return None;
     }

@@ -72,6 +72,42 @@ impl ControlSurface for Dem {
     }
 }
 
+/// The LiDAR as a control surface: planes from the ground DEM (class 2), stability from
+/// the surface model of all returns. Where the surface model stands above the ground
+/// (roofs, canopy) or no ground return exists nearby, the point is not stable: those are
+/// the places that change between epochs or whose height is not the LiDAR ground's.
+#[derive(Debug, Clone)]
+pub struct GroundSurface {
+    /// Ground DEM (block-local), holes filled.
+    pub ground: Dem,
+    /// Mean height of all non-noise returns per cell (block-local).
+    pub surface: Dem,
+    /// Largest surface-above-ground difference still taken as bare ground (m).
+    pub max_above_ground_m: f64,
+    /// Radius (m) around the point that must be bare ground too (the chip's footprint).
+    pub radius_m: f64,
+}
+
+impl ControlSurface for GroundSurface {
+    fn plane_near(&self, x: f64, y: f64) -> Option<SurfacePlane> {
+        let mut plane = self.ground.plane_near(x, y)?;
+        let r = self.radius_m;
+        let bare = [(0.0, 0.0), (r, 0.0), (-r, 0.0), (0.0, r), (0.0, -r)]
+            .iter()
+            .all(|(dx, dy)| {
+                match (
+                    self.ground.height_at(x + dx, y + dy),
+                    self.surface.height_at(x + dx, y + dy),
+                ) {
+                    (Some(g), Some(s)) => s - g <= self.max_above_ground_m,
+                    _ => false,
+                }
+            });
+        plane.stable = bare;
+        Some(plane)
+    }
+}
+
 #[derive(Debug, Clone)]
 pub struct CloudOptions {
     /// Grid spacing of control points in each photo (px): one point per cell at most.

@@ -2,6 +2,7 @@
 //! spatial index, and approximate orientation of archive photos (strip interpolation when
 //! no POS exists).
 
+pub mod archive;
 pub mod cloud;
 pub mod dcp;
 pub mod orient;

@@ -6,6 +6,7 @@ mod convert;
 mod dcp;
 mod lidar;
 mod matching;
+mod orient;
 mod ortho;
 mod synth;
 
@@ -72,6 +73,26 @@ enum Command {
     Match(matching::MatchArgs),
     /// Tie points between overlapping photos of a strip.
     Ties(matching::TiesArgs),
+    /// Orient an archive epoch (film scans or digital photos) from DCP packages.
+    ///
+    /// Film scans get their fiducial interior orientation; approximate orientations come
+    /// from a POS or from strip end points; every photo is oriented from the control
+    /// patches (predict, align, NCC + LSM, resect, repeat), then all together in a robust
+    /// block adjustment. Writes OUT/block.json, OUT/colmap/, OUT/blocks_exchange.xml (when
+    /// the cameras can be written there) and OUT/report.json.
+    ///
+    /// Example (a synthetic block):
+    ///   cloudcontrol orient --dcp ref.dcp --synth block --epoch film_1978 --dem dem.tif --out film
+    ///
+    /// Example (own scans):
+    ///   cloudcontrol orient --dcp ref.dcp --camera rc10.json --images scans --strips strips.csv --crs EPSG:4547 --dem dem.tif --out film
+    Orient(orient::OrientArgs),
+    /// Seed 001 table 1.3 on a synthetic block: patch success per EO group, with and
+    /// without iterative refinement, and the relative time.
+    ///
+    /// Example: cloudcontrol bench-table13 --out bench13
+    #[command(name = "bench-table13")]
+    BenchTable13(orient::BenchArgs),
 }
 
 fn init_logging(quiet: bool, verbose: u8) {
@@ -113,6 +134,8 @@ fn main() -> ExitCode {
         Command::Io(a) => matching::io(a, cli.quiet),
         Command::Match(a) => matching::matching(a),
         Command::Ties(a) => matching::ties(a, cli.quiet),
+        Command::Orient(a) => finish("orient", orient::run_orient(&a, cli.json, cli.quiet)),
+        Command::BenchTable13(a) => finish("bench-table13", orient::run_bench(&a, cli.json)),
         Command::Version => {
             println!("cloudcontrol {}", cloudcontrol::VERSION);
             ExitCode::SUCCESS

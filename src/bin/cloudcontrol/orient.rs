@@ -1,0 +1,483 @@
+//! `cloudcontrol orient` (an archive epoch from DCP packages) and `cloudcontrol
+//! bench-table13` (seed 001's table 1.3 on a synthetic block): argument handling and
+//! output; the work is `control::archive::orient_epoch`.
+
+use clap::Args;
+use cloudcontrol::control::archive::{
+    self, ArchiveOptions, DcpExportOptions, EpochCamera, EpochInput, EpochResult, Navigation,
+    PhotoInput,
+};
+use cloudcontrol::control::cloud::CloudOptions;
+use cloudcontrol::control::dcp::{DcpPackage, EpochInfo};
+use cloudcontrol::formats::{self, write_bytes_atomically};
+use cloudcontrol::geometry::Camera;
+use cloudcontrol::matching::CameraDefinition;
+use serde_json::json;
+use std::path::{Path, PathBuf};
+use std::time::Instant;
+
+/// Orient an archive epoch (film scans or digital photos) from DCP packages.
+///
+/// Example (a synthetic block):
+///   cloudcontrol orient --dcp ref.dcp --synth block --epoch film_1978 --dem dem.tif --out film
+///
+/// Example (own data):
+///   cloudcontrol orient --dcp ref.dcp --camera rc10.json --images scans/ --pos pos.csv \
+///       --crs EPSG:4547 --dem dem.tif --out film
+///
+/// Writes OUT/block.json (the oriented block, world = local + origin), OUT/colmap/ and
+/// OUT/blocks_exchange.xml when the cameras are representable there, and OUT/report.json
+/// (per photo: oriented or why not, per-iteration success ratios; the adjustment report).
+#[derive(Args)]
+pub struct OrientArgs {
+    /// DCP package folder(s); all are verified and used together (e.g. several epochs).
+    #[arg(long, required = true, num_args = 1..)]
+    dcp: Vec<PathBuf>,
+    /// A synthetic block folder (`cloudcontrol synth`); use with --epoch.
+    #[arg(long, requires = "epoch", conflicts_with_all = ["camera", "images", "pos", "strips"])]
+    synth: Option<PathBuf>,
+    /// Epoch name inside the synthetic block, e.g. film_1978.
+    #[arg(long)]
+    epoch: Option<String>,
+    /// Camera: a frame camera JSON (`{"kind": "frame", …}`) or a film camera certificate
+    /// with fiducials (formats/cameras/).
+    #[arg(long, requires = "images")]
+    camera: Option<PathBuf>,
+    /// Folder of the photos (PNG/TIFF/JPEG); photo names are the file stems.
+    #[arg(long)]
+    images: Option<PathBuf>,
+    /// POS CSV: name,x,y,z,omega,phi,kappa[,sigma_xyz,sigma_angle] (degrees, world).
+    #[arg(long, conflicts_with = "strips")]
+    pos: Option<PathBuf>,
+    /// Strips CSV: strip,photo,x,y,z with the centres of each strip's first and last photo.
+    #[arg(long)]
+    strips: Option<PathBuf>,
+    /// CRS of the navigation (default: the DEM's).
+    #[arg(long)]
+    crs: Option<String>,
+    /// Ground DEM GeoTIFF (world coordinates, the packages' CRS).
+    #[arg(long)]
+    dem: PathBuf,
+    #[arg(long)]
+    out: PathBuf,
+    /// Rejection threshold of the block adjustment in σ0.
+    #[arg(long, default_value_t = 2.5)]
+    reject_k: f64,
+}
+
+fn load_dem(
+    path: &Path,
+    origin: [f64; 3],
+) -> Result<(cloudcontrol::geometry::Dem, Option<String>), String> {
+    let (dem, crs) = formats::raster::read_dem(path).map_err(|e| e.to_string())?;
+    let local =
+        archive::dem_to_local(&dem, origin).map_err(|e| format!("{}: {e}", path.display()))?;
+    Ok((local, crs.map(|c| c.label())))
+}
+
+fn explicit_input(a: &OrientArgs, dem_crs: Option<String>) -> Result<EpochInput, String> {
+    let (Some(cam_path), Some(images)) = (&a.camera, &a.images) else {
+        return Err("give either --synth DIR --epoch NAME, or --camera and --images".into());
+    };
+    let text =
+        std::fs::read_to_string(cam_path).map_err(|e| format!("{}: {e}", cam_path.display()))?;
+    let camera = match serde_json::from_str::<Camera>(&text) {
+        Ok(Camera::Frame(f)) => EpochCamera::Frame(f),
+        _ => EpochCamera::Film(CameraDefinition::load(cam_path).map_err(|e| e.to_string())?),
+    };
+    let mut photos: Vec<PhotoInput> = std::fs::read_dir(images)
+        .map_err(|e| format!("{}: {e}", images.display()))?
+        .filter_map(|e| e.ok().map(|e| e.path()))
+        .filter(|p| {
+            p.extension().and_then(|e| e.to_str()).is_some_and(|e| {
+                matches!(
+                    e.to_ascii_lowercase().as_str(),
+                    "png" | "tif" | "tiff" | "jpg" | "jpeg"
+                )
+            })
+        })
+        .map(|p| PhotoInput {
+            name: p
+                .file_stem()
+                .unwrap_or_default()
+                .to_string_lossy()
+                .into_owned(),
+            image: p,
+        })
+        .collect();
+    photos.sort_by(|x, y| x.name.cmp(&y.name));
+    if photos.is_empty() {
+        return Err(format!(
+            "{}: no photo (PNG/TIFF/JPEG) found",
+            images.display()
+        ));
+    }
+    let navigation = match (&a.pos, &a.strips) {
+        (Some(p), _) => Navigation::Pos(formats::pos::read_pos(p).map_err(|e| e.to_string())?),
+        (None, Some(s)) => Navigation::Strips(
+            formats::pos::read_strips(s, formats::pos::FlightAxis::default())
+                .map_err(|e| e.to_string())?,
+        ),
+        (None, None) => return Err("give --pos FILE or --strips FILE".into()),
+    };
+    let crs = a
+        .crs
+        .clone()
+        .or(dem_crs)
+        .ok_or("the CRS is unknown: give --crs (the DEM has none)")?;
+    // Block origin: the first navigation centre rounded to the kilometre, heights as given.
+    let c0 = match &navigation {
+        Navigation::Pos(r) => r[0].center,
+        Navigation::Strips(s) => s[0].first,
+    };
+    Ok(EpochInput {
+        name: images
+            .file_name()
+            .map(|n| n.to_string_lossy().into_owned())
+            .unwrap_or_else(|| "epoch".into()),
+        date: None,
+        crs,
+        origin: [
+            (c0[0] / 1000.0).round() * 1000.0,
+            (c0[1] / 1000.0).round() * 1000.0,
+            0.0,
+        ],
+        camera,
+        photos,
+        navigation,
+    })
+}
+
+fn write_outputs(out: &Path, r: &EpochResult) -> Result<serde_json::Value, String> {
+    std::fs::create_dir_all(out).map_err(|e| format!("{}: {e}", out.display()))?;
+    let block = serde_json::to_vec_pretty(&r.block).map_err(|e| e.to_string())?;
+    write_bytes_atomically(&out.join("block.json"), &block).map_err(|e| e.to_string())?;
+    let mut exports = serde_json::Map::new();
+    let colmap = formats::colmap::write(
+        &out.join("colmap"),
+        &r.block,
+        &formats::colmap::WriteOptions {
+            encoding: formats::colmap::Encoding::Text,
+            layout: formats::colmap::Layout::Rigs,
+        },
+    );
+    exports.insert(
+        "colmap".into(),
+        match colmap {
+            Ok(()) => json!("colmap/"),
+            Err(e) => json!({"skipped": e.to_string()}),
+        },
+    );
+    let bx = formats::blocks_exchange::to_string(&r.block, &Default::default()).and_then(|s| {
+        write_bytes_atomically(&out.join("blocks_exchange.xml"), s.as_bytes())
+            .map_err(|e| e.to_string())
+    });
+    exports.insert(
+        "blocks_exchange".into(),
+        match bx {
+            Ok(()) => json!("blocks_exchange.xml"),
+            Err(e) => json!({"skipped": e}),
+        },
+    );
+    let mut report = serde_json::to_value(r).map_err(|e| e.to_string())?;
+    if let Some(a) = report.get_mut("adjustment").and_then(|a| a.as_object_mut()) {
+        a.remove("residuals");
+    }
+    report["origin"] = json!(r.block.origin);
+    report["exports"] = serde_json::Value::Object(exports);
+    let text = serde_json::to_vec_pretty(&report).map_err(|e| e.to_string())?;
+    write_bytes_atomically(&out.join("report.json"), &text).map_err(|e| e.to_string())?;
+    Ok(report)
+}
+
+pub fn run_orient(a: &OrientArgs, json_out: bool, quiet: bool) -> Result<(), String> {
+    let t0 = Instant::now();
+    // Every package is verified (manifest, CRS, chip checksums) before anything is done.
+    let packages: Vec<DcpPackage> = a
+        .dcp
+        .iter()
+        .map(|p| DcpPackage::open(p).map_err(|e| e.to_string()))
+        .collect::<Result<_, _>>()?;
+    let input = match (&a.synth, &a.epoch) {
+        (Some(dir), Some(epoch)) => {
+            EpochInput::from_synth_epoch(dir, epoch).map_err(|e| e.to_string())?
+        }
+        _ => {
+            let (_, crs) = formats::raster::read_dem(&a.dem).map_err(|e| e.to_string())?;
+            explicit_input(a, crs.map(|c| c.label()))?
+        }
+    };
+    let (dem, _) = load_dem(&a.dem, input.origin)?;
+    let opts = ArchiveOptions {
+        reject_k: a.reject_k,
+        ..ArchiveOptions::default()
+    };
+    let r = archive::orient_epoch(&input, &packages, &dem, &opts).map_err(|e| e.to_string())?;
+    let report = write_outputs(&a.out, &r)?;
+    if json_out {
+        println!(
+            "{}",
+            serde_json::to_string_pretty(&report).map_err(|e| e.to_string())?
+        );
+    } else if !quiet {
+        println!(
+            "cloudcontrol orient — epoch {}: {} of {} photos oriented ({:.1} s)",
+            r.epoch,
+            r.photos.iter().filter(|p| p.oriented).count(),
+            r.photos.len(),
+            t0.elapsed().as_secs_f64()
+        );
+        for p in &r.photos {
+            let ratios: Vec<String> = p
+                .iterations
+                .iter()
+                .map(|i| format!("{:.2}", i.success_ratio))
+                .collect();
+            println!(
+                "  {:<24} {:<3} matches {:>3}  σ {:>5.2} px  success per round [{}]{}",
+                p.name,
+                if p.oriented { "ok" } else { "NO" },
+                p.control_matches,
+                p.sigma_px,
+                ratios.join(", "),
+                p.reason
+                    .as_ref()
+                    .map(|r| format!("  ({r})"))
+                    .unwrap_or_default()
+            );
+        }
+        if let Some(adj) = &r.adjustment {
+            println!(
+                "  block adjustment: σ0 {:.2}, RMSE {:.2} px, {} rejected, {} control points",
+                adj.sigma0, adj.rmse_px, adj.rejected.count, adj.points
+            );
+        }
+        println!("  written to {}", a.out.display());
+    }
+    Ok(())
+}
+
+/// Reproduce seed 001's table 1.3 on a synthetic block: per EO group, the share of
+/// predicted control patches matched per photo, with and without iterative refinement,
+/// and the relative time.
+///
+/// Example: cloudcontrol bench-table13 --out bench13
+#[derive(Args)]
+pub struct BenchArgs {
+    #[arg(long)]
+    out: PathBuf,
+    /// Synthetic preset (small: film at 0.5 m ground pixel).
+    #[arg(long, default_value = "small")]
+    preset: String,
+    #[arg(long, default_value_t = 3)]
+    seed: u64,
+    /// Noise draws per EO group.
+    #[arg(long, default_value_t = 3)]
+    draws: u64,
+}
+
+#[derive(serde::Serialize)]
+struct GroupRow {
+    group: String,
+    refinement: bool,
+    photos: usize,
+    oriented_pct: f64,
+    /// Mean over photos of matched / predicted patches in the first round.
+    first_round_success: f64,
+    /// Mean over photos of matched / predicted patches in the last round.
+    final_success: f64,
+    mean_rounds: f64,
+    checkpoint_plan_px: f64,
+    checkpoint_height_px: f64,
+    time_s: f64,
+    relative_time: f64,
+    /// Photos not oriented: "epoch/photo (draw d): reason".
+    failures: Vec<String>,
+}
+
+pub fn run_bench(a: &BenchArgs, json_out: bool) -> Result<(), String> {
+    use cloudcontrol::synth::{self, PosQuality, Preset, SynthConfig};
+    let preset = match a.preset.as_str() {
+        "tiny" => Preset::Tiny,
+        "small" => Preset::Small,
+        "medium" => Preset::Medium,
+        p => return Err(format!("--preset {p}: tiny, small or medium")),
+    };
+    let dir = a.out.join("block");
+    let t = Instant::now();
+    synth::generate(
+        &SynthConfig {
+            preset,
+            seed: a.seed,
+            change: 0.5,
+            pos: PosQuality::Rough,
+            laz: false,
+        },
+        &dir,
+    )
+    .map_err(|e| e.to_string())?;
+    let mut tiles: Vec<PathBuf> = std::fs::read_dir(dir.join("lidar"))
+        .map_err(|e| e.to_string())?
+        .filter_map(|e| e.ok().map(|e| e.path()))
+        .filter(|p| p.extension().is_some_and(|e| e == "las" || e == "laz"))
+        .collect();
+    tiles.sort();
+    let surface = archive::lidar_surfaces(&tiles, synth::ORIGIN, 1.0).map_err(|e| e.to_string())?;
+    let (refb, refi) =
+        archive::synth_truth_block(&dir, "reference_2024").map_err(|e| e.to_string())?;
+    let pkg = archive::export_dcp(
+        &refb,
+        &refi,
+        &surface,
+        EpochInfo {
+            name: "reference_2024".into(),
+            date: None,
+        },
+        &a.out.join("reference.dcp"),
+        &DcpExportOptions {
+            cloud: CloudOptions {
+                interval_px: 120.0,
+                max_coplanarity: 0.02,
+                ..CloudOptions::default()
+            },
+            chip_size: 193,
+            ..DcpExportOptions::default()
+        },
+    )
+    .map_err(|e| e.to_string())?;
+    eprintln!(
+        "block and {} DCP points ready in {:.1} s",
+        pkg.manifest.points.len(),
+        t.elapsed().as_secs_f64()
+    );
+    let packages = [pkg];
+    let groups: [(&str, f64, f64, bool); 4] = [
+        ("10 m / 3°", 10.0, 3f64.to_radians(), false),
+        ("10 m / 3°", 10.0, 3f64.to_radians(), true),
+        ("5 m / 1°", 5.0, 1f64.to_radians(), true),
+        ("1 m / 1′", 1.0, (1.0f64 / 60.0).to_radians(), true),
+    ];
+    let epochs = ["film_1978", "digital_2012"];
+    let mut rows: Vec<GroupRow> = Vec::new();
+    for (label, sc, sa, refine) in groups {
+        let mut first = Vec::new();
+        let mut last = Vec::new();
+        let mut rounds = Vec::new();
+        let (mut oriented, mut photos) = (0usize, 0usize);
+        let mut failures = Vec::new();
+        let (mut plan, mut height, mut n_eval) = (0.0, 0.0, 0usize);
+        let t = Instant::now();
+        for epoch in epochs {
+            let (truth, _) = archive::synth_truth_block(&dir, epoch).map_err(|e| e.to_string())?;
+            let base = EpochInput::from_synth_epoch(&dir, epoch).map_err(|e| e.to_string())?;
+            for d in 0..a.draws {
+                let input = EpochInput {
+                    navigation: archive::perturbed_navigation(&truth, sc, sa, 1000 * a.seed + d),
+                    ..base.clone()
+                };
+                let mut opts = ArchiveOptions::default();
+                if !refine {
+                    opts.orient.max_iterations = 1;
+                }
+                let r = archive::orient_epoch(&input, &packages, &surface.ground, &opts)
+                    .map_err(|e| e.to_string())?;
+                for p in &r.photos {
+                    photos += 1;
+                    oriented += p.oriented as usize;
+                    if !p.oriented {
+                        failures.push(format!(
+                            "{epoch}/{} (draw {d}): {}",
+                            p.name,
+                            p.reason.as_deref().unwrap_or("")
+                        ));
+                    }
+                    if let (Some(f), Some(l)) = (p.iterations.first(), p.iterations.last()) {
+                        first.push(f.success_ratio);
+                        last.push(l.success_ratio);
+                        rounds.push(p.iterations.len() as f64);
+                    }
+                }
+                let meas = archive::read_checkpoint_images(
+                    &dir.join("truth/checkpoint_images.csv"),
+                    epoch,
+                )
+                .map_err(|e| e.to_string())?;
+                let surveyed = archive::read_checkpoints(&dir.join("checkpoints.csv"))
+                    .map_err(|e| e.to_string())?;
+                if let Ok(e) = archive::evaluate_checkpoints(&r.block, &meas, &surveyed, r.gsd_m) {
+                    plan += e.rmse_plan_px.powi(2);
+                    height += e.rmse_height_px.powi(2);
+                    n_eval += 1;
+                }
+            }
+        }
+        let mean = |v: &[f64]| {
+            if v.is_empty() {
+                0.0
+            } else {
+                v.iter().sum::<f64>() / v.len() as f64
+            }
+        };
+        rows.push(GroupRow {
+            group: label.into(),
+            refinement: refine,
+            photos,
+            oriented_pct: 100.0 * oriented as f64 / photos.max(1) as f64,
+            first_round_success: mean(&first),
+            final_success: mean(&last),
+            mean_rounds: mean(&rounds),
+            checkpoint_plan_px: (plan / n_eval.max(1) as f64).sqrt(),
+            checkpoint_height_px: (height / n_eval.max(1) as f64).sqrt(),
+            time_s: t.elapsed().as_secs_f64(),
+            relative_time: 0.0,
+            failures,
+        });
+    }
+    let t0 = rows[0].time_s.max(1e-9);
+    for r in &mut rows {
+        r.relative_time = r.time_s / t0;
+    }
+    let mut table = String::new();
+    table.push_str(&format!(
+        "Table 1.3 (seed 001) on synthetic preset {} seed {}: {} draws × {:?}\n",
+        a.preset, a.seed, a.draws, epochs
+    ));
+    table.push_str(
+        "EO group    refinement  photos  oriented  success (1st round)  success (final)  rounds  CP plan px  CP height px  time s  rel. time\n",
+    );
+    for r in &rows {
+        table.push_str(&format!(
+            "{:<11} {:<11} {:>6}  {:>7.0}%  {:>19.2}  {:>15.2}  {:>6.1}  {:>10.2}  {:>12.2}  {:>6.1}  {:>9.2}\n",
+            r.group,
+            if r.refinement { "yes" } else { "no" },
+            r.photos,
+            r.oriented_pct,
+            r.first_round_success,
+            r.final_success,
+            r.mean_rounds,
+            r.checkpoint_plan_px,
+            r.checkpoint_height_px,
+            r.time_s,
+            r.relative_time
+        ));
+    }
+    for r in &rows {
+        for f in &r.failures {
+            table.push_str(&format!(
+                "  not oriented in {} ({}): {f}\n",
+                r.group,
+                if r.refinement { "refined" } else { "one round" }
+            ));
+        }
+    }
+    write_bytes_atomically(&a.out.join("table13.txt"), table.as_bytes())
+        .map_err(|e| e.to_string())?;
+    let j = serde_json::to_vec_pretty(&rows).map_err(|e| e.to_string())?;
+    write_bytes_atomically(&a.out.join("table13.json"), &j).map_err(|e| e.to_string())?;
+    if json_out {
+        println!("{}", String::from_utf8_lossy(&j));
+    } else {
+        print!("{table}");
+    }
+    Ok(())
+}

@@ -1,0 +1,365 @@
+//! Archive orientation from Digital Control Photos on synthetic blocks (issue 9 acceptance):
+//! DCPs from the reference epoch's true orientation over the LiDAR ground, then the film
+//! and digital archive epochs oriented from rough POS or strip end points, checked at the
+//! surveyed checkpoints; the time series reference → digital → film; damaged packages.
+
+use cloudcontrol::block::PointKind;
+use cloudcontrol::control::archive::{self, ArchiveOptions, DcpExportOptions, EpochInput};
+use cloudcontrol::control::cloud::{CloudOptions, GroundSurface};
+use cloudcontrol::control::dcp::{DcpPackage, EpochInfo};
+use cloudcontrol::synth::{self, PosQuality, Preset, SynthConfig};
+use std::path::{Path, PathBuf};
+use std::sync::OnceLock;
+use std::time::Instant;
+
+struct Setup {
+    dir: PathBuf,
+    surface: GroundSurface,
+    reference: DcpPackage,
+}
+
+fn lidar_tiles(dir: &Path) -> Vec<PathBuf> {
+    let mut v: Vec<PathBuf> = std::fs::read_dir(dir.join("lidar"))
+        .unwrap()
+        .map(|e| e.unwrap().path())
+        .filter(|p| p.extension().is_some_and(|e| e == "las" || e == "laz"))
+        .collect();
+    v.sort();
+    v
+}
+
+fn export_opts(preset: Preset) -> DcpExportOptions {
+    DcpExportOptions {
+        cloud: CloudOptions {
+            interval_px: match preset {
+                Preset::Tiny => 60.0,
+                _ => 120.0,
+            },
+            max_coplanarity: 0.02,
+            ..CloudOptions::default()
+        },
+        chip_size: match preset {
+            Preset::Tiny => 161,
+            _ => 193,
+        },
+        ..DcpExportOptions::default()
+    }
+}
+
+/// A synthetic block and the reference DCP package from the reference epoch's true
+/// orientation over the LiDAR ground, under the integration-test scratch folder (tests
+/// running in parallel share a block through a `OnceLock`).
+fn setup(name: &str, preset: Preset, pos: PosQuality, seed: u64) -> Setup {
+    let root = Path::new(env!("CARGO_TARGET_TMPDIR"))
+        .join("control_archive")
+        .join(name);
+    let _ = std::fs::remove_dir_all(&root);
+    let dir = root.join("block");
+    synth::generate(
+        &SynthConfig {
+            preset,
+            seed,
+            change: 0.5,
+            pos,
+            laz: false,
+        },
+        &dir,
+    )
+    .unwrap();
+    let surface = archive::lidar_surfaces(&lidar_tiles(&dir), synth::ORIGIN, 1.0).unwrap();
+    let (block, images) = archive::synth_truth_block(&dir, "reference_2024").unwrap();
+    let reference = archive::export_dcp(
+        &block,
+        &images,
+        &surface,
+        EpochInfo {
+            name: "reference_2024".into(),
+            date: Some("2024-05-29".into()),
+        },
+        &root.join("reference.dcp"),
+        &export_opts(preset),
+    )
+    .unwrap();
+    Setup {
+        dir,
+        surface,
+        reference,
+    }
+}
+
+/// The small block (film at 0.5 m ground pixel) with rough POS (10 m / 3°), shared.
+fn rough() -> &'static Setup {
+    static S: OnceLock<Setup> = OnceLock::new();
+    S.get_or_init(|| setup("rough", Preset::Small, PosQuality::Rough, 3))
+}
+
+struct Outcome {
+    oriented: f64,
+    eval: archive::CheckpointEvaluation,
+    result: archive::EpochResult,
+}
+
+fn orient(s: &Setup, epoch: &str, dcp: &[DcpPackage], opts: &ArchiveOptions) -> Outcome {
+    let t = Instant::now();
+    let input = EpochInput::from_synth_epoch(&s.dir, epoch).unwrap();
+    let result = archive::orient_epoch(&input, dcp, &s.surface.ground, opts).unwrap();
+    let meas =
+        archive::read_checkpoint_images(&s.dir.join("truth/checkpoint_images.csv"), epoch).unwrap();
+    let surveyed = archive::read_checkpoints(&s.dir.join("checkpoints.csv")).unwrap();
+    println!(
+        "{epoch}: {} DCP points",
+        dcp.iter().map(|p| p.manifest.points.len()).sum::<usize>()
+    );
+    for p in &result.photos {
+        println!(
+            "  {} oriented={} matches={} σ={:.2} px predicted={} {:?} {:?}",
+            p.name, p.oriented, p.control_matches, p.sigma_px, p.predicted, p.matching, p.reason
+        );
+        for r in &p.iterations {
+            println!("    {r:?}");
+        }
+    }
+    let eval =
+        archive::evaluate_checkpoints(&result.block, &meas, &surveyed, result.gsd_m).unwrap();
+    let oriented = result.oriented_fraction();
+    println!(
+        "{epoch}: oriented {:.0} % of {}, checkpoints {} — plan {:.3} m ({:.2} px), height {:.3} m ({:.2} px), max {:.3} m, gsd {:.3} m, {:.1} s (with evaluation {:.1} s)",
+        100.0 * oriented,
+        result.photos.len(),
+        eval.count,
+        eval.rmse_plan_m,
+        eval.rmse_plan_px,
+        eval.rmse_height_m,
+        eval.rmse_height_px,
+        eval.max_m,
+        eval.gsd_m,
+        result.time_s,
+        t.elapsed().as_secs_f64()
+    );
+    if let Some(a) = &result.adjustment {
+        println!(
+            "  adjustment σ0 {:.2}, rmse {:.2} px, rejected {}, datum {}",
+            a.sigma0, a.rmse_px, a.rejected.count, a.datum
+        );
+    }
+    Outcome {
+        oriented,
+        eval,
+        result,
+    }
+}
+
+fn assert_accuracy(o: &Outcome, what: &str) {
+    assert!(o.oriented >= 0.9, "{what}: oriented {:.2}", o.oriented);
+    assert!(o.eval.count >= 3, "{what}: {} checkpoints", o.eval.count);
+    assert!(
+        o.eval.rmse_plan_px <= 1.0,
+        "{what}: plan RMSE {:.2} px",
+        o.eval.rmse_plan_px
+    );
+    assert!(
+        o.eval.rmse_height_px <= 1.5,
+        "{what}: height RMSE {:.2} px",
+        o.eval.rmse_height_px
+    );
+}
+
+#[test]
+fn film_epoch_with_rough_pos_is_oriented_to_a_ground_pixel() {
+    let s = rough();
+    let o = orient(
+        s,
+        "film_1978",
+        std::slice::from_ref(&s.reference),
+        &ArchiveOptions::default(),
+    );
+    assert_accuracy(&o, "film_1978, POS 10 m / 3°");
+    assert!((o.eval.gsd_m - 0.5).abs() < 0.05, "{}", o.eval.gsd_m);
+    for p in o.result.photos.iter().filter(|p| p.oriented) {
+        // Refinement: the first round resected, the next ones matched more patches.
+        assert!(p.iterations.len() >= 2 && p.iterations[0].resected, "{p:?}");
+        assert!(p.iterations[1].matched > p.iterations[0].matched, "{p:?}");
+        assert!(p.io_rmse_um.is_some_and(|r| r < 20.0), "{p:?}");
+        assert!(p.control_matches >= 6, "{p:?}");
+    }
+    // The block holds DCP control with observations in the oriented photos only.
+    let b = &o.result.block;
+    assert_eq!(
+        b.photos.len(),
+        o.result.photos.iter().filter(|p| p.oriented).count()
+    );
+    // DCP control points only (image ties are off by default); the points seen in both
+    // scans tie them.
+    assert!(b.points.values().all(|p| p.kind == PointKind::Control));
+    assert!(b.points.values().any(|p| p.observations.len() >= 2));
+    let rep = o.result.adjustment.as_ref().unwrap();
+    assert!(rep.sigma0 < 3.0, "σ0 {}", rep.sigma0);
+}
+
+#[test]
+fn film_epoch_without_pos_is_oriented_from_strip_end_points() {
+    let s = setup("nopos", Preset::Small, PosQuality::None, 5);
+    let input = EpochInput::from_synth_epoch(&s.dir, "film_1978").unwrap();
+    assert!(matches!(input.navigation, archive::Navigation::Strips(_)));
+    let o = orient(
+        &s,
+        "film_1978",
+        std::slice::from_ref(&s.reference),
+        &ArchiveOptions::default(),
+    );
+    assert_accuracy(&o, "film_1978, strip end points only");
+}
+
+#[test]
+fn digital_archive_epoch_is_oriented_with_self_calibration() {
+    let s = rough();
+    let o = orient(
+        s,
+        "digital_2012",
+        std::slice::from_ref(&s.reference),
+        &ArchiveOptions::default(),
+    );
+    assert_accuracy(&o, "digital_2012, POS 10 m / 3°");
+}
+
+#[test]
+fn time_series_reference_digital_film() {
+    let s = rough();
+    let opts = ArchiveOptions::default();
+    // The reference epoch (here its true orientation stands for the LiDAR-oriented block).
+    let (refb, _) = archive::synth_truth_block(&s.dir, "reference_2024").unwrap();
+    let meas = archive::read_checkpoint_images(
+        &s.dir.join("truth/checkpoint_images.csv"),
+        "reference_2024",
+    )
+    .unwrap();
+    let surveyed = archive::read_checkpoints(&s.dir.join("checkpoints.csv")).unwrap();
+    let reference = archive::evaluate_checkpoints(&refb, &meas, &surveyed, 0.1).unwrap();
+    println!(
+        "reference_2024: checkpoints {} — plan {:.3} m ({:.2} px), height {:.3} m ({:.2} px)",
+        reference.count,
+        reference.rmse_plan_m,
+        reference.rmse_plan_px,
+        reference.rmse_height_m,
+        reference.rmse_height_px
+    );
+    assert!(reference.rmse_plan_px <= 1.0 && reference.rmse_height_px <= 1.0);
+    // The digital archive from the reference DCPs ...
+    let digital = orient(s, "digital_2012", std::slice::from_ref(&s.reference), &opts);
+    assert_accuracy(&digital, "time series: digital_2012");
+    // ... becomes control for the film epoch.
+    let root = s.dir.parent().unwrap();
+    let pkg = archive::export_dcp(
+        &digital.result.block,
+        &digital.result.images,
+        &s.surface,
+        EpochInfo {
+            name: "digital_2012".into(),
+            date: Some("2012-08-14".into()),
+        },
+        &root.join("digital_2012.dcp"),
+        &DcpExportOptions {
+            accuracy: cloudcontrol::control::dcp::Accuracy {
+                plan_m: digital.eval.rmse_plan_m.max(0.05),
+                height_m: digital.eval.rmse_height_m.max(0.05),
+            },
+            source: "digital_2012 oriented from reference_2024 DCPs".into(),
+            // The digital photos have half the reference's resolution: interest one
+            // level up is already the film's scale, and the same ground spacing needs
+            // half the pixel interval.
+            interest_level: 1,
+            cloud: CloudOptions {
+                interval_px: 60.0,
+                ..export_opts(Preset::Small).cloud
+            },
+            ..export_opts(Preset::Small)
+        },
+    )
+    .unwrap();
+    let pkg = DcpPackage::open(&pkg.dir).unwrap();
+    assert!(
+        pkg.manifest.points.len() >= 10,
+        "{}",
+        pkg.manifest.points.len()
+    );
+    let film = orient(s, "film_1978", std::slice::from_ref(&pkg), &opts);
+    println!(
+        "time series: digital plan {:.2} px height {:.2} px; film (from digital DCPs) plan {:.2} px height {:.2} px",
+        digital.eval.rmse_plan_px,
+        digital.eval.rmse_height_px,
+        film.eval.rmse_plan_px,
+        film.eval.rmse_height_px
+    );
+    assert_accuracy(&film, "time series: film_1978 from digital_2012 DCPs");
+}
+
+#[test]
+fn a_chip_damaged_after_opening_stops_the_orientation_with_a_clear_error() {
+    let s = rough();
+    // A private copy of the package, opened (verified), then one chip edited on disk.
+    let root = s.dir.parent().unwrap().join("damaged");
+    let _ = std::fs::remove_dir_all(&root);
+    let pkg =
+        DcpPackage::merge(std::slice::from_ref(&s.reference), &root.join("copy.dcp")).unwrap();
+    // Every chip of the first point, so whichever the matcher picks is damaged.
+    let chips: Vec<String> = pkg.manifest.points[0]
+        .measurements
+        .iter()
+        .map(|m| m.chip.file.clone())
+        .collect();
+    for chip in &chips {
+        let path = pkg.dir.join(chip);
+        let mut img = image::open(&path).unwrap().to_luma8();
+        let v = img.get_pixel(5, 5).0[0];
+        img.put_pixel(5, 5, image::Luma([v.wrapping_add(40)]));
+        img.save(&path).unwrap();
+    }
+    let input = EpochInput::from_synth_epoch(&s.dir, "film_1978").unwrap();
+    let before = std::fs::read_dir(&root).unwrap().count();
+    let e = archive::orient_epoch(
+        &input,
+        std::slice::from_ref(&pkg),
+        &s.surface.ground,
+        &ArchiveOptions::default(),
+    )
+    .unwrap_err()
+    .to_string();
+    assert!(
+        e.contains("checksum mismatch") && chips.iter().any(|c| e.contains(c.as_str())),
+        "{e}"
+    );
+    assert!(e.contains("film_1978"), "names the epoch: {e}");
+    assert_eq!(std::fs::read_dir(&root).unwrap().count(), before);
+    // Opening it again refuses it as well.
+    assert!(DcpPackage::open(&pkg.dir)
+        .unwrap_err()
+        .to_string()
+        .contains("checksum mismatch"));
+}
+
+#[test]
+fn image_tie_points_join_the_digital_block_when_enabled() {
+    let s = rough();
+    let opts = ArchiveOptions {
+        ties: true,
+        ..ArchiveOptions::default()
+    };
+    let o = orient(s, "digital_2012", std::slice::from_ref(&s.reference), &opts);
+    let ties: Vec<_> = o
+        .result
+        .block
+        .points
+        .values()
+        .filter(|p| p.kind == PointKind::Tie && p.observations.len() >= 2)
+        .collect();
+    println!("digital_2012 with image ties: {} tie points", ties.len());
+    assert!(ties.len() >= 50, "{} tie points", ties.len());
+    // Each tie joins different photos.
+    for t in &ties {
+        let mut ph: Vec<u32> = t.observations.iter().map(|o| o.photo).collect();
+        ph.sort_unstable();
+        ph.dedup();
+        assert_eq!(ph.len(), t.observations.len(), "{t:?}");
+    }
+    assert_accuracy(&o, "digital_2012 with image ties");
+}

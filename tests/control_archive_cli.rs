@@ -1,0 +1,158 @@
+//! `cloudcontrol orient` end to end on a tiny synthetic block: a DEM GeoTIFF and a reference
+//! DCP package in, the oriented digital archive epoch out (block close to the truth, report
+//! with per-iteration records); a damaged package is refused before anything is written.
+
+use cloudcontrol::control::archive::{self, DcpExportOptions};
+use cloudcontrol::control::cloud::CloudOptions;
+use cloudcontrol::control::dcp::EpochInfo;
+use cloudcontrol::formats::crs::Crs;
+use cloudcontrol::formats::raster::{write_dem, GeoTiffOptions};
+use cloudcontrol::synth::{self, PosQuality, Preset, SynthConfig};
+use std::path::{Path, PathBuf};
+use std::process::Command;
+
+fn bin() -> Command {
+    Command::new(env!("CARGO_BIN_EXE_cloudcontrol"))
+}
+
+fn prepare(root: &Path) -> (PathBuf, PathBuf, PathBuf) {
+    let dir = root.join("block");
+    synth::generate(
+        &SynthConfig {
+            preset: Preset::Tiny,
+            seed: 2,
+            change: 0.5,
+            pos: PosQuality::Good,
+            laz: false,
+        },
+        &dir,
+    )
+    .unwrap();
+    let mut tiles: Vec<PathBuf> = std::fs::read_dir(dir.join("lidar"))
+        .unwrap()
+        .map(|e| e.unwrap().path())
+        .collect();
+    tiles.sort();
+    let surface = archive::lidar_surfaces(&tiles, synth::ORIGIN, 1.0).unwrap();
+    // The DEM as a user has it: world coordinates in a GeoTIFF.
+    let o = synth::ORIGIN;
+    let world = archive::dem_to_local(&surface.ground, [-o[0], -o[1], -o[2]]).unwrap();
+    let dem = root.join("dem.tif");
+    write_dem(
+        &dem,
+        &world,
+        &Crs::parse("EPSG:4547").unwrap(),
+        &GeoTiffOptions::default(),
+    )
+    .unwrap();
+    let (block, images) = archive::synth_truth_block(&dir, "reference_2024").unwrap();
+    let pkg = archive::export_dcp(
+        &block,
+        &images,
+        &surface,
+        EpochInfo {
+            name: "reference_2024".into(),
+            date: None,
+        },
+        &root.join("reference.dcp"),
+        &DcpExportOptions {
+            cloud: CloudOptions {
+                interval_px: 40.0,
+                max_coplanarity: 0.02,
+                ..CloudOptions::default()
+            },
+            chip_size: 129,
+            interest_level: 1,
+            ..DcpExportOptions::default()
+        },
+    )
+    .unwrap();
+    (dir, dem, pkg.dir)
+}
+
+#[test]
+fn orient_cli_writes_the_oriented_epoch_and_refuses_a_damaged_package() {
+    let tmp = tempfile::tempdir().unwrap();
+    let (dir, dem, pkg) = prepare(tmp.path());
+    let out = tmp.path().join("out");
+    let o = bin()
+        .args(["orient", "--dcp"])
+        .arg(&pkg)
+        .arg("--synth")
+        .arg(&dir)
+        .args(["--epoch", "digital_2012", "--dem"])
+        .arg(&dem)
+        .arg("--out")
+        .arg(&out)
+        .output()
+        .unwrap();
+    let stdout = String::from_utf8_lossy(&o.stdout);
+    println!("{stdout}{}", String::from_utf8_lossy(&o.stderr));
+    assert!(o.status.success());
+    let report: serde_json::Value =
+        serde_json::from_slice(&std::fs::read(out.join("report.json")).unwrap()).unwrap();
+    let photos = report["photos"].as_array().unwrap();
+    assert_eq!(photos.len(), 2);
+    for p in photos {
+        assert!(
+            p["iterations"].as_array().is_some_and(|i| !i.is_empty()),
+            "{p}"
+        );
+        assert!(
+            p["oriented"].as_bool().unwrap() || p["reason"].is_string(),
+            "{p}"
+        );
+    }
+    // The written block (world = local + origin) reproduces the checkpoints.
+    let block: cloudcontrol::block::Block =
+        serde_json::from_slice(&std::fs::read(out.join("block.json")).unwrap()).unwrap();
+    assert_eq!(block.origin, synth::ORIGIN);
+    assert!(!block.photos.is_empty(), "no photo oriented:\n{stdout}");
+    let meas =
+        archive::read_checkpoint_images(&dir.join("truth/checkpoint_images.csv"), "digital_2012")
+            .unwrap();
+    let surveyed = archive::read_checkpoints(&dir.join("checkpoints.csv")).unwrap();
+    let gsd = report["gsd_m"].as_f64().unwrap();
+    let e = archive::evaluate_checkpoints(&block, &meas, &surveyed, gsd).unwrap();
+    println!(
+        "checkpoints {}: plan {:.2} px, height {:.2} px",
+        e.count, e.rmse_plan_px, e.rmse_height_px
+    );
+    assert!(e.rmse_plan_px <= 1.0 && e.rmse_height_px <= 1.5, "{e:?}");
+    assert!(out.join("colmap").is_dir() && out.join("blocks_exchange.xml").is_file());
+
+    // A damaged chip: refused with the package and chip named, nothing written.
+    let m: serde_json::Value =
+        serde_json::from_slice(&std::fs::read(pkg.join("manifest.json")).unwrap()).unwrap();
+    let chip = m["points"][0]["measurements"][0]["chip"]["file"]
+        .as_str()
+        .unwrap()
+        .to_string();
+    let path = pkg.join(&chip);
+    let mut img = image::open(&path).unwrap().to_luma8();
+    let v = img.get_pixel(1, 1).0[0];
+    img.put_pixel(1, 1, image::Luma([v.wrapping_add(50)]));
+    img.save(&path).unwrap();
+    let out2 = tmp.path().join("out2");
+    let o = bin()
+        .args(["orient", "--dcp"])
+        .arg(&pkg)
+        .arg("--synth")
+        .arg(&dir)
+        .args(["--epoch", "digital_2012", "--dem"])
+        .arg(&dem)
+        .arg("--out")
+        .arg(&out2)
+        .output()
+        .unwrap();
+    let err = String::from_utf8_lossy(&o.stderr);
+    assert!(!o.status.success());
+    assert!(
+        err.contains("checksum mismatch") && err.contains(&chip),
+        "{err}"
+    );
+    assert!(!out2.exists(), "nothing is written for a refused package");
+    // --help carries an example.
+    let h = bin().args(["orient", "--help"]).output().unwrap();
+    assert!(String::from_utf8_lossy(&h.stdout).contains("Example"));
+}
