@@ -31,6 +31,10 @@ typedef struct CcpCamera CcpCamera;
 // Opaque handle of an opened (verified) DCP package with its spatial index.
 typedef struct CcpDcp CcpDcp;
 
+// Opaque LiDAR source: the points of a region with their plane index. Create with
+// `ccp_lidar_source_open`, release with `ccp_lidar_source_free`.
+typedef struct CcpLidarSource CcpLidarSource;
+
 // Exterior orientation: `rotation` is the row-major world→camera matrix R and `center`
 // the projection centre C, so that X_cam = R·(X − C) (x right, y down, z forward).
 typedef struct CcpPose {
@@ -67,6 +71,52 @@ typedef struct CcpAdjustSummary {
   double check_rmse_height_m;
   double check_max_m;
 } CcpAdjustSummary;
+
+// Statistics of a checkpoint evaluation (dz = LiDAR − checkpoint, metres).
+typedef struct CcpCheckpointStats {
+  // Checkpoints with a LiDAR height.
+  size_t count;
+  // Checkpoints without enough ground points around them.
+  size_t skipped;
+  double mean_m;
+  double std_m;
+  double rmse_m;
+  double max_abs_m;
+  // Checkpoints with |dz − mean| > 3σ.
+  size_t outliers;
+} CcpCheckpointStats;
+
+// Statistics of an ICP run.
+typedef struct CcpIcpStats {
+  double scale;
+  double rmse_m;
+  double sigma0_m;
+  size_t inliers;
+  size_t iterations;
+  // 1 when the convergence test was met, 0 when max_iterations ran out.
+  int32_t converged;
+} CcpIcpStats;
+
+// Result of `ccp_match_template`. Positions are the template centre in image pixels
+// (origin at the top-left corner of the top-left pixel). `reason` is a NUL-terminated
+// message when `accepted` is 0.
+typedef struct CcpMatchResult {
+  int32_t accepted;
+  int32_t lsm_converged;
+  uint32_t lsm_iterations;
+  double x;
+  double y;
+  double ncc;
+  double ncc_x;
+  double ncc_y;
+  // Second-best correlation peak divided by the best.
+  double ambiguity;
+  double sigma_x;
+  double sigma_y;
+  // LSM affine (row-major 2×2): template offsets → image offsets.
+  double affine[4];
+  char reason[200];
+} CcpMatchResult;
 
 #ifdef __cplusplus
 extern "C" {
@@ -313,6 +363,156 @@ enum CcpStatus ccp_dem_read(const char *path,
 // # Safety
 // Pointer arguments must be null or valid for the lengths given; strings NUL-terminated.
 enum CcpStatus ccp_block_summary(const char *path, uint64_t *counts_out);
+
+// Scans LAS/LAZ files or folders (or loads one catalogue .json) into the source catalogue
+// and returns it as a NUL-terminated JSON string in `*out_json`, owned by the library:
+// release it with `ccp_string_free`. `assume_crs` (nullable) is the CRS of files that
+// carry none.
+enum CcpStatus ccp_lidar_catalogue_json(const char *const *paths_ptr,
+                                        size_t n_paths,
+                                        const char *assume_crs,
+                                        char **out_json);
+
+// Frees a string returned by the library (NULL is ignored).
+void ccp_string_free(char *s);
+
+// Evaluates LiDAR ground heights against `n_points` checkpoints `xyz` (X, Y, Z per
+// checkpoint, in the LiDAR CRS). `ground_class` < 0 takes every point, else that ASPRS
+// class; `radius` (m) bounds the local plane; `max_points` bounds the LiDAR points held
+// in memory (0: 50 million). Writes dz = LiDAR − checkpoint per checkpoint into `out_dz`
+// (NaN where skipped; `out_len` ≥ `n_points`) and the statistics into `*out_stats`.
+enum CcpStatus ccp_lidar_eval_checkpoints(const char *const *paths_ptr,
+                                          size_t n_paths,
+                                          const char *assume_crs,
+                                          const double *xyz,
+                                          size_t n_points,
+                                          int32_t ground_class,
+                                          double radius,
+                                          uint64_t max_points,
+                                          double *out_dz,
+                                          size_t out_len,
+                                          struct CcpCheckpointStats *out_stats);
+
+// Loads the LiDAR points of LAS/LAZ files, folders or a catalogue .json inside `bbox`
+// (min_x, min_y, max_x, max_y; NULL for everything) and builds the plane index with `k`
+// neighbours per fit (0: 12) and the coplanarity limit `max_coplanarity` (≤ 0: 0.02).
+// More than `max_points` points in the region (0: 200 million) is an error.
+enum CcpStatus ccp_lidar_source_open(const char *const *paths_ptr,
+                                     size_t n_paths,
+                                     const char *assume_crs,
+                                     const double *bbox,
+                                     uint32_t k,
+                                     double max_coplanarity,
+                                     uint64_t max_points,
+                                     struct CcpLidarSource **out_source);
+
+// Releases a source (NULL is ignored).
+void ccp_lidar_source_free(struct CcpLidarSource *source);
+
+// Number of LiDAR points held by a source.
+enum CcpStatus ccp_lidar_source_len(const struct CcpLidarSource *source, uint64_t *out_len);
+
+// Local planes at `n_points` world points `xyz`: per point 8 values into `out`
+// (`out_len` ≥ 8·n): unit normal (3, upward), centroid of the fitted neighbourhood
+// (3, world), weight (0..1, from coplanarity) and the signed distance of the point to the
+// plane (m). Rows are NaN where the surface is not planar (vegetation, edges, gaps) or
+// the point lies farther than the plane-fit radius from the fitted patch along it.
+enum CcpStatus ccp_lidar_planes(const struct CcpLidarSource *source,
+                                const double *xyz,
+                                size_t n_points,
+                                double *out,
+                                size_t out_len);
+
+// Point-to-plane ICP of `n_points` world points `xyz` onto the source, from the identity:
+// `rigid` ≠ 0 estimates a rigid transform, else a 7-parameter similarity. Gates in metres
+// (`initial_gate` must cover the start error; ≤ 0 takes 30 and 0.3), `max_iterations`
+// (0: 100). Writes the row-major 4×4 matrix mapping the points onto the LiDAR into
+// `out_matrix` (16 values) and the statistics into `*out_stats`.
+enum CcpStatus ccp_lidar_icp(const struct CcpLidarSource *source,
+                             const double *xyz,
+                             size_t n_points,
+                             int32_t rigid,
+                             double initial_gate,
+                             double min_gate,
+                             uint32_t max_iterations,
+                             double *out_matrix,
+                             struct CcpIcpStats *out_stats);
+
+// Matches a template in a window of an image: coarse-to-fine NCC, then LSM from the NCC
+// peak, accepted when NCC ≥ `ncc_threshold`, LSM converged and both agree within
+// `agreement_px`. `image` and `templ` are row-major f32 grey values; `window` is
+// `col, row, width, height` (4 values) or NULL for the whole image. A rejected match is
+// not an error: the status is OK, `accepted` is 0 and `reason` says why.
+//
+// # Safety
+// Pointers must be null or point to arrays of the stated lengths (image `width·height`,
+// template `templ_width·templ_height` values, buffers of the given lengths).
+enum CcpStatus ccp_match_template(const float *image,
+                                  uint32_t width,
+                                  uint32_t height,
+                                  const float *templ,
+                                  uint32_t templ_width,
+                                  uint32_t templ_height,
+                                  const uint32_t *window,
+                                  double ncc_threshold,
+                                  double agreement_px,
+                                  struct CcpMatchResult *out);
+
+// Fiducial interior orientation of a scan given as row-major f32 grey values.
+// `camera_json` is the camera definition (formats/cameras schema) as NUL-terminated
+// UTF-8 text. `pixel_mm` ≤ 0 estimates the scan pixel size from the format;
+// `projective` 0/1 picks the transform; `orientation` −1 tries all eight scan
+// orientations, else `rotation_deg / 90 + 4 · mirrored`. The io.json document is written
+// NUL-terminated into `out_json`; `*out_needed` receives its size including the NUL
+// (call with `out_len = 0` to ask; status BufferTooSmall when it does not fit).
+//
+// # Safety
+// Pointers must be null or point to arrays of the stated lengths (image `width·height`,
+// template `templ_width·templ_height` values, buffers of the given lengths).
+enum CcpStatus ccp_fiducial_io(const char *camera_json,
+                               const float *scan,
+                               uint32_t width,
+                               uint32_t height,
+                               double pixel_mm,
+                               int32_t projective,
+                               int32_t orientation,
+                               char *out_json,
+                               size_t out_len,
+                               size_t *out_needed);
+
+// Full NCC surface of `templ` over the whole `image` at one resolution (what OpenCV's
+// matchTemplate TM_CCOEFF_NORMED computes): `out` receives
+// (height − templ_height + 1) × (width − templ_width + 1) values, row-major, value (i, j)
+// for the template's top-left corner at column i, row j.
+//
+// # Safety
+// Pointers must be null or point to arrays of the stated lengths (image `width·height`,
+// template `templ_width·templ_height` values, buffers of the given lengths).
+enum CcpStatus ccp_ncc_surface(const float *image,
+                               uint32_t width,
+                               uint32_t height,
+                               const float *templ,
+                               uint32_t templ_width,
+                               uint32_t templ_height,
+                               float *out,
+                               size_t out_len);
+
+// Least-squares matching alone (6 affine + 2 radiometric parameters) from the template
+// centre (x, y). Fills `out` like `ccp_match_template` (`ncc` fields are NaN);
+// `accepted` means converged.
+//
+// # Safety
+// Pointers must be null or point to arrays of the stated lengths (image `width·height`,
+// template `templ_width·templ_height` values, buffers of the given lengths).
+enum CcpStatus ccp_lsm(const float *image,
+                       uint32_t width,
+                       uint32_t height,
+                       const float *templ,
+                       uint32_t templ_width,
+                       uint32_t templ_height,
+                       double x,
+                       double y,
+                       struct CcpMatchResult *out);
 
 // Writes a synthetic block with ground truth into `out_dir` (UTF-8 path).
 // `preset`: 0 tiny, 1 small, 2 medium, 3 large; `pos`: 0 good, 1 rough, 2 none;
