@@ -474,6 +474,19 @@ pub fn adjust(
                 changed = true;
             }
         }
+        // Re-fitted planes change the residual list: the structure must index the new one
+        // before residuals are tested for rejection.
+        let st = if changed {
+            Structure::new(
+                &pb.res,
+                pb.photo_ids.len(),
+                n_points,
+                &pb.photo_free,
+                &pb.camera_free,
+            )
+        } else {
+            st
+        };
         let newly = robust::select_rejections(&st, &pb, opts, round, n_points);
         if !newly.is_empty() {
             for (i, rj) in newly {
