@@ -89,8 +89,12 @@ pub(super) fn select_rejections(
             continue;
         }
         let r = &pb.res[i];
-        if matches!(r.kind, Kind::PointPrior { .. })
-            || r.point.is_some_and(|p| tested_points.contains(&p))
+        // POS priors are not rejected: a photo without its prior may lose the datum, and
+        // a POS gross error shows in the image residuals of the photo all the same.
+        if matches!(
+            r.kind,
+            Kind::PointPrior { .. } | Kind::PosCenter { .. } | Kind::PosAttitude { .. }
+        ) || r.point.is_some_and(|p| tested_points.contains(&p))
         {
             continue;
         }
