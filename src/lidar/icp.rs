@@ -40,6 +40,9 @@ pub struct IcpOptions {
     /// steps are correspondence switching between neighbouring LiDAR planes, not progress.
     pub tolerance: f64,
     pub min_correspondences: usize,
+    /// Directions of the (unit-scaled) normal matrix with an eigenvalue below this
+    /// fraction of the largest are not estimated: the surfaces do not determine them.
+    pub min_eigenvalue_ratio: f64,
 }
 
 impl Default for IcpOptions {
@@ -53,6 +56,7 @@ impl Default for IcpOptions {
             tukey_c: 4.685,
             tolerance: 1e-3,
             min_correspondences: 20,
+            min_eigenvalue_ratio: 1e-3,
         }
     }
 }
@@ -80,6 +84,9 @@ pub struct IcpResult {
     pub inliers: usize,
     pub converged: bool,
     pub iterations: Vec<IcpIteration>,
+    /// Directions of the similarity the surfaces left undetermined in the last
+    /// iteration (not moved; 0 on well-shaped relief).
+    pub degenerate_directions: usize,
 }
 
 impl IcpResult {
@@ -152,6 +159,7 @@ pub fn icp_point_to_plane(
     let mut gate = opts.initial_gate;
     let mut iterations = Vec::new();
     let mut converged = false;
+    let mut degenerate = 0;
     let mut last_cov = SMatrix::<f64, 7, 7>::zeros();
     let mut sigma0 = 0.0;
     let mut rmse = 0.0;
@@ -230,12 +238,42 @@ pub fn icp_point_to_plane(
             n_mat[(6, 6)] = 1.0;
             b[6] = 0.0;
         }
-        let chol = n_mat
-            .cholesky()
-            .ok_or(LidarError::Singular { iteration: it })?;
-        let x = chol.solve(&b);
-        let mut cov = chol.inverse();
+        // Solve in units where every parameter moves the source extent by metres, and
+        // leave out the directions the surfaces do not determine (degeneracy-aware ICP):
+        // over flat ground, horizontal shifts and rotation about the vertical are free, and
+        // a plain solve would wander along them on noise.
+        let ext = extent.max(1.0);
+        let dscale = SVector::<f64, 7>::from_column_slice(&[ext, ext, ext, 1.0, 1.0, 1.0, ext]);
+        let scaled = SMatrix::<f64, 7, 7>::from_fn(|i, j| n_mat[(i, j)] / (dscale[i] * dscale[j]));
+        let eig = scaled.symmetric_eigen();
+        let lmax = eig.eigenvalues.max();
+        if !(lmax.is_finite() && lmax > 0.0) {
+            return Err(LidarError::Singular { iteration: it });
+        }
+        let mut x = SVector::<f64, 7>::zeros();
+        let mut cov = SMatrix::<f64, 7, 7>::zeros();
+        degenerate = 0;
+        for k in 0..7 {
+            let l = eig.eigenvalues[k];
+            let v = eig.eigenvectors.column(k);
+            if l <= opts.min_eigenvalue_ratio * lmax {
+                if !(opts.model == IcpModel::Rigid && v[6].abs() > 0.9) {
+                    degenerate += 1;
+                }
+                continue;
+            }
+            let bs = SVector::<f64, 7>::from_fn(|i, _| b[i] / dscale[i]);
+            x += v * (v.dot(&bs) / l);
+            cov += v * v.transpose() / l;
+        }
+        for i in 0..7 {
+            x[i] /= dscale[i];
+            for j in 0..7 {
+                cov[(i, j)] /= dscale[i] * dscale[j];
+            }
+        }
         if opts.model == IcpModel::Rigid {
+            x[6] = 0.0;
             for k in 0..7 {
                 cov[(6, k)] = 0.0;
                 cov[(k, 6)] = 0.0;
@@ -290,5 +328,6 @@ pub fn icp_point_to_plane(
         inliers,
         converged,
         iterations,
+        degenerate_directions: degenerate,
     })
 }
