@@ -7,6 +7,7 @@ pub mod cloud;
 pub mod dcp;
 pub mod orient;
 pub mod predict;
+pub mod reference;
 pub mod strips;
 
 pub use dcp::{DcpError, DcpIndex, DcpPackage, Manifest};

@@ -1,0 +1,433 @@
+//! Orientation of the reference epoch against the LiDAR alone (seed 000 §2.2 (1)–(3)):
+//! tie points guided by the POS over the LiDAR DEM, a first adjustment on the POS,
+//! point-to-plane ICP of the tie points onto the LiDAR (7-parameter similarity applied to
+//! the whole block), then the bundle adjustment with LiDAR point-to-plane constraints
+//! (planes re-fitted between rounds, weights from their coplanarity), POS priors and
+//! self-calibration. No surveyed point enters: checkpoints only evaluate the result.
+//!
+//! The result is an [`EpochResult`] like an archive epoch's, so DCP export, outputs and
+//! the report treat every epoch alike.
+
+use super::archive::{mean_gsd, ArchiveError, EpochCamera, EpochInput, EpochResult, Navigation};
+use super::archive::{MatchStats, PhotoReport};
+use crate::adjust::{self, AdjustOptions, AdjustReport, PlaneConstraint, PlaneRefitter, Rejection};
+use crate::block::{Block, BlockCamera, Photo, PhotoId, PointId, PointKind, PosPrior};
+use crate::geometry::{matrix_from_opk, Camera, Dem, Pose, Similarity};
+use crate::lidar::{icp_point_to_plane, IcpOptions, IcpResult, PlaneIndex};
+use crate::matching::oriented::{block_tie_points, BlockTieOptions, BlockTieReport, Surface};
+use crate::matching::GreyImage;
+use nalgebra::Vector3;
+use rayon::prelude::*;
+use serde::Serialize;
+use std::collections::{BTreeMap, BTreeSet};
+use std::time::Instant;
+
+/// Options of [`orient_reference`].
+#[derive(Debug, Clone)]
+pub struct ReferenceOptions {
+    pub ties: BlockTieOptions,
+    /// Tie points wanted near each standard position of a photo that lies in an overlap.
+    pub min_per_position: usize,
+    /// σ of the height of the DEM the tie search is predicted over (m).
+    pub dem_sigma_m: f64,
+    /// Point-to-plane ICP of the tie points onto the LiDAR before the final adjustment
+    /// (None: the POS alone places the block).
+    pub icp: Option<IcpOptions>,
+    /// σ of a LiDAR plane as a surface (m): noise and strip residuals. A plane's weight is
+    /// its coplanarity weight / σ².
+    pub lidar_sigma_m: f64,
+    /// Tie points farther than this from their plane get no constraint (m): they are on
+    /// something the LiDAR does not describe (cars, edges, mismatches).
+    pub plane_gate_m: f64,
+    pub adjust: AdjustOptions,
+    /// Interior parameters adjusted with the block (self-calibration).
+    pub self_calibration: Vec<String>,
+    /// A photo counts as oriented with at least this many tie observations kept.
+    pub min_observations: usize,
+}
+
+impl Default for ReferenceOptions {
+    fn default() -> Self {
+        Self {
+            ties: BlockTieOptions::default(),
+            min_per_position: 3,
+            dem_sigma_m: 0.5,
+            icp: Some(IcpOptions {
+                initial_gate: 5.0,
+                min_gate: 0.25,
+                // Tie points are far sparser and noisier than LiDAR: directions only a few
+                // walls and roofs determine are left to the bundle adjustment.
+                min_eigenvalue_ratio: 2e-2,
+                ..IcpOptions::default()
+            }),
+            lidar_sigma_m: 0.05,
+            plane_gate_m: 0.5,
+            adjust: AdjustOptions {
+                rejection: Rejection::DataSnooping(3.29),
+                ..AdjustOptions::default()
+            },
+            self_calibration: Vec::new(),
+            min_observations: 12,
+        }
+    }
+}
+
+/// ICP of the tie points onto the LiDAR, for the report.
+#[derive(Debug, Clone, Serialize)]
+pub struct IcpSummary {
+    pub scale: f64,
+    /// Rotation angle of the similarity (degrees).
+    pub rotation_deg: f64,
+    pub translation_m: [f64; 3],
+    pub rmse_m: f64,
+    pub inliers: usize,
+    pub converged: bool,
+    pub degenerate_directions: usize,
+    pub iterations: Vec<crate::lidar::IcpIteration>,
+}
+
+/// What the reference orientation did, beyond the adjustment report.
+#[derive(Debug, Clone, Serialize)]
+pub struct ReferenceReport {
+    pub ties: BlockTieReport,
+    /// Adjustment on the POS alone (before ICP and planes).
+    pub pos_adjustment: AdjustReport,
+    pub icp: Option<IcpSummary>,
+    /// Tie points with a LiDAR plane constraint in the final adjustment.
+    pub plane_constraints: usize,
+}
+
+/// LiDAR planes for the adjustment: each tie point's plane is re-fitted at its current
+/// position from the LiDAR (block-local; the index's origin is the block's).
+pub struct LidarPlanes<'a> {
+    pub index: &'a PlaneIndex,
+    pub sigma_m: f64,
+    pub gate_m: f64,
+    /// Only these points are constrained (tie points).
+    pub points: BTreeSet<PointId>,
+}
+
+impl PlaneRefitter for LidarPlanes<'_> {
+    fn refit(&mut self, points: &[(PointId, Vector3<f64>)]) -> Vec<PlaneConstraint> {
+        let w0 = 1.0 / (self.sigma_m * self.sigma_m);
+        points
+            .par_iter()
+            .filter(|(id, _)| self.points.contains(id))
+            .filter_map(|(id, x)| {
+                let pl = self.index.plane_at(x)?;
+                (pl.distance(x).abs() <= self.gate_m).then(|| PlaneConstraint {
+                    point: *id,
+                    normal: pl.normal.into(),
+                    d: pl.normal.dot(&pl.centroid),
+                    weight: pl.weight * w0,
+                })
+            })
+            .collect()
+    }
+}
+
+/// Block of the reference epoch at its POS (block-local), every photo with its prior.
+fn pos_block(input: &EpochInput) -> Result<Block, ArchiveError> {
+    let ep = |message: String| ArchiveError::Epoch {
+        epoch: input.name.clone(),
+        message,
+    };
+    let EpochCamera::Frame(frame) = &input.camera else {
+        return Err(ep(
+            "the reference epoch needs a digital frame camera (film references are oriented as archive epochs)".into(),
+        ));
+    };
+    let Navigation::Pos(records) = &input.navigation else {
+        return Err(ep(
+            "the reference epoch needs a POS (strip end points cannot guide its tie points)".into(),
+        ));
+    };
+    let origin = Vector3::from(input.origin);
+    let mut block = Block {
+        crs: Some(input.crs.clone()),
+        origin: input.origin,
+        ..Block::default()
+    };
+    block.cameras.insert(
+        1,
+        BlockCamera {
+            id: 1,
+            name: format!("{}_camera", input.name),
+            model: Camera::Frame(frame.clone()),
+            free_params: Vec::new(),
+        },
+    );
+    let by_name: BTreeMap<&str, _> = records.iter().map(|r| (r.name.as_str(), r)).collect();
+    for (k, ph) in input.photos.iter().enumerate() {
+        let r = by_name
+            .get(ph.name.as_str())
+            .ok_or_else(|| ep(format!("photo {} has no POS record", ph.name)))?;
+        let c = Vector3::from(r.center) - origin;
+        let rot = matrix_from_opk(r.opk[0], r.opk[1], r.opk[2]);
+        let sc = r.sigma_xyz.unwrap_or(0.1);
+        let id = k as PhotoId + 1;
+        block.photos.insert(
+            id,
+            Photo {
+                id,
+                name: ph.name.clone(),
+                camera: 1,
+                pose: Pose::new(rot, c),
+                oriented: false,
+                prior: Some(PosPrior {
+                    center: c,
+                    center_sigma: [sc; 3],
+                    rotation: Some(rot),
+                    rotation_sigma_rad: r.sigma_angle.unwrap_or(0.01f64.to_radians()),
+                }),
+                date: input.date.clone(),
+            },
+        );
+    }
+    Ok(block)
+}
+
+/// LiDAR points of `classes` (e.g. ground and buildings: planar surfaces that do not
+/// change between the LiDAR and the reference flight) from LAS/LAZ tiles, indexed for
+/// plane fits in the block-local frame of `origin`.
+pub fn lidar_plane_index(
+    tiles: &[std::path::PathBuf],
+    origin: [f64; 3],
+    classes: &[u8],
+    options: crate::lidar::PlaneOptions,
+) -> Result<PlaneIndex, ArchiveError> {
+    let mut local = Vec::new();
+    for t in tiles {
+        let b = crate::lidar::las::read_points(t, None, Some(classes)).map_err(|e| {
+            ArchiveError::Input {
+                path: t.clone(),
+                message: e.to_string(),
+            }
+        })?;
+        local.extend(
+            b.xyz
+                .iter()
+                .map(|p| [p[0] - origin[0], p[1] - origin[1], p[2] - origin[2]]),
+        );
+    }
+    let first = tiles.first().cloned().unwrap_or_default();
+    PlaneIndex::from_local(local, Vector3::from(origin), options).map_err(|e| ArchiveError::Input {
+        path: first,
+        message: format!("LiDAR plane index: {e}"),
+    })
+}
+
+/// Similarity in world coordinates → the same map in block-local coordinates.
+fn to_local(s: &Similarity, origin: &Vector3<f64>) -> Similarity {
+    let t = s.scale * s.rotation * origin + s.translation - origin;
+    Similarity::new(s.scale, s.rotation, t)
+}
+
+fn summarise_icp(r: &IcpResult) -> IcpSummary {
+    let angle = nalgebra::Rotation3::from_matrix_unchecked(r.transform.rotation).angle();
+    IcpSummary {
+        scale: r.transform.scale,
+        rotation_deg: angle.to_degrees(),
+        translation_m: r.transform.translation.into(),
+        rmse_m: r.rmse_m,
+        inliers: r.inliers,
+        converged: r.converged,
+        degenerate_directions: r.degenerate_directions,
+        iterations: r.iterations.clone(),
+    }
+}
+
+/// Orients the reference epoch against the LiDAR. `lidar` holds the LiDAR surface points
+/// with the epoch's origin as its origin; `dem` is the ground DEM, block-local like the
+/// DEM of [`super::archive::orient_epoch`].
+pub fn orient_reference(
+    input: &EpochInput,
+    lidar: &PlaneIndex,
+    dem: &Dem,
+    opts: &ReferenceOptions,
+) -> Result<(EpochResult, ReferenceReport), ArchiveError> {
+    let t0 = Instant::now();
+    let ep = |message: String| ArchiveError::Epoch {
+        epoch: input.name.clone(),
+        message,
+    };
+    let origin = Vector3::from(input.origin);
+    if (lidar.origin() - origin).norm() > 1e-6 {
+        return Err(ep(format!(
+            "the LiDAR index origin {:?} differs from the epoch origin {:?}",
+            lidar.origin(),
+            input.origin
+        )));
+    }
+    let mut block = pos_block(input)?;
+    let images: Vec<(PhotoId, GreyImage)> = input
+        .photos
+        .par_iter()
+        .enumerate()
+        .map(|(k, p)| {
+            GreyImage::load(&p.image)
+                .map(|g| (k as PhotoId + 1, g))
+                .map_err(|e| ArchiveError::Input {
+                    path: p.image.clone(),
+                    message: e.to_string(),
+                })
+        })
+        .collect::<Result<_, _>>()?;
+    let images: BTreeMap<PhotoId, GreyImage> = images.into_iter().collect();
+
+    // 1. Tie points, searched around their POS prediction over the LiDAR ground.
+    let surface = Surface::Dem {
+        dem,
+        origin: Vector3::zeros(),
+        sigma_m: opts.dem_sigma_m,
+    };
+    let ties = block_tie_points(
+        &mut block,
+        &images,
+        &surface,
+        opts.min_per_position,
+        &opts.ties,
+    )
+    .map_err(|e| ep(format!("tie points: {e}")))?;
+    drop(images);
+    tracing::info!(
+        epoch = %input.name,
+        points = ties.points_added,
+        observations = ties.observations_added,
+        "tie points"
+    );
+    let adjust_err = |source| ArchiveError::Adjust {
+        epoch: input.name.clone(),
+        source,
+    };
+
+    // 2. Adjustment on the POS alone: tie points get object positions.
+    let first_opts = AdjustOptions {
+        covariance: false,
+        ..opts.adjust.clone()
+    };
+    let pos_adjustment = adjust::adjust(&mut block, &[], None, &first_opts).map_err(adjust_err)?;
+
+    // 3. ICP of the tie points onto the LiDAR; the similarity moves the whole block.
+    let icp = match &opts.icp {
+        Some(icp_opts) => {
+            let source: Vec<[f64; 3]> = block
+                .points
+                .values()
+                .filter(|p| p.kind == PointKind::Tie && p.observations.len() >= 2)
+                .map(|p| (p.position + origin).into())
+                .collect();
+            let r = icp_point_to_plane(lidar, &source, &Similarity::identity(), icp_opts)
+                .map_err(|e| ep(format!("ICP of the tie points onto the LiDAR: {e}")))?;
+            let local = to_local(&r.transform, &origin);
+            for ph in block.photos.values_mut() {
+                ph.pose = local.apply_pose(&ph.pose);
+            }
+            for p in block.points.values_mut() {
+                if p.kind == PointKind::Tie {
+                    p.position = local.apply(&p.position);
+                }
+            }
+            tracing::info!(
+                epoch = %input.name,
+                rmse_m = r.rmse_m,
+                scale = r.transform.scale,
+                "ICP onto the LiDAR"
+            );
+            Some(summarise_icp(&r))
+        }
+        None => None,
+    };
+
+    // 4. Bundle adjustment with LiDAR planes, POS priors and self-calibration.
+    if let Some(c) = block.cameras.get_mut(&1) {
+        c.free_params = opts.self_calibration.clone();
+    }
+    let mut planes = LidarPlanes {
+        index: lidar,
+        sigma_m: opts.lidar_sigma_m,
+        gate_m: opts.plane_gate_m,
+        points: block
+            .points
+            .values()
+            .filter(|p| p.kind == PointKind::Tie)
+            .map(|p| p.id)
+            .collect(),
+    };
+    let current: Vec<(PointId, Vector3<f64>)> =
+        block.points.values().map(|p| (p.id, p.position)).collect();
+    let initial = planes.refit(&current);
+    let plane_constraints = initial.len();
+    if plane_constraints < 3 {
+        return Err(ep(format!(
+            "only {plane_constraints} tie points lie on planar LiDAR surfaces; the LiDAR cannot control the block"
+        )));
+    }
+    let report = adjust::adjust(
+        &mut block,
+        &initial,
+        Some(&mut planes as &mut dyn PlaneRefitter),
+        &opts.adjust,
+    )
+    .map_err(adjust_err)?;
+
+    // Photos count as oriented when enough of their tie observations survived.
+    let mut per_photo: BTreeMap<PhotoId, usize> = BTreeMap::new();
+    for p in block.points.values() {
+        for o in &p.observations {
+            *per_photo.entry(o.photo).or_default() += 1;
+        }
+    }
+    let precision: BTreeMap<PhotoId, f64> = report
+        .photo_precision
+        .iter()
+        .map(|p| (p.photo, p.rmse_px))
+        .collect();
+    let mut photos = Vec::new();
+    for ph in block.photos.values_mut() {
+        let n = per_photo.get(&ph.id).copied().unwrap_or(0);
+        ph.oriented = n >= opts.min_observations;
+        photos.push(PhotoReport {
+            name: ph.name.clone(),
+            oriented: ph.oriented,
+            reason: (!ph.oriented).then(|| {
+                format!(
+                    "{n} tie observations kept, fewer than {}",
+                    opts.min_observations
+                )
+            }),
+            iterations: Vec::new(),
+            control_matches: 0,
+            sigma_px: precision.get(&ph.id).copied().unwrap_or(f64::NAN),
+            io_rmse_um: None,
+            predicted: 0,
+            matching: MatchStats::default(),
+            relaxed: false,
+            second_pass: false,
+        });
+    }
+    let gsd_m = mean_gsd(&block, dem);
+    let images = input
+        .photos
+        .iter()
+        .enumerate()
+        .map(|(k, p)| (k as PhotoId + 1, p.image.clone()))
+        .collect();
+    Ok((
+        EpochResult {
+            epoch: input.name.clone(),
+            block,
+            images,
+            photos,
+            adjustment: Some(report),
+            gsd_m,
+            time_s: t0.elapsed().as_secs_f64(),
+        },
+        ReferenceReport {
+            ties,
+            pos_adjustment,
+            icp,
+            plane_constraints,
+        },
+    ))
+}

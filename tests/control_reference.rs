@@ -1,0 +1,119 @@
+//! The reference epoch oriented with the LiDAR only (issue 9 acceptance): POS-guided tie
+//! points, adjustment, point-to-plane ICP and the bundle adjustment with LiDAR planes on
+//! the small synthetic block; checkpoints (never used in the solution) within a ground
+//! pixel in plan and height, and projection centres close to the truth.
+
+use cloudcontrol::control::archive::{self, EpochInput};
+use cloudcontrol::control::reference::{self, ReferenceOptions};
+use cloudcontrol::lidar::PlaneOptions;
+use cloudcontrol::synth::{self, PosQuality, Preset, SynthConfig};
+use std::path::{Path, PathBuf};
+
+fn lidar_tiles(dir: &Path) -> Vec<PathBuf> {
+    let mut v: Vec<PathBuf> = std::fs::read_dir(dir.join("lidar"))
+        .unwrap()
+        .map(|e| e.unwrap().path())
+        .filter(|p| p.extension().is_some_and(|e| e == "las" || e == "laz"))
+        .collect();
+    v.sort();
+    v
+}
+
+#[test]
+fn reference_epoch_oriented_with_lidar_only_is_within_a_ground_pixel() {
+    let root = Path::new(env!("CARGO_TARGET_TMPDIR")).join("control_reference");
+    let _ = std::fs::remove_dir_all(&root);
+    let dir = root.join("block");
+    synth::generate(
+        &SynthConfig {
+            preset: Preset::Small,
+            seed: 7,
+            change: 0.5,
+            pos: PosQuality::Rough,
+            laz: false,
+        },
+        &dir,
+    )
+    .unwrap();
+    let tiles = lidar_tiles(&dir);
+    let surface = archive::lidar_surfaces(&tiles, synth::ORIGIN, 1.0).unwrap();
+    let index =
+        reference::lidar_plane_index(&tiles, synth::ORIGIN, &[2, 6], PlaneOptions::default())
+            .unwrap();
+    let input = EpochInput::from_synth_epoch(&dir, "reference_2024").unwrap();
+    let t = std::time::Instant::now();
+    let (result, rep) = reference::orient_reference(
+        &input,
+        &index,
+        &surface.ground,
+        &ReferenceOptions::default(),
+    )
+    .unwrap();
+    let adj = result.adjustment.as_ref().unwrap();
+    if let Some(i) = &rep.icp {
+        for it in &i.iterations {
+            eprintln!("  ICP {it:?}");
+        }
+    }
+    eprintln!("  calibration {:?}", adj.calibration);
+    for (w, a) in [("pos", &rep.pos_adjustment), ("final", adj)] {
+        eprintln!(
+            "  {w}: σ0 {:.3} rmse {:.3} px, obs {}, points {}, redundancy {}, rejected {}, rounds {}, iterations {}, converged {}",
+            a.sigma0, a.rmse_px, a.observations, a.points, a.redundancy, a.rejected.count, a.rounds, a.iterations, a.converged
+        );
+    }
+    eprintln!(
+        "reference AT: {:.1} s, {} tie points, {} plane constraints, σ0 {:.3}, RMSE {:.3} px, datum {}, ICP {:?}",
+        t.elapsed().as_secs_f64(),
+        rep.ties.points_added,
+        rep.plane_constraints,
+        adj.sigma0,
+        adj.rmse_px,
+        adj.datum,
+        rep.icp.as_ref().map(|i| (i.scale, i.rotation_deg, i.translation_m, i.rmse_m, i.degenerate_directions, i.iterations.len())),
+    );
+    assert!(
+        result.photos.iter().all(|p| p.oriented),
+        "every photo oriented"
+    );
+    assert!(
+        adj.datum.contains("lidar"),
+        "LiDAR planes hold the datum: {}",
+        adj.datum
+    );
+
+    let surveyed = archive::read_checkpoints(&dir.join("checkpoints.csv")).unwrap();
+    let measured =
+        archive::read_checkpoint_images(&dir.join("truth/checkpoint_images.csv"), "reference_2024")
+            .unwrap();
+    let ev =
+        archive::evaluate_checkpoints(&result.block, &measured, &surveyed, result.gsd_m).unwrap();
+    eprintln!(
+        "checkpoints: {} at GSD {:.3} m: plan {:.3} m ({:.2} px), height {:.3} m ({:.2} px), max {:.3} m",
+        ev.count, ev.gsd_m, ev.rmse_plan_m, ev.rmse_plan_px, ev.rmse_height_m, ev.rmse_height_px, ev.max_m
+    );
+    assert!(ev.count >= 5, "{} checkpoints", ev.count);
+    assert!(ev.rmse_plan_px <= 1.0, "plan {:.2} px", ev.rmse_plan_px);
+    assert!(
+        ev.rmse_height_px <= 1.0,
+        "height {:.2} px",
+        ev.rmse_height_px
+    );
+
+    // Projection centres against the truth.
+    let (truth, _) = archive::synth_truth_block(&dir, "reference_2024").unwrap();
+    let floor = archive::evaluate_checkpoints(&truth, &measured, &surveyed, result.gsd_m).unwrap();
+    eprintln!(
+        "true orientation at the same checkpoints (survey noise): plan {:.3} m, height {:.3} m",
+        floor.rmse_plan_m, floor.rmse_height_m
+    );
+    let mut worst: f64 = 0.0;
+    for p in result.block.photos.values() {
+        let t = truth.photos.values().find(|q| q.name == p.name).unwrap();
+        let d = p.pose.center - t.pose.center;
+        eprintln!("  {} centre error {:.3} {:.3} {:.3}", p.name, d.x, d.y, d.z);
+        worst = worst.max(d.norm());
+    }
+    eprintln!("largest projection-centre error {worst:.3} m");
+    assert!(worst < 0.15, "centre error {worst:.3} m");
+}
