@@ -414,3 +414,50 @@ fn inside(image: &RgbImage, px: Vector2<f64>) -> Option<[f64; 3]> {
         None
     }
 }
+
+/// A PNG preview of an orthophoto GeoTIFF (RGB + alpha, longest side ≤ `max_side`
+/// pixels, read through GDAL's overview-aware downsampling) and its world extent
+/// `[x_min, y_min, x_max, y_max]`: the background of the report's control-point map.
+pub fn preview(path: &Path, max_side: usize) -> Result<(Vec<u8>, [f64; 4])> {
+    use image::ImageEncoder;
+    let err = |e: gdal::errors::GdalError| FormatError::gdal(path, e);
+    let ds = gdal::Dataset::open(path).map_err(err)?;
+    let (w, h) = ds.raster_size();
+    let gt = ds.geo_transform().map_err(err)?;
+    if w == 0 || h == 0 || gt[2] != 0.0 || gt[4] != 0.0 {
+        return Err(FormatError::invalid(
+            path,
+            "empty or rotated raster; no preview",
+        ));
+    }
+    let f = (w.max(h) as f64 / max_side.max(1) as f64).max(1.0);
+    let (pw, ph) = (
+        ((w as f64 / f).round() as usize).max(1),
+        ((h as f64 / f).round() as usize).max(1),
+    );
+    let bands = ds.raster_count();
+    let mut rgba = vec![255u8; pw * ph * 4];
+    for b in 1..=bands.min(4) {
+        let band = ds.rasterband(b).map_err(err)?;
+        let buf = band
+            .read_as::<u8>((0, 0), (w, h), (pw, ph), None)
+            .map_err(err)?;
+        let (_, data) = buf.into_shape_and_vec();
+        // Grey orthophotos fill R, G and B from their one band.
+        let targets: &[usize] = if bands == 1 { &[0, 1, 2] } else { &[b - 1] };
+        for (i, v) in data.iter().enumerate() {
+            for &c in targets {
+                rgba[4 * i + c] = *v;
+            }
+        }
+    }
+    let mut png = Vec::new();
+    image::codecs::png::PngEncoder::new(&mut png)
+        .write_image(&rgba, pw as u32, ph as u32, image::ExtendedColorType::Rgba8)
+        .map_err(|e| FormatError::invalid(path, format!("preview PNG: {e}")))?;
+    let x0 = gt[0];
+    let y1 = gt[3];
+    let x1 = x0 + gt[1] * w as f64;
+    let y0 = y1 + gt[5] * h as f64;
+    Ok((png, [x0.min(x1), y0.min(y1), x0.max(x1), y0.max(y1)]))
+}

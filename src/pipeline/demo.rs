@@ -1,119 +1,124 @@
-//! `cloudcontrol demo`: runs what the product can do so far on a built-in block and reports
-//! numbers against the known truth.
+//! `cloudcontrol demo`: the whole workflow on the built-in small synthetic block — the
+//! block is generated (LiDAR, checkpoints, a reference epoch with POS, a digital archive
+//! epoch and a 1978 film epoch, both with a rough POS of 10 m / 3°), a project file
+//! is written for it, and [`super::run::run_project`] runs. The film epoch of the demo has
+//! a rough POS; `cloudcontrol synth --pos none` makes blocks with strip end points only. Checkpoint image measurements
+//! stand for an operator's; they are the only file read from the block's `truth/`.
 
-use crate::formats::{self, crs::Crs, raster};
-use crate::geometry::{self, Camera, Dem, FrameCamera, Pose, Similarity};
-use nalgebra::{Matrix3, Vector3};
-use serde::Serialize;
-use std::path::Path;
+use super::project::Project;
+use super::run::{run_project, Event, RunError, RunSummary};
+use crate::synth::{self, PosQuality, Preset, SynthConfig};
+use std::path::{Path, PathBuf};
 
-#[derive(Debug, Serialize)]
-pub struct DemoSummary {
-    pub photos: usize,
-    pub points: usize,
-    /// Largest distance between a ground point and its image ray's intersection with the DEM (m).
-    pub ray_dem_max_error_m: f64,
-    /// Largest reprojection error after projection → back-projection → re-projection (px).
-    pub reprojection_max_error_px: f64,
-    /// Similarity recovered from the noise-free pairs: errors in scale, rotation (deg), translation (m).
-    pub similarity_scale_error: f64,
-    pub similarity_rotation_error_deg: f64,
-    pub similarity_translation_error_m: f64,
-    pub dem_path: String,
-    pub crs: String,
-    pub time_s: f64,
+/// Seed of the demo block (any seed works; this one is what the README shows).
+pub const DEMO_SEED: u64 = 7;
+
+#[derive(Debug, thiserror::Error)]
+pub enum DemoError {
+    #[error("synthetic block: {0}")]
+    Synth(String),
+    #[error("{path}: {message}")]
+    Io { path: PathBuf, message: String },
+    #[error(transparent)]
+    Run(#[from] RunError),
 }
 
-/// Block origin of the demo in EPSG:4547 (CGCS2000 / 3-degree Gauss-Krüger CM 114E).
-pub const DEMO_ORIGIN: [f64; 3] = [500_000.0, 4_400_000.0, 0.0];
-
-fn terrain(x: f64, y: f64) -> f64 {
-    120.0 + 25.0 * (x / 180.0).sin() * (y / 140.0).cos() + 8.0 * ((x + y) / 45.0).sin()
-}
-
-pub fn run(out_dir: &Path) -> Result<DemoSummary, Box<dyn std::error::Error + Send + Sync>> {
-    let start = std::time::Instant::now();
-    std::fs::create_dir_all(out_dir)?;
-    let dem = Dem::from_fn(-300.0, 300.0, 1.0, 600, 600, terrain)?;
-    let camera = Camera::Frame(FrameCamera {
-        distortion: geometry::Brown {
-            k1: -0.05,
-            k2: 0.01,
-            k3: 0.0,
-            p1: 2e-4,
-            p2: -1e-4,
-        },
-        ..FrameCamera::pinhole(4000, 3000, 5000.0)
-    });
-    let mut poses = Vec::new();
-    for i in 0..3 {
-        let c = Vector3::new(-120.0 + 120.0 * i as f64, 10.0, 1000.0);
-        poses.push(Pose::from_opk(0.01 * i as f64, -0.008, 0.02, c));
-    }
-    let (mut ray_err, mut reproj_err, mut n) = (0.0_f64, 0.0_f64, 0usize);
-    for pose in &poses {
-        for gy in -5..=5 {
-            for gx in -5..=5 {
-                let (x, y) = (
-                    pose.center.x + 25.0 * gx as f64,
-                    pose.center.y + 25.0 * gy as f64,
-                );
-                let truth = Vector3::new(x, y, dem.height_at(x, y).ok_or("point off the DEM")?);
-                let px = geometry::project(&camera, pose, &truth)?.pixel;
-                let ray = geometry::back_project(&camera, pose, [px.x, px.y])?;
-                let hit = dem.intersect(&ray)?;
-                ray_err = ray_err.max((hit - truth).norm());
-                let px2 = geometry::project(&camera, pose, &hit)?.pixel;
-                reproj_err = reproj_err.max((px2 - px).norm());
-                n += 1;
-            }
-        }
-    }
-    // Recover a known datum shift from projection centres and ground points.
-    let truth_sim = Similarity::new(
-        1.0002,
-        geometry::matrix_from_opk(1e-4, -2e-4, 3e-3) * Matrix3::identity(),
-        Vector3::new(3.2, -1.5, 0.7),
-    );
-    let src: Vec<Vector3<f64>> = (0..20)
-        .map(|i| {
-            let t = i as f64;
-            Vector3::new(
-                20.0 * t - 200.0,
-                13.0 * (t * 0.7).sin() * 10.0,
-                terrain(t, t),
-            )
-        })
-        .collect();
-    let dst: Vec<Vector3<f64>> = src.iter().map(|p| truth_sim.apply(p)).collect();
-    let est = Similarity::estimate(&src, &dst, None, true)?;
-    let rot_err = {
-        let d = est.rotation * truth_sim.rotation.transpose();
-        (((d.trace() - 1.0) / 2.0).clamp(-1.0, 1.0))
-            .acos()
-            .to_degrees()
+/// The project file of the demo block (paths relative to the block folder).
+pub fn project_toml(preset: Preset) -> String {
+    let interval = match preset {
+        Preset::Tiny => 60,
+        _ => 120,
     };
-    let crs = Crs::from_epsg(4547)?;
-    let mut world = dem.clone();
-    world.transform.0[0] += DEMO_ORIGIN[0];
-    world.transform.0[3] += DEMO_ORIGIN[1];
-    let dem_path = out_dir.join("demo_dem.tif");
-    raster::write_dem(
-        &dem_path,
-        &world,
-        &crs,
-        &formats::raster::GeoTiffOptions::default(),
-    )?;
-    Ok(DemoSummary {
-        photos: poses.len(),
-        points: n,
-        ray_dem_max_error_m: ray_err,
-        reprojection_max_error_px: reproj_err,
-        similarity_scale_error: (est.scale - truth_sim.scale).abs(),
-        similarity_rotation_error_deg: rot_err,
-        similarity_translation_error_m: (est.translation - truth_sim.translation).norm(),
-        dem_path: dem_path.display().to_string(),
-        crs: crs.label(),
-        time_s: start.elapsed().as_secs_f64(),
-    })
+    format!(
+        r#"# cloudcontrol demo project: the built-in synthetic block.
+name = "cloudcontrol-demo"
+crs = "EPSG:4547"
+output = "../run"
+
+[control]
+lidar = ["lidar"]
+checkpoints = "checkpoints.csv"
+# Checkpoint targets as measured in the photos (here: the synthetic truth stands for the
+# operator's measurements); used only to evaluate each epoch.
+checkpoint_images = "truth/checkpoint_images.csv"
+
+[reference]
+name = "reference_2024"
+date = "2024-05-29"
+photos = "epochs/reference_2024/images"
+camera = "epochs/reference_2024/camera.json"
+pos = "epochs/reference_2024/pos.csv"
+
+[[archive]]
+name = "digital_2012"
+date = "2012-08-14"
+photos = "epochs/digital_2012/images"
+camera = "epochs/digital_2012/camera.json"
+pos = "epochs/digital_2012/pos.csv"
+
+[[archive]]
+name = "film_1978"
+date = "1978-06-06"
+photos = "epochs/film_1978/images"
+camera = "epochs/film_1978/camera.json"
+pos = "epochs/film_1978/pos.csv"
+
+[thresholds]
+control_interval_px = {interval}
+chip_size_px = 193
+"#
+    )
+}
+
+/// Generates the demo block under `out/block` (kept when it is already there with the
+/// same configuration) and runs the workflow into `out/run`.
+pub fn run(
+    out: &Path,
+    preset: Preset,
+    on_event: &mut dyn FnMut(&Event),
+) -> Result<RunSummary, DemoError> {
+    let block = out.join("block");
+    let cfg = SynthConfig {
+        preset,
+        seed: DEMO_SEED,
+        change: 0.5,
+        // Archive epochs with a rough POS (10 m / 3°), as from a flight plan.
+        pos: PosQuality::Rough,
+        laz: false,
+    };
+    if !same_block(&block, &cfg) {
+        on_event(&Event::Start {
+            stage: "synthetic block".into(),
+            index: 0,
+            total: 0,
+        });
+        let t = std::time::Instant::now();
+        let _ = std::fs::remove_dir_all(&block);
+        synth::generate(&cfg, &block).map_err(|e| DemoError::Synth(e.to_string()))?;
+        on_event(&Event::Done {
+            stage: "synthetic block".into(),
+            skipped: false,
+            seconds: t.elapsed().as_secs_f64(),
+        });
+    }
+    let project_path = block.join("project.toml");
+    std::fs::write(&project_path, project_toml(preset)).map_err(|e| DemoError::Io {
+        path: project_path.clone(),
+        message: e.to_string(),
+    })?;
+    let project = Project::load(&project_path).map_err(RunError::from)?;
+    Ok(run_project(&project, on_event, None)?)
+}
+
+/// True when `dir` holds a finished synthetic block of this configuration.
+fn same_block(dir: &Path, cfg: &SynthConfig) -> bool {
+    let Ok(text) = std::fs::read_to_string(dir.join("manifest.json")) else {
+        return false;
+    };
+    let Ok(m) = serde_json::from_str::<serde_json::Value>(&text) else {
+        return false;
+    };
+    dir.join("epochs/film_1978/pos.csv").is_file()
+        && m["seed"].as_u64() == Some(cfg.seed)
+        && serde_json::to_value(cfg.preset).ok().as_ref() == Some(&m["preset"])
 }

@@ -4,4 +4,5 @@
 pub mod demo;
 pub mod project;
 pub mod report;
+pub mod run;
 pub mod stages;

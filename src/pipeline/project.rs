@@ -31,6 +31,10 @@ pub struct ControlSources {
     /// Surveyed checkpoints (CSV `id,x,y,z,sigma_xy,sigma_z`), for evaluation only.
     #[serde(default)]
     pub checkpoints: Option<PathBuf>,
+    /// Checkpoint measurements in the photos (CSV `epoch,photo,id,col,row`), as an
+    /// operator takes them: each epoch's checkpoints are intersected from them.
+    #[serde(default)]
+    pub checkpoint_images: Option<PathBuf>,
 }
 
 /// How the approximate exterior orientation of an epoch is known.
@@ -72,10 +76,10 @@ impl Default for Thresholds {
     fn default() -> Self {
         Self {
             control_interval_px: 250.0,
-            reject_k: 3.0,
-            ncc_min: 0.7,
-            lsm_agreement_px: 1.0,
-            chip_size_px: 41,
+            reject_k: 2.5,
+            ncc_min: 0.6,
+            lsm_agreement_px: 2.0,
+            chip_size_px: 193,
         }
     }
 }
@@ -155,6 +159,9 @@ impl Project {
         if let Some(c) = self.control.checkpoints.as_mut() {
             abs(c)
         }
+        if let Some(c) = self.control.checkpoint_images.as_mut() {
+            abs(c)
+        }
         for e in std::iter::once(&mut self.reference).chain(self.archive.iter_mut()) {
             abs(&mut e.photos);
             abs(&mut e.camera);
@@ -193,6 +200,15 @@ impl Project {
         }
         if let Some(c) = &self.control.checkpoints {
             exists("control.checkpoints", c)?;
+        }
+        if let Some(c) = &self.control.checkpoint_images {
+            exists("control.checkpoint_images", c)?;
+            if self.control.checkpoints.is_none() {
+                return Err(key_err(
+                    "control.checkpoint_images",
+                    "given without control.checkpoints (their surveyed coordinates)".into(),
+                ));
+            }
         }
         let mut names = std::collections::BTreeSet::new();
         let epochs = std::iter::once(("reference".to_string(), &self.reference)).chain(

@@ -10,6 +10,12 @@ use plotters::prelude::*;
 use serde::{Deserialize, Serialize};
 use std::path::Path;
 
+/// Reads a number that JSON may hold as `null` (serde_json writes NaN so): absent
+/// statistics (no checkpoints, no adjustment) stay NaN through a round trip.
+fn nan_if_null<'de, D: serde::Deserializer<'de>>(d: D) -> Result<f64, D::Error> {
+    Ok(Option::<f64>::deserialize(d)?.unwrap_or(f64::NAN))
+}
+
 /// One checkpoint's error: adjusted minus surveyed (m).
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 pub struct CheckpointError {
@@ -26,11 +32,14 @@ pub struct CheckpointError {
 pub struct PhotoSummary {
     pub name: String,
     /// Projection centre, world XY.
+    #[serde(deserialize_with = "nan_if_null")]
     pub x: f64,
+    #[serde(deserialize_with = "nan_if_null")]
     pub y: f64,
     pub oriented: bool,
     /// Mean image residual vector (px) and RMS (px).
     pub mean_residual_px: [f64; 2],
+    #[serde(deserialize_with = "nan_if_null")]
     pub rmse_px: f64,
     /// Control patches predicted in the photo and matched (accepted).
     pub patches_predicted: usize,
@@ -41,6 +50,7 @@ pub struct PhotoSummary {
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 pub struct IcpIteration {
     pub iteration: usize,
+    #[serde(deserialize_with = "nan_if_null")]
     pub rmse_m: f64,
     pub inliers: usize,
 }
@@ -50,14 +60,21 @@ pub struct IcpIteration {
 pub struct EpochReport {
     pub name: String,
     pub date: String,
+    #[serde(deserialize_with = "nan_if_null")]
     pub gsd_m: f64,
     pub photos_total: usize,
     pub photos_oriented: usize,
+    #[serde(deserialize_with = "nan_if_null")]
     pub check_rmse_plan_m: f64,
+    #[serde(deserialize_with = "nan_if_null")]
     pub check_rmse_height_m: f64,
+    #[serde(deserialize_with = "nan_if_null")]
     pub check_max_m: f64,
+    #[serde(deserialize_with = "nan_if_null")]
     pub sigma0: f64,
+    #[serde(deserialize_with = "nan_if_null")]
     pub rmse_px: f64,
+    #[serde(deserialize_with = "nan_if_null")]
     pub time_s: f64,
     #[serde(default)]
     pub checkpoints: Vec<CheckpointError>,

@@ -8,6 +8,7 @@ mod lidar;
 mod matching;
 mod orient;
 mod ortho;
+mod run;
 mod synth;
 
 use clap::{Parser, Subcommand};
@@ -39,11 +40,27 @@ enum Command {
     /// Run the built-in demonstration and print what it measured.
     ///
     /// Example: cloudcontrol demo --out demo_out
+    ///
+    /// Generates the small synthetic block (LiDAR, checkpoints, a reference epoch and two
+    /// archive epochs: digital 2012 and film 1978), writes a project file for it and runs
+    /// the whole workflow; prints per epoch the photos oriented and the checkpoint RMSE.
+    /// A second run reuses the block and skips finished stages.
     Demo {
-        /// Output folder.
+        /// Output folder (block/ and run/ inside).
         #[arg(long, default_value = "cloudcontrol_demo")]
         out: PathBuf,
+        /// Size of the synthetic block.
+        #[arg(long, value_enum, default_value = "small")]
+        preset: run::DemoPreset,
     },
+    /// Run a project: LiDAR sources, reference AT against the LiDAR, DCPs, archive epochs
+    /// in time order, products and the accuracy report. Restartable: finished stages
+    /// whose inputs did not change are skipped.
+    ///
+    /// Example: cloudcontrol run project.toml
+    ///
+    /// Exit codes: 0 done, 2 project file invalid (nothing was run), 1 a stage failed.
+    Run(run::RunArgs),
     /// Digital Control Photo packages: verify, summarise, merge.
     #[command(subcommand)]
     Dcp(dcp::DcpCommand),
@@ -154,40 +171,14 @@ fn main() -> ExitCode {
             finish("lidar", lidar::run_lidar(command, cli.json, cli.quiet))
         }
         Command::Icp(args) => finish("icp", lidar::run_icp(args, cli.json, cli.quiet)),
-        Command::Demo { out } => match cloudcontrol::pipeline::demo::run(&out) {
-            Ok(s) => {
-                if cli.json {
-                    println!(
-                        "{}",
-                        serde_json::to_string_pretty(&s).expect("summary serialises")
-                    );
-                } else if !cli.quiet {
-                    println!(
-                        "cloudcontrol demo — geometry core on a built-in relief block ({})",
-                        s.crs
-                    );
-                    println!("  photos                         {}", s.photos);
-                    println!("  ground points                  {}", s.points);
-                    println!(
-                        "  ray–DEM intersection max error {:.2e} m",
-                        s.ray_dem_max_error_m
-                    );
-                    println!(
-                        "  reprojection max error         {:.2e} px",
-                        s.reprojection_max_error_px
-                    );
-                    println!(
-                        "  similarity recovery            scale {:.1e}, rotation {:.1e}°, translation {:.1e} m",
-                        s.similarity_scale_error, s.similarity_rotation_error_deg, s.similarity_translation_error_m
-                    );
-                    println!("  DEM GeoTIFF                    {}", s.dem_path);
-                    println!("  time                           {:.2} s", s.time_s);
-                }
-                ExitCode::SUCCESS
-            }
-            Err(e) => {
-                eprintln!("cloudcontrol demo: {e}");
-                ExitCode::from(1)
+        Command::Demo { out, preset } => {
+            finish("demo", run::demo(&out, preset.into(), cli.json, cli.quiet))
+        }
+        Command::Run(a) => match run::run(&a, cli.json, cli.quiet) {
+            Ok(()) => ExitCode::SUCCESS,
+            Err((code, e)) => {
+                eprintln!("cloudcontrol run: {e}");
+                ExitCode::from(code)
             }
         },
     }
