@@ -519,7 +519,7 @@ pub fn run_project(
         if let Some(cp) = &project.control.checkpoints {
             let pts = archive::read_checkpoints(cp).map_err(|x| x.to_string())?;
             let list: Vec<(String, [f64; 3])> = pts.iter().map(|p| (p.id.clone(), p.xyz)).collect();
-            let cleaned = Catalogue::scan(&[lidar_dir.clone()], &ScanOptions::default())
+            let cleaned = Catalogue::scan(std::slice::from_ref(&lidar_dir), &ScanOptions::default())
                 .map_err(|x| e(x.to_string()))?;
             let mut store = TileStore::new(cleaned, 50_000_000);
             let rep = lidar::eval::evaluate_checkpoints_store(
