@@ -514,6 +514,13 @@ enum CcpStatus ccp_lsm(const float *image,
                        double y,
                        struct CcpMatchResult *out);
 
+// Runs the project file `project_path` (TOML, formats/project/) — restartable: finished
+// stages whose inputs did not change are skipped — and returns in `*out_json` a
+// NUL-terminated JSON object `{"output", "ran", "skipped", "products", "report"}`, owned by
+// the library: release it with `ccp_string_free`. An invalid project file fails before
+// any work with `CCP_STATUS_INVALID_ARGUMENT` and a message naming the key.
+enum CcpStatus ccp_project_run(const char *project_path, char **out_json);
+
 // Writes a synthetic block with ground truth into `out_dir` (UTF-8 path).
 // `preset`: 0 tiny, 1 small, 2 medium, 3 large; `pos`: 0 good, 1 rough, 2 none;
 // `change` in [0, 1]; `laz` non-zero writes LAZ tiles. Same arguments give

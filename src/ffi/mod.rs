@@ -16,6 +16,7 @@ mod control;
 mod formats;
 mod lidar;
 mod matching;
+mod pipeline;
 mod synth;
 
 pub use adjust::*;

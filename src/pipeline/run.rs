@@ -519,8 +519,9 @@ pub fn run_project(
         if let Some(cp) = &project.control.checkpoints {
             let pts = archive::read_checkpoints(cp).map_err(|x| x.to_string())?;
             let list: Vec<(String, [f64; 3])> = pts.iter().map(|p| (p.id.clone(), p.xyz)).collect();
-            let cleaned = Catalogue::scan(std::slice::from_ref(&lidar_dir), &ScanOptions::default())
-                .map_err(|x| e(x.to_string()))?;
+            let cleaned =
+                Catalogue::scan(std::slice::from_ref(&lidar_dir), &ScanOptions::default())
+                    .map_err(|x| e(x.to_string()))?;
             let mut store = TileStore::new(cleaned, 50_000_000);
             let rep = lidar::eval::evaluate_checkpoints_store(
                 &mut store,
@@ -780,6 +781,9 @@ fn write_products(
     // BlocksExchange camera: such products are skipped with the reason recorded (the
     // orthophoto and the block JSON hold the epoch in full).
     let mut skipped: BTreeMap<&str, String> = BTreeMap::new();
+    // Reasons name files relative to the stage folder (its temporary name is per process).
+    let reason =
+        |e: &dyn std::fmt::Display| e.to_string().replace(&format!("{}/", dir.display()), "");
     if o.colmap {
         if let Err(e) = formats::colmap::write(
             &dir.join("colmap"),
@@ -788,7 +792,7 @@ fn write_products(
         ) {
             let _ = std::fs::remove_dir_all(dir.join("colmap"));
             tracing::warn!("COLMAP model not written: {e}");
-            skipped.insert("colmap", e.to_string());
+            skipped.insert("colmap", reason(&e));
         }
     }
     if o.blocks_exchange {
@@ -806,7 +810,7 @@ fn write_products(
             },
         ) {
             tracing::warn!("BlocksExchange XML not written: {e}");
-            skipped.insert("blocks_exchange", e.to_string());
+            skipped.insert("blocks_exchange", reason(&e));
         }
     }
     write_json(&dir.join("skipped.json"), &skipped)?;

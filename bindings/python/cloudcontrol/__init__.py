@@ -5,8 +5,9 @@ from .geometry import Camera, Pose
 from .matching import Match, fiducial_io, match_template
 
 from . import lidar
+from .pipeline import load_report, run
 
 __all__ = [
     "CloudControlError", "Camera", "DcpPackage", "Match", "Pose", "fiducial_io", "last_error",
-    "lidar", "match_template", "predict", "version",
+    "lidar", "load_report", "match_template", "predict", "run", "version",
 ]

@@ -1,0 +1,34 @@
+"""The workflow over the C ABI: run a project file and load its results."""
+from __future__ import annotations
+
+import ctypes
+import json
+import os
+from pathlib import Path
+
+from ._ffi import check, lib
+
+lib.ccp_project_run.argtypes = [ctypes.c_char_p, ctypes.POINTER(ctypes.c_void_p)]
+lib.ccp_project_run.restype = ctypes.c_int
+lib.ccp_string_free.argtypes = [ctypes.c_void_p]
+lib.ccp_string_free.restype = None
+
+
+def run(project: str | os.PathLike) -> dict:
+    """Runs a project (TOML, formats/project/README.md); finished stages whose inputs did
+    not change are skipped. Returns ``{"output", "ran", "skipped", "products", "report"}``;
+    ``report["epochs"]`` holds per epoch ``name``, ``gsd_m``, ``photos_total``,
+    ``photos_oriented``, ``check_rmse_plan_m``, ``check_rmse_height_m``, ``time_s``, the
+    checkpoint errors and per-photo summaries. Raises CloudControlError naming the key of
+    an invalid project file before any work starts."""
+    out = ctypes.c_void_p()
+    check(lib.ccp_project_run(os.fsencode(project), ctypes.byref(out)))
+    try:
+        return json.loads(ctypes.string_at(out.value).decode())
+    finally:
+        lib.ccp_string_free(out)
+
+
+def load_report(output: str | os.PathLike) -> dict:
+    """The report of a finished run, from its output folder (``report/report.json``)."""
+    return json.loads((Path(output) / "report" / "report.json").read_text())

@@ -1,0 +1,206 @@
+//! `cloudcontrol demo` / `run` end to end on the small synthetic block (issue 10): the
+//! summary's numbers against the checkpoints, products read by GDAL, a run killed after
+//! its reference stage and rerun skips the finished stages and gives identical products.
+
+use serde_json::Value;
+use std::path::{Path, PathBuf};
+use std::process::{Command, Stdio};
+use std::time::{Duration, Instant};
+
+fn exe() -> &'static str {
+    env!("CARGO_BIN_EXE_cloudcontrol")
+}
+
+fn json_of(out: &std::process::Output) -> Value {
+    assert!(
+        out.status.success(),
+        "exit {:?}: {}",
+        out.status,
+        String::from_utf8_lossy(&out.stderr)
+    );
+    serde_json::from_slice(&out.stdout).expect("JSON on stdout")
+}
+
+fn epoch<'a>(report: &'a Value, name: &str) -> &'a Value {
+    report["epochs"]
+        .as_array()
+        .unwrap()
+        .iter()
+        .find(|e| e["name"] == name)
+        .unwrap_or_else(|| panic!("no epoch {name}"))
+}
+
+fn px(e: &Value, key: &str) -> f64 {
+    e[key].as_f64().unwrap_or(f64::NAN) / e["gsd_m"].as_f64().unwrap()
+}
+
+fn files_below(d: &Path) -> Vec<PathBuf> {
+    let mut out = Vec::new();
+    let mut stack = vec![d.to_path_buf()];
+    while let Some(d) = stack.pop() {
+        for e in std::fs::read_dir(&d).unwrap() {
+            let p = e.unwrap().path();
+            if p.is_dir() {
+                stack.push(p);
+            } else {
+                out.push(p);
+            }
+        }
+    }
+    out.sort();
+    out
+}
+
+#[test]
+fn demo_runs_the_workflow_and_a_killed_run_resumes_identically() {
+    let root = Path::new(env!("CARGO_TARGET_TMPDIR")).join("pipeline_run");
+    let _ = std::fs::remove_dir_all(&root);
+    let t = Instant::now();
+    let out = Command::new(exe())
+        .args(["--json", "demo", "--out"])
+        .arg(&root)
+        .output()
+        .unwrap();
+    let v = json_of(&out);
+    eprintln!("demo: {:.1} s", t.elapsed().as_secs_f64());
+    let report = &v["report"];
+    for e in report["epochs"].as_array().unwrap() {
+        eprintln!(
+            "{}: {}/{} oriented, plan {:.2} px, height {:.2} px, {} checkpoints",
+            e["name"],
+            e["photos_oriented"],
+            e["photos_total"],
+            px(e, "check_rmse_plan_m"),
+            px(e, "check_rmse_height_m"),
+            e["checkpoints"].as_array().map_or(0, |c| c.len())
+        );
+    }
+    let oriented =
+        |e: &Value| e["photos_oriented"].as_f64().unwrap() / e["photos_total"].as_f64().unwrap();
+    // Reference against the LiDAR alone: every photo, within a ground pixel.
+    let r = epoch(report, "reference_2024");
+    assert_eq!(oriented(r), 1.0);
+    assert!(px(r, "check_rmse_plan_m") <= 1.0 && px(r, "check_rmse_height_m") <= 1.0);
+    // Digital archive from the reference DCPs.
+    let d = epoch(report, "digital_2012");
+    assert!(oriented(d) >= 0.8, "digital oriented {}", oriented(d));
+    assert!(px(d, "check_rmse_plan_m") <= 1.0 && px(d, "check_rmse_height_m") <= 1.5);
+    // Film (0.5 m ground pixel, half the scene changed) from the digital epoch's DCPs.
+    let f = epoch(report, "film_1978");
+    assert!(oriented(f) >= 0.9);
+    assert!(px(f, "check_rmse_plan_m") <= 1.0, "film plan");
+    assert!(px(f, "check_rmse_height_m") <= 2.0, "film height");
+
+    // Products: GDAL reads the orthophoto with the project CRS and the epoch's pixel.
+    let run = root.join("run");
+    let ortho = run.join("outputs-reference_2024/orthophoto.tif");
+    let info = Command::new("gdalinfo")
+        .arg("-json")
+        .arg(&ortho)
+        .output()
+        .unwrap();
+    let info: Value = serde_json::from_slice(&info.stdout).expect("gdalinfo JSON");
+    let wkt = info["coordinateSystem"]["wkt"].as_str().unwrap_or("");
+    assert!(wkt.contains("4547"), "orthophoto CRS: {wkt}");
+    let pixel = info["geoTransform"][1].as_f64().unwrap();
+    assert!(
+        (pixel - r["gsd_m"].as_f64().unwrap()).abs() < 0.03,
+        "pixel {pixel}"
+    );
+    assert!(run.join("outputs-reference_2024/colmap").is_dir());
+    assert!(run.join("report/report.html").is_file());
+
+    // A second run of the same project skips every stage.
+    let project = root.join("block/project.toml");
+    let again = json_of(
+        &Command::new(exe())
+            .args(["--json", "run"])
+            .arg(&project)
+            .output()
+            .unwrap(),
+    );
+    assert_eq!(
+        again["ran"].as_array().unwrap().len(),
+        0,
+        "{}",
+        again["ran"]
+    );
+
+    // Kill a run of the same project into another folder once its reference epoch is
+    // done, rerun it, and compare every product with the uninterrupted run.
+    let text = std::fs::read_to_string(&project)
+        .unwrap()
+        .replace("output = \"../run\"", "output = \"../run2\"");
+    let project2 = root.join("block/project2.toml");
+    std::fs::write(&project2, text).unwrap();
+    let run2 = root.join("run2");
+    let mut child = Command::new(exe())
+        .args(["-q", "run"])
+        .arg(&project2)
+        .stdout(Stdio::null())
+        .stderr(Stdio::null())
+        .spawn()
+        .unwrap();
+    let t = Instant::now();
+    loop {
+        let ledger = std::fs::read_to_string(run2.join("stages.json")).unwrap_or_default();
+        if ledger.contains("epoch-reference_2024") {
+            break;
+        }
+        assert!(
+            t.elapsed() < Duration::from_secs(120),
+            "reference stage never finished"
+        );
+        std::thread::sleep(Duration::from_millis(20));
+    }
+    child.kill().unwrap();
+    child.wait().unwrap();
+    assert!(
+        !run2.join("report").exists(),
+        "the killed run got to its end"
+    );
+    let resumed = json_of(
+        &Command::new(exe())
+            .args(["--json", "run"])
+            .arg(&project2)
+            .output()
+            .unwrap(),
+    );
+    let skipped: Vec<&str> = resumed["skipped"]
+        .as_array()
+        .unwrap()
+        .iter()
+        .filter_map(|s| s.as_str())
+        .collect();
+    assert!(
+        skipped.contains(&"sources") && skipped.contains(&"epoch-reference_2024"),
+        "finished stages redone: skipped {skipped:?}"
+    );
+    // Stage folders hold the same files with the same bytes, timing records aside.
+    let timing = [
+        "result.json",
+        "epoch.json",
+        "report.json",
+        "report.html",
+        "reference.json",
+        "clean.json",
+    ];
+    for dir in std::fs::read_dir(&run).unwrap() {
+        let dir = dir.unwrap().path();
+        if !dir.is_dir() {
+            continue;
+        }
+        let other = run2.join(dir.file_name().unwrap());
+        for f in files_below(&dir) {
+            let rel = f.strip_prefix(&run).unwrap();
+            if timing.iter().any(|t| rel.ends_with(t)) {
+                continue;
+            }
+            let a = std::fs::read(&f).unwrap();
+            let b =
+                std::fs::read(run2.join(rel)).unwrap_or_else(|e| panic!("{}: {e}", rel.display()));
+            assert!(a == b, "{} differs after the resumed run", rel.display());
+        }
+        assert!(other.is_dir());
+    }
+}
