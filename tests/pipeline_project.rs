@@ -14,6 +14,7 @@ fn example_tree(dir: &Path) -> String {
     }
     for f in [
         "checkpoints.csv",
+        "checkpoint_images.csv",
         "epochs/reference/camera.json",
         "epochs/reference/pos.csv",
         "epochs/digital/camera.json",
@@ -46,7 +47,11 @@ fn documented_example_loads_with_paths_resolved() {
         Some(dir.path().join("epochs/film/strips.csv").as_path())
     );
     assert_eq!(p.output, dir.path().join("out"));
-    assert_eq!(p.thresholds.reject_k, 3.0);
+    assert_eq!(p.thresholds.reject_k, 2.5);
+    assert_eq!(
+        p.control.checkpoint_images.as_deref(),
+        Some(dir.path().join("checkpoint_images.csv").as_path())
+    );
 }
 
 #[test]
