@@ -60,7 +60,7 @@ fn mistakes_fail_naming_the_key() {
     let text = example_tree(dir.path());
     let cases: Vec<(String, &str)> = vec![
         (
-            text.replace("reject_k = 3.0", "reject_k = 3.0\nrejekt = 2"),
+            text.replace("reject_k = 2.5", "reject_k = 2.5\nrejekt = 2"),
             "rejekt",
         ),
         (text.replace("date = \"2010-08\"\n", ""), "date"),
