@@ -6,8 +6,8 @@
 //! 2. `epoch-<reference>` — the reference epoch oriented against the LiDAR alone
 //!    ([`crate::control::reference`]);
 //! 3. `dcp-<epoch>` — each oriented epoch exported as Digital Control Photos;
-//! 4. `epoch-<archive>` — each archive epoch, newest first, oriented from the DCPs of the
-//!    epoch before it ([`crate::control::archive::orient_epoch`]);
+//! 4. `epoch-<archive>` — each archive epoch, newest first, oriented from the DCPs of all
+//!    newer epochs ([`crate::control::archive::orient_epoch`]);
 //! 5. `outputs-<epoch>` — COLMAP model, BlocksExchange XML, orthophoto and DEM GeoTIFFs;
 //!    `report` — JSON and HTML.
 //!
@@ -571,7 +571,7 @@ pub fn run_project(
         None => i,
     };
 
-    // 2–4. Epochs in time order, each from the DCPs of the one before.
+    // 2–4. Epochs in time order, each from the DCPs of the epochs before it.
     let mut epoch_dirs: Vec<PathBuf> = Vec::new();
     let mut dcp_dirs: Vec<PathBuf> = Vec::new();
     let mut reference_gsd = f64::NAN;
@@ -588,8 +588,8 @@ pub fn run_project(
         if let Some(s) = &e.strips {
             inputs = inputs.file(s);
         }
-        if k > 0 {
-            inputs = inputs.file(&dcp_dirs[k - 1]);
+        for d in &dcp_dirs {
+            inputs = inputs.file(d);
         }
         let inputs = cp_inputs(inputs);
         let edir = stage!(format!("epoch-{}", e.name), inputs, |dir: &Path| {
@@ -619,11 +619,15 @@ pub fn run_project(
                     .unwrap_or_default();
                 (r, icp)
             } else {
-                let pkg = DcpPackage::open(&dcp_dirs[k - 1].join("package"))
-                    .map_err(|x| x.to_string())?;
+                // The DCPs of every newer epoch, combined: the previous epoch's are the
+                // closest in time and appearance, the reference's the most accurate.
+                let pkgs = dcp_dirs
+                    .iter()
+                    .map(|d| DcpPackage::open(&d.join("package")).map_err(|x| x.to_string()))
+                    .collect::<Result<Vec<_>, _>>()?;
                 let r = archive::orient_epoch(
                     &input,
-                    std::slice::from_ref(&pkg),
+                    &pkgs,
                     &lidar.surface()?.ground,
                     &archive_options(project),
                 )
