@@ -521,6 +521,9 @@ pub fn render_html(report: &Report) -> Result<String, String> {
         html.push_str(&format!("<div class=\"plot\">{}</div>", histogram_svg(e)?));
         if !e.photos.is_empty() {
             html.push_str(&format!("<div class=\"plot\">{}</div>", residuals_svg(e)?));
+        }
+        // The reference epoch is tied by image matching, not by control patches.
+        if e.photos.iter().any(|p| p.patches_predicted > 0) {
             html.push_str(&format!("<div class=\"plot\">{}</div>", matching_svg(e)?));
         }
         if !e.icp.is_empty() {
