@@ -62,6 +62,8 @@ enum Command {
     /// Exit codes: 0 done, 2 project file invalid (nothing was run), 1 a stage failed.
     Run(run::RunArgs),
     /// Digital Control Photo packages: verify, summarise, merge.
+    ///
+    /// Example: cloudcontrol dcp info run/dcp-reference_2024/package
     #[command(subcommand)]
     Dcp(dcp::DcpCommand),
     /// Write a synthetic aerial block with ground truth.
@@ -77,18 +79,30 @@ enum Command {
     },
     Icp(lidar::IcpArgs),
     /// Print the library version.
+    ///
+    /// Example: cloudcontrol version
     Version,
     Convert(convert::Args),
     Ortho(ortho::Args),
     /// Robust bundle adjustment of a COLMAP model with control, check points and LiDAR planes.
+    ///
+    /// Example: cloudcontrol adjust --model sparse/0 --control gcp.csv --measurements gcp_img.csv --self-calibrate fx,k1,k2 --out adjusted
     Adjust(adjust::AdjustArgs),
     /// Single-photo resection from control points.
+    ///
+    /// Example: cloudcontrol resect --camera 1800,1800,750,500 --width 1500 --height 1000 --points control.csv --out pose.json
     Resect(adjust::ResectArgs),
     /// Fiducial interior orientation of a film scan → io.json.
+    ///
+    /// Example: cloudcontrol io --camera formats/cameras/wild_rc10.json scan_0042.tif --out io.json
     Io(matching::IoArgs),
     /// Match a template in an image (NCC + LSM), for debugging.
+    ///
+    /// Example: cloudcontrol match photo.png chip.png --window 400,300,200,200 --json
     Match(matching::MatchArgs),
     /// Tie points between overlapping photos of a strip.
+    ///
+    /// Example: cloudcontrol ties s01_001.png s01_002.png s01_003.png --out ties.json
     Ties(matching::TiesArgs),
     /// Orient an archive epoch (film scans or digital photos) from DCP packages.
     ///
