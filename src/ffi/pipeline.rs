@@ -41,14 +41,7 @@ pub unsafe extern "C" fn ccp_project_run(
             .map_err(|_| FfiError::invalid("project_path is not UTF-8"))?;
         let project = Project::load(&PathBuf::from(path)).map_err(RunError::from)?;
         let s = run_project(&project, &mut |_| {}, None)?;
-        let v = serde_json::json!({
-            "output": s.output,
-            "ran": s.ran,
-            "skipped": s.skipped,
-            "products": s.products,
-            "report": s.report,
-        });
-        let c = CString::new(v.to_string())
+        let c = CString::new(s.to_json().to_string())
             .map_err(|_| FfiError::invalid("report JSON holds a NUL byte"))?;
         *out_json = c.into_raw();
         Ok(())

@@ -74,6 +74,20 @@ pub struct RunSummary {
     pub products: BTreeMap<String, Vec<PathBuf>>,
 }
 
+impl RunSummary {
+    /// The machine-readable outcome (CLI `--json`, C ABI, Python): output folder, stages
+    /// run and skipped, products per epoch, and the report.
+    pub fn to_json(&self) -> serde_json::Value {
+        serde_json::json!({
+            "output": self.output,
+            "ran": self.ran,
+            "skipped": self.skipped,
+            "products": self.products,
+            "report": self.report,
+        })
+    }
+}
+
 /// Classes whose LiDAR points give planes for the reference adjustment: ground and
 /// buildings (stable, planar, present in the reference photos).
 const PLANE_CLASSES: [u8; 2] = [2, 6];

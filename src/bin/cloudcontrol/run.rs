@@ -83,16 +83,9 @@ fn px(m: f64, gsd: f64) -> String {
 
 fn print_summary(s: &RunSummary, json: bool) {
     if json {
-        let v = serde_json::json!({
-            "output": s.output,
-            "ran": s.ran,
-            "skipped": s.skipped,
-            "products": s.products,
-            "report": s.report,
-        });
         println!(
             "{}",
-            serde_json::to_string_pretty(&v).expect("summary serialises")
+            serde_json::to_string_pretty(&s.to_json()).expect("summary serialises")
         );
         return;
     }
