@@ -46,6 +46,9 @@ pub enum ArchiveError {
     Epoch { epoch: String, message: String },
     #[error(transparent)]
     Dcp(#[from] DcpError),
+    /// LiDAR tiles (the error names the file).
+    #[error(transparent)]
+    Lidar(#[from] crate::lidar::LidarError),
     /// An oriented block given in memory (the caller names its file).
     #[error("oriented block: {0}")]
     Block(String),
@@ -2168,12 +2171,7 @@ impl OrientedBlock {
             )));
         }
         let (block, images) = read_oriented_block(block_json, images_json)?;
-        let tiles = crate::lidar::catalogue::expand_inputs(lidar).map_err(|e| {
-            input_err(
-                lidar.first().map_or(Path::new("LiDAR"), |p| p.as_path()),
-                e.to_string(),
-            )
-        })?;
+        let tiles = crate::lidar::catalogue::expand_inputs(lidar)?;
         let surface = lidar_surfaces(&tiles, block.origin, lidar_cell_m)?;
         Ok(Self {
             block_json: block_json.to_path_buf(),
@@ -2298,8 +2296,7 @@ pub fn lidar_surfaces(
     let mut ground = Vec::new();
     let mut all = Vec::new();
     for t in tiles {
-        let b = crate::lidar::las::read_points(t, None, Some(&[2, 3, 4, 5, 6]))
-            .map_err(|e| input_err(t, e.to_string()))?;
+        let b = crate::lidar::las::read_points(t, None, Some(&[2, 3, 4, 5, 6]))?;
         for (x, c) in b.xyz.iter().zip(&b.class) {
             let l = [x[0] - origin[0], x[1] - origin[1], x[2] - origin[2]];
             if *c == 2 {

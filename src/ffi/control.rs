@@ -47,12 +47,16 @@ impl From<DcpError> for FfiError {
 
 impl From<ArchiveError> for FfiError {
     fn from(e: ArchiveError) -> Self {
+        let e = match e {
+            ArchiveError::Lidar(l) => return FfiError::from(l),
+            e => e,
+        };
         let status = match &e {
             ArchiveError::Dcp(d) => dcp_status(d),
             // The message says what was wrong with the file; a file that is not there at
             // all is worth its own status.
             ArchiveError::Input { path, .. } if !path.exists() => CcpStatus::NotFound,
-            ArchiveError::Input { .. } => CcpStatus::Format,
+            ArchiveError::Input { .. } | ArchiveError::Lidar(_) => CcpStatus::Format,
             ArchiveError::Epoch { .. } | ArchiveError::Block(_) => CcpStatus::InvalidArgument,
             ArchiveError::Adjust { .. } => CcpStatus::Numeric,
         };

@@ -86,7 +86,8 @@ pub struct SelectArgs {
     /// block.json of an oriented epoch (as `cloudcontrol run` writes it).
     #[arg(long)]
     block: PathBuf,
-    /// images.json of the epoch: photo id → image path.
+    /// images.json of the epoch: photo id → image path (a relative path is taken from the
+    /// working directory, else from the folder of images.json).
     #[arg(long)]
     images: PathBuf,
     /// LAS/LAZ tiles or folders of them (classified: ground is class 2).
