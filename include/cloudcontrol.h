@@ -72,6 +72,32 @@ typedef struct CcpAdjustSummary {
   double check_max_m;
 } CcpAdjustSummary;
 
+// Options of `ccp_dcp_export`; start from `ccp_dcp_export_options_default`. Strings are
+// NUL-terminated UTF-8, NULL or "" for the default, and only read during the call.
+typedef struct CcpDcpExportOptions {
+  // Epoch name of the package (default: the package folder's name without extension).
+  const char *name;
+  // Acquisition date of the photos (ISO 8601), or NULL.
+  const char *date;
+  // How the control was derived, recorded in the manifest.
+  const char *source;
+  // Chip side (px, odd); points keep half a chip away from the photo borders.
+  uint32_t chip_size;
+  // Spacing of control points in each photo (px, ≤ 1000).
+  double interval_px;
+  // Pyramid level the interest operator runs on (2 = 4× coarser than the photos).
+  uint32_t interest_level;
+  // Largest coplanarity (λmin/Σλ) of the LiDAR ground under a point.
+  double max_coplanarity;
+  // Least number of photos that must see a point.
+  uint32_t min_photos;
+  // 1σ accuracy of the points' object coordinates (m).
+  double accuracy_plan_m;
+  double accuracy_height_m;
+  // Grid cell of the LiDAR ground model (m).
+  double lidar_cell_m;
+} CcpDcpExportOptions;
+
 // Statistics of a checkpoint evaluation (dz = LiDAR − checkpoint, metres).
 typedef struct CcpCheckpointStats {
   // Checkpoints with a LiDAR height.
@@ -267,6 +293,33 @@ enum CcpStatus ccp_back_project(const struct CcpCamera *camera,
 
 // Opens and verifies a DCP package folder (manifest, CRS, every chip's checksum).
 enum CcpStatus ccp_dcp_open(const char *path, struct CcpDcp **out_dcp);
+
+// Writes the library's default export options into `*out_options`.
+enum CcpStatus ccp_dcp_export_options_default(struct CcpDcpExportOptions *out_options);
+
+// Writes a DCP package at `out_dir` from an oriented block: `block_json` and
+// `images_json` are the paths of the two files the workflow writes per epoch (the block;
+// photo id → image path), `lidar_paths` LAS/LAZ files or folders of them. Selects cloud
+// control points (textured, planar, stable LiDAR ground, one per interval), cuts their
+// chips, writes the package atomically and returns it opened in `*out_dcp` (release with
+// `ccp_dcp_free`). `opts` NULL takes the defaults.
+enum CcpStatus ccp_dcp_export(const char *block_json,
+                              const char *images_json,
+                              const char *const *lidar_paths,
+                              size_t n_lidar,
+                              const char *out_dir,
+                              const struct CcpDcpExportOptions *opts,
+                              struct CcpDcp **out_dcp);
+
+// Verifies the package `package` in full and copies it into the store folder
+// `store_dir` (created when missing) as `store_dir/<package folder name>`, returning the
+// stored copy opened in `*out_dcp`. A damaged package, or one whose CRS differs from
+// the packages already in the store, is refused and nothing is written.
+enum CcpStatus ccp_dcp_import(const char *package, const char *store_dir, struct CcpDcp **out_dcp);
+
+// The package folder of a handle as a NUL-terminated UTF-8 string in `*out_path`, owned
+// by the library: release it with `ccp_string_free`.
+enum CcpStatus ccp_dcp_path(const struct CcpDcp *dcp, char **out_path);
 
 // Releases a DCP handle; NULL is ignored.
 void ccp_dcp_free(struct CcpDcp *dcp);

@@ -295,6 +295,61 @@ fn packages_merge_and_footprint_queries_find_their_points() {
     assert!(!dir.path().join("ac").exists());
 }
 
+#[test]
+fn import_copies_verified_packages_into_a_store_of_one_crs() {
+    let dir = tempfile::tempdir().unwrap();
+    let (a, ca) = sample("2019", 6);
+    let (b, cb) = sample("2015", 3);
+    let pa = DcpPackage::write(&dir.path().join("src/a.dcp"), a, &ca).unwrap();
+    let pb = DcpPackage::write(&dir.path().join("src/b.dcp"), b.clone(), &cb).unwrap();
+    let store = dir.path().join("store");
+    // A batch with one damaged package writes nothing, not even the store folder.
+    let bad = DcpPackage::write(&dir.path().join("bad/c.dcp"), b.clone(), &cb).unwrap();
+    std::fs::write(bad.dir.join("chips/p1_1.png"), b"not a png").unwrap();
+    let e = DcpPackage::import(&[pa.dir.clone(), bad.dir.clone()], &store)
+        .unwrap_err()
+        .to_string();
+    assert!(e.contains("c.dcp") && e.contains("chips/p1_1.png"), "{e}");
+    assert!(!store.exists());
+    // Two valid packages: copied file for file, verified, under their folder names.
+    let got = DcpPackage::import(&[pa.dir.clone(), pb.dir.clone()], &store).unwrap();
+    assert_eq!(got.len(), 2);
+    assert_eq!(got[0].dir, store.join("a.dcp"));
+    assert_eq!(got[1].manifest, pb.manifest);
+    assert_eq!(listing(&store.join("a.dcp")), listing(&pa.dir));
+    for f in listing(&pa.dir) {
+        assert_eq!(
+            std::fs::read(pa.dir.join(&f)).unwrap(),
+            std::fs::read(store.join("a.dcp").join(&f)).unwrap(),
+            "{f}"
+        );
+    }
+    // Importing the same package again leaves it; another package of that name is refused.
+    DcpPackage::import(std::slice::from_ref(&pa.dir), &store).unwrap();
+    let other = DcpPackage::write(&dir.path().join("other/a.dcp"), b.clone(), &cb).unwrap();
+    let e = DcpPackage::import(&[other.dir], &store)
+        .unwrap_err()
+        .to_string();
+    assert!(e.contains("already holds a different package"), "{e}");
+    // Another CRS is refused by the store, as is a batch that mixes CRSs.
+    let (mut u, cu) = sample("utm", 2);
+    u.crs = "EPSG:32650".into();
+    let pu = DcpPackage::write(&dir.path().join("src/utm.dcp"), u, &cu).unwrap();
+    let e = DcpPackage::import(std::slice::from_ref(&pu.dir), &store)
+        .unwrap_err()
+        .to_string();
+    assert!(e.contains("EPSG:32650") && e.contains("EPSG:4547"), "{e}");
+    let fresh = dir.path().join("fresh");
+    assert!(DcpPackage::import(&[pa.dir.clone(), pu.dir.clone()], &fresh).is_err());
+    assert!(!fresh.exists());
+    let mut names: Vec<String> = std::fs::read_dir(&store)
+        .unwrap()
+        .map(|e| e.unwrap().file_name().to_string_lossy().into_owned())
+        .collect();
+    names.sort();
+    assert_eq!(names, ["a.dcp", "b.dcp"], "no temporary folder is left");
+}
+
 /// The committed sample in formats/dcp/sample opens and verifies (regenerate with
 /// CLOUDCONTROL_UPDATE_SAMPLES=1).
 #[test]

@@ -2,6 +2,7 @@
 
 use cloudcontrol::ffi::*;
 use std::ffi::CStr;
+use std::path::Path;
 use std::ptr::{null, null_mut};
 
 fn last_error() -> String {
@@ -219,5 +220,104 @@ fn last_error_truncates_into_small_buffers() {
         assert_eq!(needed, full.len() + 1);
         let got = CStr::from_ptr(small.as_ptr()).to_str().unwrap();
         assert_eq!(got, &full[..7]);
+    }
+}
+
+#[test]
+fn dcp_export_and_import_refuse_bad_arguments_and_import_the_sample() {
+    let dir = tempfile::tempdir().unwrap();
+    let c = |s: &str| std::ffi::CString::new(s).unwrap();
+    let missing = c(dir.path().join("nowhere/block.json").to_str().unwrap());
+    let images = c(dir.path().join("images.json").to_str().unwrap());
+    let out = c(dir.path().join("out.dcp").to_str().unwrap());
+    let tile = c(dir.path().join("tiles").to_str().unwrap());
+    let lidar = [tile.as_ptr()];
+    unsafe {
+        let mut dcp = null_mut();
+        let export = |block: *const std::ffi::c_char,
+                      n: usize,
+                      opts: *const CcpDcpExportOptions,
+                      dcp: &mut *mut CcpDcp| {
+            ccp_dcp_export(
+                block,
+                images.as_ptr(),
+                lidar.as_ptr(),
+                n,
+                out.as_ptr(),
+                opts,
+                dcp,
+            )
+        };
+        assert_eq!(
+            export(missing.as_ptr(), 1, null(), &mut dcp),
+            CcpStatus::NotFound
+        );
+        assert!(
+            last_error().contains("nowhere/block.json"),
+            "{}",
+            last_error()
+        );
+        assert!(dcp.is_null());
+        assert_eq!(export(null(), 1, null(), &mut dcp), CcpStatus::NullPointer);
+        assert!(last_error().contains("block_json"), "{}", last_error());
+        assert_eq!(
+            export(missing.as_ptr(), 0, null(), &mut dcp),
+            CcpStatus::InvalidArgument
+        );
+        assert!(last_error().contains("lidar_paths"), "{}", last_error());
+        let mut opts = std::mem::zeroed::<CcpDcpExportOptions>();
+        assert_eq!(ccp_dcp_export_options_default(&mut opts), CcpStatus::Ok);
+        assert_eq!((opts.chip_size, opts.interval_px), (193, 250.0));
+        opts.chip_size = 100;
+        assert_eq!(
+            export(missing.as_ptr(), 1, &opts, &mut dcp),
+            CcpStatus::InvalidArgument
+        );
+        assert!(last_error().contains("chip_size 100"), "{}", last_error());
+        assert_eq!(
+            ccp_dcp_export(
+                missing.as_ptr(),
+                images.as_ptr(),
+                lidar.as_ptr(),
+                1,
+                out.as_ptr(),
+                null(),
+                null_mut()
+            ),
+            CcpStatus::NullPointer
+        );
+        assert!(!dir.path().join("out.dcp").exists());
+
+        // Import: a folder that is not a package is refused; the sample is stored.
+        let store = c(dir.path().join("store").to_str().unwrap());
+        let not_pkg = c(dir.path().to_str().unwrap());
+        assert_eq!(
+            ccp_dcp_import(not_pkg.as_ptr(), store.as_ptr(), &mut dcp),
+            CcpStatus::Format
+        );
+        assert!(
+            last_error().contains("not a DCP package"),
+            "{}",
+            last_error()
+        );
+        assert!(!dir.path().join("store").exists());
+        let sample = Path::new(env!("CARGO_MANIFEST_DIR")).join("formats/dcp/sample.dcp");
+        let sample = c(sample.to_str().unwrap());
+        assert_eq!(
+            ccp_dcp_import(sample.as_ptr(), store.as_ptr(), &mut dcp),
+            CcpStatus::Ok,
+            "{}",
+            last_error()
+        );
+        let mut n = 0usize;
+        assert_eq!(ccp_dcp_point_count(dcp, &mut n), CcpStatus::Ok);
+        assert_eq!(n, 4);
+        let mut path = null_mut();
+        assert_eq!(ccp_dcp_path(dcp, &mut path), CcpStatus::Ok);
+        let stored = CStr::from_ptr(path).to_str().unwrap().to_string();
+        ccp_string_free(path);
+        assert_eq!(Path::new(&stored), dir.path().join("store/sample.dcp"));
+        ccp_dcp_free(dcp);
+        assert_eq!(ccp_dcp_path(null(), &mut path), CcpStatus::NullPointer);
     }
 }

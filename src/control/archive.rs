@@ -9,7 +9,9 @@
 //! Inputs are held in memory ([`EpochInput`]: camera, photo names and image paths,
 //! navigation) so the pipeline, the CLI and the benches call the same [`orient_epoch`].
 
-use super::cloud::{self, CloudOptions, ControlSurface, ExportInfo, GroundSurface};
+use super::cloud::{
+    self, CloudOptions, ControlPointRecord, ControlSurface, ExportInfo, GroundSurface,
+};
 use super::dcp::{Accuracy, DcpError, DcpIndex, DcpPackage, EpochInfo};
 use super::orient::{
     self, ControlPatch, IterationRecord, OrientOptions, PatchMatch, PatchMatcher, Resection,
@@ -30,7 +32,7 @@ use crate::matching::{
 };
 use nalgebra::{Matrix3, SMatrix, Vector2, Vector3};
 use rayon::prelude::*;
-use serde::Serialize;
+use serde::{Deserialize, Serialize};
 use std::collections::{BTreeMap, HashMap};
 use std::path::{Path, PathBuf};
 use std::time::Instant;
@@ -44,6 +46,12 @@ pub enum ArchiveError {
     Epoch { epoch: String, message: String },
     #[error(transparent)]
     Dcp(#[from] DcpError),
+    /// LiDAR tiles (the error names the file).
+    #[error(transparent)]
+    Lidar(#[from] crate::lidar::LidarError),
+    /// An oriented block given in memory (the caller names its file).
+    #[error("oriented block: {0}")]
+    Block(String),
     #[error("epoch {epoch}: archive block adjustment: {source}")]
     Adjust { epoch: String, source: AdjustError },
 }
@@ -1921,11 +1929,12 @@ pub fn evaluate_checkpoints(
 // ---------------------------------------------------------------------------------------
 // DCP export from an oriented block, and the LiDAR control surface.
 
-/// Options of [`export_dcp`].
+/// Options of [`select_control_points`] and [`export_dcp`].
 #[derive(Debug, Clone)]
 pub struct DcpExportOptions {
     pub cloud: CloudOptions,
     /// Chip side (px, odd): large enough to hold a template rescaled to a coarser photo.
+    /// It also keeps the points half a chip away from the photo borders.
     pub chip_size: u32,
     pub accuracy: Accuracy,
     pub source: String,
@@ -1938,7 +1947,9 @@ impl Default for DcpExportOptions {
     fn default() -> Self {
         Self {
             cloud: CloudOptions::default(),
-            chip_size: 161,
+            // The workflow's default (project `thresholds.chip_size_px`), so a package
+            // made by hand matches one made by `cloudcontrol run`.
+            chip_size: 193,
             accuracy: Accuracy {
                 plan_m: 0.05,
                 height_m: 0.05,
@@ -1949,27 +1960,107 @@ impl Default for DcpExportOptions {
     }
 }
 
-/// Selects cloud control points in an oriented block (Förstner candidates, planar and
-/// stable ground of `surface`) and writes them as a DCP package at `out`.
-pub fn export_dcp(
+impl DcpExportOptions {
+    /// Refuses options that would fail only after every photo was read, or that cannot
+    /// select anything.
+    pub fn validate(&self) -> Result<(), String> {
+        let c = &self.cloud;
+        if !(c.interval_px.is_finite() && c.interval_px >= 1.0 && c.interval_px <= 1000.0) {
+            return Err(format!(
+                "interval_px {} is outside [1, 1000]",
+                c.interval_px
+            ));
+        }
+        if !(c.max_coplanarity.is_finite() && c.max_coplanarity > 0.0) {
+            return Err(format!(
+                "max_coplanarity {} must be positive",
+                c.max_coplanarity
+            ));
+        }
+        if c.min_photos == 0 {
+            return Err("min_photos must be at least 1".into());
+        }
+        if self.chip_size < 9 || self.chip_size % 2 == 0 {
+            return Err(format!(
+                "chip_size {} must be odd and at least 9 (the point sits on the centre pixel)",
+                self.chip_size
+            ));
+        }
+        if self.interest_level > 8 {
+            return Err(format!(
+                "interest_level {} is above 8 (256× coarser than the photos)",
+                self.interest_level
+            ));
+        }
+        for (name, v) in [
+            ("accuracy plan_m", self.accuracy.plan_m),
+            ("accuracy height_m", self.accuracy.height_m),
+        ] {
+            if !(v.is_finite() && v > 0.0) {
+                return Err(format!("{name} {v} must be positive"));
+            }
+        }
+        Ok(())
+    }
+}
+
+/// The cloud control points of an oriented block (`cloudcontrol dcp generate`): what
+/// [`export_dcp`] writes into a package, without the chips.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct ControlPointSet {
+    pub crs: String,
+    /// Mean ground pixel of the photos the points were picked in (m).
+    pub gsd_m: f64,
+    pub accuracy: Accuracy,
+    pub points: Vec<ControlPointRecord>,
+}
+
+/// Selects cloud control points in an oriented block: Förstner candidates at the scale of
+/// pyramid level `interest_level`, one per `interval_px` cell, on planar and stable
+/// ground of `surface`, measured in every oriented photo with an image that sees them.
+pub fn select_control_points(
     block: &Block,
     images: &BTreeMap<PhotoId, PathBuf>,
     surface: &dyn ControlSurface,
-    epoch: EpochInfo,
-    out: &Path,
     opts: &DcpExportOptions,
-) -> Result<DcpPackage, ArchiveError> {
+) -> Result<ControlPointSet, ArchiveError> {
+    opts.validate()
+        .map_err(|m| ArchiveError::Block(format!("options: {m}")))?;
+    block
+        .validate()
+        .map_err(|e| ArchiveError::Block(e.to_string()))?;
     let crs = block
         .crs
         .clone()
-        .ok_or_else(|| input_err(out, "the block has no CRS"))?;
+        .ok_or_else(|| ArchiveError::Block("has no CRS".into()))?;
+    // Photos that are not oriented or have no image would give measurements nobody can
+    // cut a chip from or trust: the selection sees the others only.
+    let mut seen = Block {
+        crs: block.crs.clone(),
+        origin: block.origin,
+        cameras: block.cameras.clone(),
+        ..Block::default()
+    };
     let mut interest = BTreeMap::new();
     let mut gsd = Vec::new();
     for (&pid, path) in images {
         let Some(ph) = block.photos.get(&pid).filter(|p| p.oriented) else {
             continue;
         };
+        let cam = &block.cameras[&ph.camera].model;
         let full = GreyImage::load(path).map_err(|e| input_err(path, e.to_string()))?;
+        let (w, h) = cam.image_size();
+        // The border below keeps chips inside photos of the camera's size only.
+        if (full.width, full.height) != (w as usize, h as usize) {
+            return Err(input_err(
+                path,
+                format!(
+                    "is {}×{} pixels, the camera of photo {pid} ({}) is {w}×{h}",
+                    full.width, full.height, ph.name
+                ),
+            ));
+        }
         // Interest is taken at the scale of the coarser archive photos the package is
         // for: fine texture (crop rows, tiles) that is distinct at the reference scale
         // aliases into ambiguous patterns there, while corners of parcels and roads stay.
@@ -1992,35 +2083,55 @@ pub fn export_dcp(
             .map(|p| ([p.x * f, p.y * f], p.w))
             .collect();
         interest.insert(pid, cands);
-        if let Some(c) = block.cameras.get(&ph.camera) {
-            gsd.push(ph.pose.center.z.abs() / c.model.focal_px());
-        }
+        gsd.push(ph.pose.center.z.abs() / cam.focal_px());
+        seen.photos.insert(pid, ph.clone());
+    }
+    if seen.photos.is_empty() {
+        return Err(ArchiveError::Block("no oriented photo has an image".into()));
     }
     let cloud_opts = CloudOptions {
         border_px: opts.cloud.border_px.max((opts.chip_size / 2 + 1) as f64),
         ..opts.cloud.clone()
     };
-    let points = cloud::select(block, surface, &interest, &cloud_opts)
-        .map_err(|e| input_err(out, e.to_string()))?;
+    let points = cloud::select(&seen, surface, &interest, &cloud_opts)
+        .map_err(|e| ArchiveError::Block(e.to_string()))?;
     if points.is_empty() {
-        return Err(input_err(
-            out,
-            "no cloud control point found (no textured, planar, stable ground)",
-        ));
+        return Err(ArchiveError::Block(format!(
+            "no cloud control point found in {} photos (no textured, planar, stable ground \
+             under the LiDAR)",
+            seen.photos.len()
+        )));
     }
-    let info = ExportInfo {
+    Ok(ControlPointSet {
         crs,
+        gsd_m: gsd.iter().sum::<f64>() / gsd.len() as f64,
+        accuracy: opts.accuracy,
+        points: cloud::records(&seen, &points, &opts.accuracy),
+    })
+}
+
+/// Selects cloud control points in an oriented block ([`select_control_points`]) and
+/// writes them with their chips as a DCP package at `out`.
+pub fn export_dcp(
+    block: &Block,
+    images: &BTreeMap<PhotoId, PathBuf>,
+    surface: &dyn ControlSurface,
+    epoch: EpochInfo,
+    out: &Path,
+    opts: &DcpExportOptions,
+) -> Result<DcpPackage, ArchiveError> {
+    let set = select_control_points(block, images, surface, opts)?;
+    let info = ExportInfo {
+        crs: set.crs.clone(),
         epoch,
         source: opts.source.clone(),
-        gsd_m: if gsd.is_empty() {
-            1.0
-        } else {
-            gsd.iter().sum::<f64>() / gsd.len() as f64
-        },
+        gsd_m: set.gsd_m,
         accuracy: opts.accuracy,
         chip_size: opts.chip_size,
     };
-    let (m, chips) = cloud::export(block, &points, &info, |pid| {
+    // Every chip fits (the selection's border is half a chip and the images have the
+    // cameras' size), so the package holds exactly the points of `set`.
+    let (m, chips) = cloud::export_records(block, &set.points, &info, |pid| {
         let p = images
             .get(&pid)
             .ok_or_else(|| format!("no image for photo {pid}"))?;
@@ -2028,6 +2139,150 @@ pub fn export_dcp(
     })
     .map_err(|e| input_err(out, e))?;
     Ok(DcpPackage::write(out, m, &chips)?)
+}
+
+/// Cell (m) of the LiDAR ground and surface grids of [`lidar_surfaces`], as the workflow
+/// uses.
+pub const LIDAR_CELL_M: f64 = 1.0;
+
+/// An oriented block as the workflow writes each epoch — `block.json` (the [`Block`]) and
+/// `images.json` (photo id → image path) — with the control surface of its LiDAR: the
+/// input of `cloudcontrol dcp generate|export`, `ccp_dcp_export` and the Python binding.
+pub struct OrientedBlock {
+    /// The `block.json` the block was read from (errors name it).
+    pub block_json: PathBuf,
+    pub block: Block,
+    pub images: BTreeMap<PhotoId, PathBuf>,
+    pub surface: GroundSurface,
+}
+
+impl OrientedBlock {
+    /// Reads the two JSON files and builds the control surface from LAS/LAZ files or
+    /// folders of them (grid cell `lidar_cell_m`, e.g. [`LIDAR_CELL_M`]).
+    pub fn load(
+        block_json: &Path,
+        images_json: &Path,
+        lidar: &[PathBuf],
+        lidar_cell_m: f64,
+    ) -> Result<Self, ArchiveError> {
+        if !(lidar_cell_m.is_finite() && lidar_cell_m > 0.0) {
+            return Err(ArchiveError::Block(format!(
+                "LiDAR grid cell {lidar_cell_m} m must be positive"
+            )));
+        }
+        let (block, images) = read_oriented_block(block_json, images_json)?;
+        let tiles = crate::lidar::catalogue::expand_inputs(lidar)?;
+        let surface = lidar_surfaces(&tiles, block.origin, lidar_cell_m)?;
+        Ok(Self {
+            block_json: block_json.to_path_buf(),
+            block,
+            images,
+            surface,
+        })
+    }
+
+    fn named(&self, e: ArchiveError) -> ArchiveError {
+        match e {
+            ArchiveError::Block(m) => input_err(&self.block_json, m),
+            e => e,
+        }
+    }
+
+    /// The control points a package of this block would hold ([`select_control_points`]).
+    pub fn select(&self, opts: &DcpExportOptions) -> Result<ControlPointSet, ArchiveError> {
+        select_control_points(&self.block, &self.images, &self.surface, opts)
+            .map_err(|e| self.named(e))
+    }
+
+    /// Writes the DCP package of this block at `out` ([`export_dcp`]).
+    pub fn export(
+        &self,
+        epoch: EpochInfo,
+        out: &Path,
+        opts: &DcpExportOptions,
+    ) -> Result<DcpPackage, ArchiveError> {
+        export_dcp(&self.block, &self.images, &self.surface, epoch, out, opts)
+            .map_err(|e| self.named(e))
+    }
+}
+
+/// Reads an oriented block's `block.json` and `images.json`. An image path that is
+/// relative is taken from the working directory, as the workflow writes it, and else
+/// from the folder of `images.json` (a moved project). Every oriented photo needs an
+/// existing image, and every image a photo of the block.
+pub fn read_oriented_block(
+    block_json: &Path,
+    images_json: &Path,
+) -> Result<(Block, BTreeMap<PhotoId, PathBuf>), ArchiveError> {
+    let block: Block = serde_json::from_value(read_json(block_json)?)
+        .map_err(|e| input_err(block_json, e.to_string()))?;
+    block
+        .validate()
+        .map_err(|e| input_err(block_json, e.to_string()))?;
+    if block.crs.is_none() {
+        return Err(input_err(
+            block_json,
+            "the block has no CRS (a DCP package needs a projected one)",
+        ));
+    }
+    let listed: BTreeMap<PhotoId, PathBuf> = serde_json::from_value(read_json(images_json)?)
+        .map_err(|e| {
+            input_err(
+                images_json,
+                format!("{e} (expected an object of photo id → image path)"),
+            )
+        })?;
+    let base = images_json.parent().unwrap_or(Path::new(""));
+    let mut images = BTreeMap::new();
+    for (pid, path) in listed {
+        let Some(photo) = block.photos.get(&pid) else {
+            return Err(input_err(
+                images_json,
+                format!(
+                    "photo {pid} is not in {} (a block and its images.json from different epochs?)",
+                    block_json.display()
+                ),
+            ));
+        };
+        let found = if path.is_relative() && !path.exists() {
+            base.join(&path)
+        } else {
+            path.clone()
+        };
+        if !found.is_file() {
+            if !photo.oriented {
+                continue;
+            }
+            return Err(input_err(
+                images_json,
+                format!(
+                    "image {} of photo {pid} ({}) does not exist",
+                    path.display(),
+                    photo.name
+                ),
+            ));
+        }
+        images.insert(pid, found);
+    }
+    if let Some(p) = block
+        .photos
+        .values()
+        .find(|p| p.oriented && !images.contains_key(&p.id))
+    {
+        return Err(input_err(
+            images_json,
+            format!("no image for oriented photo {} ({})", p.id, p.name),
+        ));
+    }
+    Ok((block, images))
+}
+
+/// The epoch name a package takes by default: its folder's name without extension.
+pub fn package_epoch_name(out: &Path) -> String {
+    out.file_stem()
+        .map(|s| s.to_string_lossy().into_owned())
+        .filter(|s| !s.is_empty())
+        .unwrap_or_else(|| "dcp".into())
 }
 
 /// Ground DEM and control surface (block-local, origin subtracted) from LAS/LAZ tiles:
@@ -2041,8 +2296,7 @@ pub fn lidar_surfaces(
     let mut ground = Vec::new();
     let mut all = Vec::new();
     for t in tiles {
-        let b = crate::lidar::las::read_points(t, None, Some(&[2, 3, 4, 5, 6]))
-            .map_err(|e| input_err(t, e.to_string()))?;
+        let b = crate::lidar::las::read_points(t, None, Some(&[2, 3, 4, 5, 6]))?;
         for (x, c) in b.xyz.iter().zip(&b.class) {
             let l = [x[0] - origin[0], x[1] - origin[1], x[2] - origin[2]];
             if *c == 2 {

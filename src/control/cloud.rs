@@ -11,6 +11,7 @@ use crate::block::{Block, PhotoId};
 use crate::geometry::{self, Dem, Result as GResult};
 use image::DynamicImage;
 use nalgebra::Vector3;
+use serde::{Deserialize, Serialize};
 use std::collections::BTreeMap;
 
 /// A local plane of the control surface (LiDAR) around a ground position.
@@ -285,12 +286,97 @@ pub struct ExportInfo {
     pub chip_size: u32,
 }
 
+/// One image measurement of a cloud control point (no chip).
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct PointMeasurement {
+    pub photo: PhotoId,
+    /// Name of the photo, so a listing is readable without the block.
+    pub name: String,
+    /// Pixel position in the photo (design-overview convention).
+    pub pixel: [f64; 2],
+}
+
+/// A cloud control point in world coordinates with its image measurements: what a DCP
+/// package holds of it, chips aside. Ids and names are the package's.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct ControlPointRecord {
+    pub id: u64,
+    pub name: String,
+    /// World coordinates (block-local + origin).
+    pub xyz: [f64; 3],
+    /// 1σ of x, y, z (m).
+    pub sigma: [f64; 3],
+    /// Unit normal of the supporting LiDAR plane.
+    pub normal: [f64; 3],
+    pub quality: PointQuality,
+    pub measurements: Vec<PointMeasurement>,
+}
+
+/// World records of selected points, numbered as their package will number them.
+pub fn records(
+    block: &Block,
+    points: &[CloudPoint],
+    accuracy: &Accuracy,
+) -> Vec<ControlPointRecord> {
+    let origin = Vector3::from(block.origin);
+    points
+        .iter()
+        .enumerate()
+        .map(|(k, cp)| {
+            let id = k as u64 + 1;
+            let w = cp.position + origin;
+            ControlPointRecord {
+                id,
+                name: format!("CC{id}"),
+                xyz: [w.x, w.y, w.z],
+                sigma: [accuracy.plan_m, accuracy.plan_m, accuracy.height_m],
+                normal: [cp.normal.x, cp.normal.y, cp.normal.z],
+                quality: PointQuality {
+                    interest: cp.interest,
+                    coplanarity: cp.coplanarity,
+                    class: "ground".into(),
+                },
+                measurements: cp
+                    .measurements
+                    .iter()
+                    .map(|&(photo, pixel)| PointMeasurement {
+                        photo,
+                        name: block
+                            .photos
+                            .get(&photo)
+                            .map(|p| p.name.clone())
+                            .unwrap_or_default(),
+                        pixel,
+                    })
+                    .collect(),
+            }
+        })
+        .collect()
+}
+
 /// Builds the manifest and cuts the chips of a DCP package from a block's photos.
 /// `image_of` loads a photo (greyscale chips are cut from it); points whose chip would
 /// leave a photo are measured in the other photos only.
 pub fn export(
     block: &Block,
     points: &[CloudPoint],
+    info: &ExportInfo,
+    image_of: impl FnMut(PhotoId) -> Result<DynamicImage, String>,
+) -> Result<(Manifest, BTreeMap<String, DynamicImage>), String> {
+    export_records(
+        block,
+        &records(block, points, &info.accuracy),
+        info,
+        image_of,
+    )
+}
+
+/// [`export`] of points already turned into world records (see [`records`]).
+pub fn export_records(
+    block: &Block,
+    points: &[ControlPointRecord],
     info: &ExportInfo,
     mut image_of: impl FnMut(PhotoId) -> Result<DynamicImage, String>,
 ) -> Result<(Manifest, BTreeMap<String, DynamicImage>), String> {
@@ -304,16 +390,23 @@ pub fn export(
     );
     let used: std::collections::BTreeSet<PhotoId> = points
         .iter()
-        .flat_map(|p| p.measurements.iter().map(|m| m.0))
+        .flat_map(|p| p.measurements.iter().map(|m| m.photo))
         .collect();
     for &pid in &used {
-        let p = &block.photos[&pid];
+        let p = block.photos.get(&pid).ok_or_else(|| {
+            format!("control point measured in photo {pid}, which the block does not have")
+        })?;
         let r = p.pose.rotation;
         let c = p.pose.center + origin;
         m.photos.push(DcpPhoto {
             id: pid,
             name: p.name.clone(),
-            camera: block.cameras[&p.camera].model.clone(),
+            camera: block
+                .cameras
+                .get(&p.camera)
+                .ok_or_else(|| format!("photo {pid} ({}): unknown camera {}", p.name, p.camera))?
+                .model
+                .clone(),
             rotation: [
                 r[(0, 0)],
                 r[(0, 1)],
@@ -332,10 +425,11 @@ pub fn export(
     let half = info.chip_size / 2;
     let mut chips = BTreeMap::new();
     let mut images: BTreeMap<PhotoId, DynamicImage> = BTreeMap::new();
-    for (k, cp) in points.iter().enumerate() {
-        let id = k as u64 + 1;
+    for cp in points {
+        let id = cp.id;
         let mut measurements = Vec::new();
-        for &(pid, px) in &cp.measurements {
+        for ms in &cp.measurements {
+            let (pid, px) = (ms.photo, ms.pixel);
             if let std::collections::btree_map::Entry::Vacant(e) = images.entry(pid) {
                 e.insert(image_of(pid)?);
             }
@@ -372,22 +466,13 @@ pub fn export(
         if measurements.is_empty() {
             continue;
         }
-        let w = cp.position + origin;
         m.points.push(DcpPoint {
             id,
-            name: format!("CC{id}"),
-            xyz: [w.x, w.y, w.z],
-            sigma: [
-                info.accuracy.plan_m,
-                info.accuracy.plan_m,
-                info.accuracy.height_m,
-            ],
-            normal: Some([cp.normal.x, cp.normal.y, cp.normal.z]),
-            quality: PointQuality {
-                interest: cp.interest,
-                coplanarity: cp.coplanarity,
-                class: "ground".into(),
-            },
+            name: cp.name.clone(),
+            xyz: cp.xyz,
+            sigma: cp.sigma,
+            normal: Some(cp.normal),
+            quality: cp.quality.clone(),
             measurements,
         });
     }

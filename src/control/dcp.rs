@@ -580,6 +580,166 @@ impl DcpPackage {
         Self::write(dir, m, &chips)
     }
 
+    /// Imports verified packages into a store folder (created when missing): each goes to
+    /// `store/<its folder name>`. Every package is opened and fully verified first, and
+    /// all must share the CRS of the packages already in the store; only then is anything
+    /// written. Each copy is verified again while it is made, in a temporary sibling that
+    /// is renamed into place, and the copies of a failed import are removed. A package that
+    /// is already in the store with the same manifest is left as it is.
+    pub fn import(packages: &[PathBuf], store: &Path) -> Result<Vec<Self>> {
+        if packages.is_empty() {
+            return Err(invalid(store, "nothing to import"));
+        }
+        let mut opened = Vec::new();
+        let mut names = BTreeMap::new();
+        for p in packages {
+            let pkg = Self::open(p)?;
+            let name = folder_name(&pkg.dir)?;
+            if let Some(other) = names.insert(name.clone(), p.clone()) {
+                return Err(invalid(
+                    p,
+                    format!(
+                        "has the folder name {name:?} of {} too: both cannot go into one store",
+                        other.display()
+                    ),
+                ));
+            }
+            opened.push((pkg, name));
+        }
+        // The first package sets the CRS of an empty store.
+        let mut reference: Option<(String, PathBuf)> = store_crs(store)?;
+        for (pkg, _) in &opened {
+            let label = Crs::parse(&pkg.manifest.crs)
+                .map_err(|e| invalid(&pkg.dir, e.to_string()))?
+                .label();
+            match &reference {
+                Some((crs, from)) if *crs != label => {
+                    return Err(invalid(
+                        &pkg.dir,
+                        format!(
+                            "CRS {label} differs from {crs} of {}: a store holds one CRS",
+                            from.display()
+                        ),
+                    ))
+                }
+                Some(_) => {}
+                None => reference = Some((label, pkg.dir.clone())),
+            }
+        }
+        let mut plan = Vec::new();
+        for (pkg, name) in opened {
+            let dest = store.join(&name);
+            if dest.exists() {
+                let same = std::fs::read(dest.join(MANIFEST))
+                    .ok()
+                    .zip(std::fs::read(pkg.dir.join(MANIFEST)).ok())
+                    .is_some_and(|(a, b)| a == b);
+                if !same {
+                    return Err(invalid(
+                        &pkg.dir,
+                        format!(
+                            "{} already holds a different package of that name",
+                            dest.display()
+                        ),
+                    ));
+                }
+            }
+            plan.push((pkg, dest));
+        }
+        std::fs::create_dir_all(store).map_err(|e| DcpError::Io {
+            path: store.into(),
+            source: e,
+        })?;
+        let mut done: Vec<PathBuf> = Vec::new();
+        let mut out = Vec::new();
+        for (pkg, dest) in plan {
+            if dest.exists() {
+                // Same manifest: re-verify what the store holds instead of copying.
+                out.push(Self::open(&dest)?);
+                continue;
+            }
+            match pkg.copy_verified(&dest) {
+                Ok(p) => {
+                    done.push(dest);
+                    out.push(p);
+                }
+                Err(e) => {
+                    for d in &done {
+                        let _ = std::fs::remove_dir_all(d);
+                    }
+                    return Err(e);
+                }
+            }
+        }
+        Ok(out)
+    }
+
+    /// Copies the manifest and every listed file to `dest` through a temporary sibling,
+    /// checking each file's checksum on the bytes written (the source may have changed
+    /// since it was opened), then opens the copy.
+    fn copy_verified(&self, dest: &Path) -> Result<Self> {
+        let parent = dest.parent().unwrap_or(Path::new("."));
+        let name = folder_name(dest)?;
+        let tmp = parent.join(format!(".{name}.part-{}", std::process::id()));
+        let io = |path: &Path, e: std::io::Error| DcpError::Io {
+            path: path.into(),
+            source: e,
+        };
+        let result = (|| -> Result<Self> {
+            if tmp.exists() {
+                std::fs::remove_dir_all(&tmp).map_err(|e| io(&tmp, e))?;
+            }
+            std::fs::create_dir_all(&tmp).map_err(|e| io(&tmp, e))?;
+            for (file, sum) in &self.manifest.files {
+                let data = std::fs::read(self.dir.join(file)).map_err(|e| DcpError::Chip {
+                    package: self.dir.clone(),
+                    file: file.clone(),
+                    message: format!("cannot be read ({e})"),
+                })?;
+                if !sha256_hex(&data).eq_ignore_ascii_case(sum) {
+                    return Err(DcpError::Chip {
+                        package: self.dir.clone(),
+                        file: file.clone(),
+                        message: "checksum mismatch: the chip changed while it was imported".into(),
+                    });
+                }
+                let to = tmp.join(file);
+                if let Some(p) = to.parent() {
+                    std::fs::create_dir_all(p).map_err(|e| io(p, e))?;
+                }
+                std::fs::write(&to, &data).map_err(|e| io(&to, e))?;
+            }
+            // The manifest as opened, byte for byte, so the copy is the same package.
+            let m = self.dir.join(MANIFEST);
+            let bytes = std::fs::read(&m).map_err(|e| io(&m, e))?;
+            let parsed: Manifest = serde_json::from_slice(&bytes)
+                .map_err(|e| invalid(&self.dir, format!("{MANIFEST}: {e}")))?;
+            if parsed != self.manifest {
+                return Err(invalid(
+                    &self.dir,
+                    format!("{MANIFEST} changed while the package was imported"),
+                ));
+            }
+            std::fs::write(tmp.join(MANIFEST), &bytes).map_err(|e| io(&tmp, e))?;
+            Self::open(&tmp)
+        })();
+        let copy = match result {
+            Ok(c) => c,
+            Err(e) => {
+                let _ = std::fs::remove_dir_all(&tmp);
+                return Err(e);
+            }
+        };
+        if let Err(e) = std::fs::rename(&tmp, dest) {
+            let _ = std::fs::remove_dir_all(&tmp);
+            return Err(io(dest, e));
+        }
+        Ok(Self {
+            dir: dest.to_path_buf(),
+            manifest: copy.manifest,
+        })
+    }
+
     /// World coordinates of every point.
     pub fn points_xy(&self) -> impl Iterator<Item = (usize, [f64; 2])> + '_ {
         self.manifest
@@ -588,6 +748,78 @@ impl DcpPackage {
             .enumerate()
             .map(|(i, p)| (i, [p.xyz[0], p.xyz[1]]))
     }
+}
+
+/// The folder name of a package (`a.dcp` for `./a.dcp/` or `a.dcp/.`).
+fn folder_name(dir: &Path) -> Result<String> {
+    let named = dir
+        .file_name()
+        .map(|n| n.to_string_lossy().into_owned())
+        .filter(|n| n != "." && n != "..");
+    let name = match named {
+        Some(n) => n,
+        None => std::fs::canonicalize(dir)
+            .ok()
+            .and_then(|p| p.file_name().map(|n| n.to_string_lossy().into_owned()))
+            .ok_or_else(|| invalid(dir, "has no folder name"))?,
+    };
+    if name.starts_with('.') {
+        // Hidden names are the store's temporary folders.
+        return Err(invalid(dir, "a package folder name may not start with '.'"));
+    }
+    Ok(name)
+}
+
+/// The CRS of the packages already in a store (label, package), from their manifests;
+/// `None` for a missing or empty store. A store whose packages disagree is refused.
+fn store_crs(store: &Path) -> Result<Option<(String, PathBuf)>> {
+    if !store.exists() {
+        return Ok(None);
+    }
+    if !store.is_dir() {
+        return Err(invalid(store, "the store is not a folder"));
+    }
+    let mut dirs: Vec<PathBuf> = std::fs::read_dir(store)
+        .map_err(|e| DcpError::Io {
+            path: store.into(),
+            source: e,
+        })?
+        .filter_map(|e| e.ok().map(|e| e.path()))
+        .filter(|p| {
+            p.join(MANIFEST).is_file()
+                && !p
+                    .file_name()
+                    .is_some_and(|n| n.to_string_lossy().starts_with('.'))
+        })
+        .collect();
+    dirs.sort();
+    let mut found: Option<(String, PathBuf)> = None;
+    for d in dirs {
+        let mpath = d.join(MANIFEST);
+        let bytes = std::fs::read(&mpath).map_err(|e| DcpError::Io {
+            path: mpath.clone(),
+            source: e,
+        })?;
+        let m: Manifest = serde_json::from_slice(&bytes)
+            .map_err(|e| invalid(&d, format!("stored {MANIFEST}: {e}")))?;
+        let label = Crs::parse(&m.crs)
+            .map_err(|e| invalid(&d, e.to_string()))?
+            .label();
+        match &found {
+            Some((crs, first)) if *crs != label => {
+                return Err(invalid(
+                    &d,
+                    format!(
+                        "the store mixes CRS {label} and {crs} (of {})",
+                        first.display()
+                    ),
+                ))
+            }
+            Some(_) => {}
+            None => found = Some((label, d)),
+        }
+    }
+    Ok(found)
 }
 
 /// Spatial index over the control points of one or more packages, for footprint queries.

@@ -1,11 +1,15 @@
-//! DCP packages and patch prediction through the C ABI.
+//! DCP packages and patch prediction through the C ABI: open, export from an oriented
+//! block, import into a store, query. Strings returned are freed with `ccp_string_free`.
 
 use super::camera::{CcpCamera, CcpPose};
-use super::{finite, finite_rows, guard, handle, input, output, CcpStatus, FfiError};
-use crate::control::dcp::{DcpIndex, DcpPackage};
+use super::{finite, finite_rows, guard, handle, input, output, CcpStatus, FfiError, FfiResult};
+use crate::control::archive::{self, ArchiveError, DcpExportOptions, OrientedBlock};
+use crate::control::cloud::CloudOptions;
+use crate::control::dcp::{Accuracy, DcpError, DcpIndex, DcpPackage, EpochInfo};
 use crate::control::predict;
 use nalgebra::{Matrix3, SMatrix, Vector3};
-use std::ffi::{c_char, CStr};
+use std::ffi::{c_char, CStr, CString};
+use std::path::{Path, PathBuf};
 
 /// Opaque handle of an opened (verified) DCP package with its spatial index.
 pub struct CcpDcp {
@@ -25,27 +29,268 @@ fn path_arg<'a>(p: *const c_char, name: &str) -> Result<&'a str, FfiError> {
         .map_err(|_| FfiError::invalid(format!("{name} is not UTF-8")))
 }
 
+fn dcp_status(e: &DcpError) -> CcpStatus {
+    match e {
+        DcpError::Io { source, .. } if source.kind() == std::io::ErrorKind::NotFound => {
+            CcpStatus::NotFound
+        }
+        DcpError::Io { .. } => CcpStatus::Io,
+        _ => CcpStatus::Format,
+    }
+}
+
+impl From<DcpError> for FfiError {
+    fn from(e: DcpError) -> Self {
+        FfiError::new(dcp_status(&e), e.to_string())
+    }
+}
+
+impl From<ArchiveError> for FfiError {
+    fn from(e: ArchiveError) -> Self {
+        let e = match e {
+            ArchiveError::Lidar(l) => return FfiError::from(l),
+            e => e,
+        };
+        let status = match &e {
+            ArchiveError::Dcp(d) => dcp_status(d),
+            // The message says what was wrong with the file; a file that is not there at
+            // all is worth its own status.
+            ArchiveError::Input { path, .. } if !path.exists() => CcpStatus::NotFound,
+            ArchiveError::Input { .. } | ArchiveError::Lidar(_) => CcpStatus::Format,
+            ArchiveError::Epoch { .. } | ArchiveError::Block(_) => CcpStatus::InvalidArgument,
+            ArchiveError::Adjust { .. } => CcpStatus::Numeric,
+        };
+        FfiError::new(status, e.to_string())
+    }
+}
+
+/// Wraps an opened package in a new handle written to `*out_dcp`.
+unsafe fn hand_out(package: DcpPackage, out_dcp: *mut *mut CcpDcp) {
+    let index = DcpIndex::new(std::slice::from_ref(&package));
+    *out_dcp = Box::into_raw(Box::new(CcpDcp { package, index }));
+}
+
+/// Clears `*out_dcp`, refusing a null `out_dcp`.
+unsafe fn out_handle(out_dcp: *mut *mut CcpDcp) -> FfiResult<()> {
+    if out_dcp.is_null() {
+        return Err(FfiError::new(
+            CcpStatus::NullPointer,
+            "out_dcp is a null pointer",
+        ));
+    }
+    *out_dcp = std::ptr::null_mut();
+    Ok(())
+}
+
+fn non_empty_path(p: *const c_char, name: &str) -> FfiResult<PathBuf> {
+    let s = path_arg(p, name)?;
+    if s.is_empty() {
+        return Err(FfiError::invalid(format!("{name} is empty")));
+    }
+    Ok(PathBuf::from(s))
+}
+
+unsafe fn opt_text(p: *const c_char, name: &str) -> FfiResult<Option<String>> {
+    if p.is_null() {
+        return Ok(None);
+    }
+    let s = CStr::from_ptr(p)
+        .to_str()
+        .map_err(|_| FfiError::invalid(format!("{name} is not UTF-8")))?;
+    Ok((!s.is_empty()).then(|| s.to_string()))
+}
+
 /// Opens and verifies a DCP package folder (manifest, CRS, every chip's checksum).
 #[no_mangle]
 pub unsafe extern "C" fn ccp_dcp_open(path: *const c_char, out_dcp: *mut *mut CcpDcp) -> CcpStatus {
     guard(|| {
-        if out_dcp.is_null() {
+        out_handle(out_dcp)?;
+        let p = path_arg(path, "path")?;
+        let package = DcpPackage::open(Path::new(p))?;
+        hand_out(package, out_dcp);
+        Ok(())
+    })
+}
+
+/// Options of `ccp_dcp_export`; start from `ccp_dcp_export_options_default`. Strings are
+/// NUL-terminated UTF-8, NULL or "" for the default, and only read during the call.
+#[repr(C)]
+#[derive(Debug, Clone, Copy)]
+pub struct CcpDcpExportOptions {
+    /// Epoch name of the package (default: the package folder's name without extension).
+    pub name: *const c_char,
+    /// Acquisition date of the photos (ISO 8601), or NULL.
+    pub date: *const c_char,
+    /// How the control was derived, recorded in the manifest.
+    pub source: *const c_char,
+    /// Chip side (px, odd); points keep half a chip away from the photo borders.
+    pub chip_size: u32,
+    /// Spacing of control points in each photo (px, ≤ 1000).
+    pub interval_px: f64,
+    /// Pyramid level the interest operator runs on (2 = 4× coarser than the photos).
+    pub interest_level: u32,
+    /// Largest coplanarity (λmin/Σλ) of the LiDAR ground under a point.
+    pub max_coplanarity: f64,
+    /// Least number of photos that must see a point.
+    pub min_photos: u32,
+    /// 1σ accuracy of the points' object coordinates (m).
+    pub accuracy_plan_m: f64,
+    pub accuracy_height_m: f64,
+    /// Grid cell of the LiDAR ground model (m).
+    pub lidar_cell_m: f64,
+}
+
+impl Default for CcpDcpExportOptions {
+    fn default() -> Self {
+        let d = DcpExportOptions::default();
+        Self {
+            name: std::ptr::null(),
+            date: std::ptr::null(),
+            source: std::ptr::null(),
+            chip_size: d.chip_size,
+            interval_px: d.cloud.interval_px,
+            interest_level: d.interest_level as u32,
+            max_coplanarity: d.cloud.max_coplanarity,
+            min_photos: d.cloud.min_photos as u32,
+            accuracy_plan_m: d.accuracy.plan_m,
+            accuracy_height_m: d.accuracy.height_m,
+            lidar_cell_m: archive::LIDAR_CELL_M,
+        }
+    }
+}
+
+/// Writes the library's default export options into `*out_options`.
+#[no_mangle]
+pub unsafe extern "C" fn ccp_dcp_export_options_default(
+    out_options: *mut CcpDcpExportOptions,
+) -> CcpStatus {
+    guard(|| {
+        output(out_options, 1, 1, "out_options")?[0] = CcpDcpExportOptions::default();
+        Ok(())
+    })
+}
+
+/// Library options and epoch of a package from the C options.
+unsafe fn export_options(
+    o: &CcpDcpExportOptions,
+    out: &Path,
+) -> FfiResult<(DcpExportOptions, EpochInfo, f64)> {
+    finite(
+        &[
+            o.interval_px,
+            o.max_coplanarity,
+            o.accuracy_plan_m,
+            o.accuracy_height_m,
+            o.lidar_cell_m,
+        ],
+        "opts",
+    )?;
+    let d = DcpExportOptions::default();
+    let opts = DcpExportOptions {
+        cloud: CloudOptions {
+            interval_px: o.interval_px,
+            max_coplanarity: o.max_coplanarity,
+            min_photos: o.min_photos as usize,
+            ..d.cloud.clone()
+        },
+        chip_size: o.chip_size,
+        accuracy: Accuracy {
+            plan_m: o.accuracy_plan_m,
+            height_m: o.accuracy_height_m,
+        },
+        source: opt_text(o.source, "opts.source")?.unwrap_or(d.source),
+        interest_level: o.interest_level as usize,
+    };
+    opts.validate()
+        .map_err(|m| FfiError::invalid(format!("opts: {m}")))?;
+    let epoch = EpochInfo {
+        name: opt_text(o.name, "opts.name")?.unwrap_or_else(|| archive::package_epoch_name(out)),
+        date: opt_text(o.date, "opts.date")?,
+    };
+    Ok((opts, epoch, o.lidar_cell_m))
+}
+
+/// Writes a DCP package at `out_dir` from an oriented block: `block_json` and
+/// `images_json` are the paths of the two files the workflow writes per epoch (the block;
+/// photo id → image path), `lidar_paths` LAS/LAZ files or folders of them. Selects cloud
+/// control points (textured, planar, stable LiDAR ground, one per interval), cuts their
+/// chips, writes the package atomically and returns it opened in `*out_dcp` (release with
+/// `ccp_dcp_free`). `opts` NULL takes the defaults.
+#[no_mangle]
+#[allow(clippy::too_many_arguments)]
+pub unsafe extern "C" fn ccp_dcp_export(
+    block_json: *const c_char,
+    images_json: *const c_char,
+    lidar_paths: *const *const c_char,
+    n_lidar: usize,
+    out_dir: *const c_char,
+    opts: *const CcpDcpExportOptions,
+    out_dcp: *mut *mut CcpDcp,
+) -> CcpStatus {
+    guard(|| {
+        out_handle(out_dcp)?;
+        let block = non_empty_path(block_json, "block_json")?;
+        let images = non_empty_path(images_json, "images_json")?;
+        let out = non_empty_path(out_dir, "out_dir")?;
+        let lidar = input(lidar_paths, n_lidar, "lidar_paths", false)?
+            .iter()
+            .enumerate()
+            .map(|(i, &p)| non_empty_path(p, &format!("lidar_paths[{i}]")))
+            .collect::<FfiResult<Vec<_>>>()?;
+        let defaults = CcpDcpExportOptions::default();
+        let o = opts.as_ref().unwrap_or(&defaults);
+        let (opts, epoch, cell) = export_options(o, &out)?;
+        let b = OrientedBlock::load(&block, &images, &lidar, cell)?;
+        let package = b.export(epoch, &out, &opts)?;
+        hand_out(package, out_dcp);
+        Ok(())
+    })
+}
+
+/// Verifies the package `package` in full and copies it into the store folder
+/// `store_dir` (created when missing) as `store_dir/<package folder name>`, returning the
+/// stored copy opened in `*out_dcp`. A damaged package, or one whose CRS differs from
+/// the packages already in the store, is refused and nothing is written.
+#[no_mangle]
+pub unsafe extern "C" fn ccp_dcp_import(
+    package: *const c_char,
+    store_dir: *const c_char,
+    out_dcp: *mut *mut CcpDcp,
+) -> CcpStatus {
+    guard(|| {
+        out_handle(out_dcp)?;
+        let src = non_empty_path(package, "package")?;
+        let store = non_empty_path(store_dir, "store_dir")?;
+        let mut stored = DcpPackage::import(&[src], &store)?;
+        let p = stored
+            .pop()
+            .ok_or_else(|| FfiError::new(CcpStatus::Format, "import returned no package"))?;
+        hand_out(p, out_dcp);
+        Ok(())
+    })
+}
+
+/// The package folder of a handle as a NUL-terminated UTF-8 string in `*out_path`, owned
+/// by the library: release it with `ccp_string_free`.
+#[no_mangle]
+pub unsafe extern "C" fn ccp_dcp_path(dcp: *const CcpDcp, out_path: *mut *mut c_char) -> CcpStatus {
+    guard(|| {
+        if out_path.is_null() {
             return Err(FfiError::new(
                 CcpStatus::NullPointer,
-                "out_dcp is a null pointer",
+                "out_path is a null pointer",
             ));
         }
-        *out_dcp = std::ptr::null_mut();
-        let p = path_arg(path, "path")?;
-        let package = DcpPackage::open(std::path::Path::new(p)).map_err(|e| {
-            let status = match e {
-                crate::control::DcpError::Io { .. } => CcpStatus::Io,
-                _ => CcpStatus::Format,
-            };
-            FfiError::new(status, e.to_string())
-        })?;
-        let index = DcpIndex::new(std::slice::from_ref(&package));
-        *out_dcp = Box::into_raw(Box::new(CcpDcp { package, index }));
+        *out_path = std::ptr::null_mut();
+        let d = handle(dcp, "dcp")?;
+        let s = d
+            .package
+            .dir
+            .to_str()
+            .ok_or_else(|| FfiError::invalid("the package path is not UTF-8"))?;
+        let c =
+            CString::new(s).map_err(|_| FfiError::invalid("the package path holds a NUL byte"))?;
+        *out_path = c.into_raw();
         Ok(())
     })
 }

@@ -3,6 +3,8 @@ from __future__ import annotations
 
 import ctypes
 import os
+import pathlib
+from typing import Iterable
 
 import numpy as np
 
@@ -12,6 +14,17 @@ from .geometry import Camera, CcpPose, Pose
 
 class _CcpDcp(ctypes.Structure):
     pass
+
+
+class DcpExportOptions(ctypes.Structure):
+    """CcpDcpExportOptions; the keyword options of :meth:`DcpPackage.export`."""
+    _fields_ = [
+        ("name", ctypes.c_char_p), ("date", ctypes.c_char_p), ("source", ctypes.c_char_p),
+        ("chip_size", ctypes.c_uint32), ("interval_px", ctypes.c_double), ("interest_level", ctypes.c_uint32),
+        ("max_coplanarity", ctypes.c_double), ("min_photos", ctypes.c_uint32),
+        ("accuracy_plan_m", ctypes.c_double), ("accuracy_height_m", ctypes.c_double),
+        ("lidar_cell_m", ctypes.c_double),
+    ]
 
 
 _DcpP = ctypes.POINTER(_CcpDcp)
@@ -28,6 +41,17 @@ lib.ccp_dcp_points.argtypes = [_DcpP, _dp, _dp, _sz]
 lib.ccp_dcp_points.restype = ctypes.c_int
 lib.ccp_dcp_query_polygon.argtypes = [_DcpP, _dp, _sz, ctypes.POINTER(ctypes.c_uint64), _sz, ctypes.POINTER(_sz)]
 lib.ccp_dcp_query_polygon.restype = ctypes.c_int
+lib.ccp_dcp_export_options_default.argtypes = [ctypes.POINTER(DcpExportOptions)]
+lib.ccp_dcp_export_options_default.restype = ctypes.c_int
+lib.ccp_dcp_export.argtypes = [ctypes.c_char_p, ctypes.c_char_p, ctypes.POINTER(ctypes.c_char_p), _sz, ctypes.c_char_p,
+                               ctypes.POINTER(DcpExportOptions), ctypes.POINTER(_DcpP)]
+lib.ccp_dcp_export.restype = ctypes.c_int
+lib.ccp_dcp_import.argtypes = [ctypes.c_char_p, ctypes.c_char_p, ctypes.POINTER(_DcpP)]
+lib.ccp_dcp_import.restype = ctypes.c_int
+lib.ccp_dcp_path.argtypes = [_DcpP, ctypes.POINTER(ctypes.c_void_p)]
+lib.ccp_dcp_path.restype = ctypes.c_int
+lib.ccp_string_free.argtypes = [ctypes.c_void_p]
+lib.ccp_string_free.restype = None
 lib.ccp_predict.argtypes = [ctypes.c_void_p, ctypes.POINTER(CcpPose), _dp, _dp, _dp, _sz, _dp, _sz, _dp, _sz]
 lib.ccp_predict.restype = ctypes.c_int
 
@@ -39,6 +63,67 @@ class DcpPackage:
         h = _DcpP()
         check(lib.ccp_dcp_open(os.fsencode(path), ctypes.byref(h)))
         self._h = h
+
+    @classmethod
+    def _adopt(cls, h) -> "DcpPackage":
+        obj = cls.__new__(cls)
+        obj._h = h
+        return obj
+
+    @classmethod
+    def export(cls, block_json: str | os.PathLike, images_json: str | os.PathLike,
+               lidar: str | os.PathLike | Iterable[str | os.PathLike], out_dir: str | os.PathLike,
+               **options) -> "DcpPackage":
+        """Writes a package at ``out_dir`` from an oriented block and returns it opened.
+
+        ``block_json`` and ``images_json`` are the files the workflow writes per epoch (the
+        block; photo id → image path), ``lidar`` LAS/LAZ files or folders of them. Options
+        (library defaults when left out): ``name``, ``date``, ``source``, ``chip_size``,
+        ``interval_px``, ``interest_level``, ``max_coplanarity``, ``min_photos``,
+        ``accuracy_plan_m``, ``accuracy_height_m``, ``lidar_cell_m``.
+        """
+        opts = DcpExportOptions()
+        check(lib.ccp_dcp_export_options_default(ctypes.byref(opts)))
+        fields = dict(DcpExportOptions._fields_)
+        for key, value in options.items():
+            if key not in fields:
+                raise TypeError(f"unknown option {key!r}; expected one of {sorted(fields)}")
+            if fields[key] is ctypes.c_char_p:
+                value = None if value is None else str(value).encode()
+            elif fields[key] is ctypes.c_uint32:
+                # ctypes would wrap a negative value silently into a huge one.
+                if int(value) != value or not 0 <= value < 2**32:
+                    raise ValueError(f"{key} must be a non-negative integer, got {value!r}")
+                value = int(value)
+            else:
+                value = float(value)
+            setattr(opts, key, value)
+        paths = [lidar] if isinstance(lidar, (str, os.PathLike)) else list(lidar)
+        enc = [os.fsencode(p) for p in paths]
+        arr = (ctypes.c_char_p * max(len(enc), 1))(*enc)
+        h = _DcpP()
+        check(lib.ccp_dcp_export(os.fsencode(block_json), os.fsencode(images_json), arr, len(enc),
+                                 os.fsencode(out_dir), ctypes.byref(opts), ctypes.byref(h)))
+        return cls._adopt(h)
+
+    @classmethod
+    def import_(cls, package: str | os.PathLike, store: str | os.PathLike) -> "DcpPackage":
+        """Verifies ``package`` in full and copies it into the store folder as
+        ``store/<package folder name>``; returns the stored copy. A damaged package, or one
+        of another CRS than the store's packages, raises and leaves the store untouched."""
+        h = _DcpP()
+        check(lib.ccp_dcp_import(os.fsencode(package), os.fsencode(store), ctypes.byref(h)))
+        return cls._adopt(h)
+
+    @property
+    def path(self) -> pathlib.Path:
+        """The package folder."""
+        out = ctypes.c_void_p()
+        check(lib.ccp_dcp_path(self._h, ctypes.byref(out)))
+        try:
+            return pathlib.Path(ctypes.string_at(out.value).decode())
+        finally:
+            lib.ccp_string_free(out)
 
     def __del__(self):
         h = getattr(self, "_h", None)

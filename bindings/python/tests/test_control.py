@@ -1,4 +1,5 @@
 """DCP packages and patch prediction from Python."""
+import csv
 import json
 import pathlib
 import shutil
@@ -59,3 +60,129 @@ def test_prediction_covariance_matches_monte_carlo():
         samples.append(cam.project(p, pts[:1])[0])
     mc = np.cov(np.array(samples).T)
     np.testing.assert_allclose(np.sqrt(np.diag(mc)), np.sqrt(np.diag(pc[0])), rtol=0.1)
+
+
+# --- Export from an oriented block and import into a store (tiny synthetic block) -------
+
+@pytest.fixture(scope="module")
+def oriented(tmp_path_factory):
+    """The tiny block's reference epoch at its true orientation, written as the workflow
+    writes an oriented epoch: block.json (block-local poses, origin, CRS) and images.json."""
+    from cloudcontrol import synth
+
+    root = tmp_path_factory.mktemp("dcp")
+    block_dir = root / "block"
+    m = synth.generate(block_dir, preset="tiny", seed=2, pos="good")
+    epoch = next(e for e in m["epochs"] if e["name"] == "reference_2024")
+    origin = np.array(m["origin"])
+    camera = json.loads((block_dir / "truth/epochs/reference_2024/camera.json").read_text())
+    truth = {}
+    photos, images = {}, {}
+    with open(block_dir / "truth/epochs/reference_2024/eo.csv") as f:
+        for row in csv.DictReader(f):
+            pid = epoch["photos"].index(row["photo"]) + 1
+            r = np.array([float(row[f"r{i}{j}"]) for i in (1, 2, 3) for j in (1, 2, 3)]).reshape(3, 3)
+            c = np.array([float(row[k]) for k in "xyz"])
+            truth[pid] = (r, c)
+            # nalgebra stores a matrix column by column.
+            photos[str(pid)] = {"id": pid, "name": row["photo"], "camera": 1, "oriented": True,
+                                "pose": {"rotation": r.T.reshape(9).tolist(), "center": (c - origin).tolist()}}
+            images[str(pid)] = str(block_dir / epoch["images_dir"] / f"{row['photo']}.png")
+    block = {"crs": m["crs"], "origin": origin.tolist(), "points": {},
+             "cameras": {"1": {"id": 1, "name": "reference", "model": camera}}, "photos": photos}
+    (root / "block.json").write_text(json.dumps(block))
+    (root / "images.json").write_text(json.dumps(images))
+    return root, block_dir / "lidar", camera, truth
+
+
+def _project(camera, r, c, xyz):
+    """Collinearity with Brown distortion (OpenCV), independent of the library."""
+    x = r @ (np.asarray(xyz) - c)
+    u, v = x[0] / x[2], x[1] / x[2]
+    d = camera["distortion"]
+    r2 = u * u + v * v
+    radial = 1 + d["k1"] * r2 + d["k2"] * r2**2 + d["k3"] * r2**3
+    ud = u * radial + 2 * d["p1"] * u * v + d["p2"] * (r2 + 2 * u * u)
+    vd = v * radial + d["p1"] * (r2 + 2 * v * v) + 2 * d["p2"] * u * v
+    return np.array([camera["fx"] * ud + camera["cx"], camera["fy"] * vd + camera["cy"]])
+
+
+def _ground_height(ground, x, y, radius=1.5):
+    """Least-squares plane through the LiDAR ground returns within ``radius`` at (x, y)."""
+    near = ground[(ground[:, 0] - x) ** 2 + (ground[:, 1] - y) ** 2 <= radius**2]
+    assert len(near) >= 6
+    a = np.column_stack([np.ones(len(near)), near[:, 0] - x, near[:, 1] - y])
+    return np.linalg.lstsq(a, near[:, 2], rcond=None)[0][0]
+
+
+TINY = dict(interval_px=40, chip_size=129, interest_level=1, max_coplanarity=0.02)
+
+
+def test_export_writes_points_that_agree_with_the_truth(oriented, tmp_path):
+    laspy = pytest.importorskip("laspy")
+    root, lidar, camera, truth = oriented
+    out = tmp_path / "reference.dcp"
+    pkg = cc.DcpPackage.export(root / "block.json", root / "images.json", lidar, out,
+                               name="reference_2024", date="2024-05-29", **TINY)
+    assert pkg.path == out
+    manifest = json.loads((out / "manifest.json").read_text())
+    assert manifest["epoch"] == {"name": "reference_2024", "date": "2024-05-29"}
+    xyz, sig = pkg.points()
+    assert len(pkg) >= 15
+    np.testing.assert_array_equal(xyz, [p["xyz"] for p in manifest["points"]])
+    np.testing.assert_allclose(sig, 0.05)
+    ground = np.vstack([
+        (lambda las: np.column_stack([las.x, las.y, las.z])[np.asarray(las.classification) == 2])(laspy.read(t))
+        for t in sorted(lidar.glob("*.las"))
+    ])
+    worst_px, worst_dz = 0.0, 0.0
+    for p in manifest["points"]:
+        assert len(p["measurements"]) >= 2
+        for ms in p["measurements"]:
+            r, c = truth[ms["photo"]]
+            worst_px = max(worst_px, np.linalg.norm(_project(camera, r, c, p["xyz"]) - ms["pixel"]))
+        worst_dz = max(worst_dz, abs(p["xyz"][2] - _ground_height(ground, *p["xyz"][:2])))
+    print(f"{len(pkg)} points: max reprojection {worst_px:.2e} px, max |z - LiDAR ground| {worst_dz:.3f} m")
+    assert worst_px <= 0.5
+    assert worst_dz <= 0.2
+
+
+def test_export_refuses_bad_options_and_missing_inputs(oriented, tmp_path):
+    root, lidar, _, _ = oriented
+    args = (root / "block.json", root / "images.json", lidar, tmp_path / "x.dcp")
+    with pytest.raises(TypeError, match="chipsize"):
+        cc.DcpPackage.export(*args, chipsize=129)
+    with pytest.raises(ValueError, match="chip_size"):
+        cc.DcpPackage.export(*args, chip_size=-1)
+    with pytest.raises(cc.CloudControlError, match="chip_size 128") as e:
+        cc.DcpPackage.export(*args, chip_size=128)
+    assert e.value.status_name == "INVALID_ARGUMENT"
+    with pytest.raises(cc.CloudControlError, match="missing.json") as e:
+        cc.DcpPackage.export(root / "missing.json", *args[1:], **TINY)
+    assert e.value.status_name == "NOT_FOUND"
+    assert not (tmp_path / "x.dcp").exists()
+
+
+def test_import_copies_a_valid_package_and_refuses_an_edited_one(oriented, tmp_path):
+    root, lidar, _, _ = oriented
+    src = cc.DcpPackage.export(root / "block.json", root / "images.json", [lidar], tmp_path / "src" / "ref.dcp", **TINY)
+    store = tmp_path / "store"
+    stored = cc.DcpPackage.import_(src.path, store)
+    assert stored.path == store / "ref.dcp"
+    assert len(stored) == len(src)
+    for f in sorted(p.relative_to(src.path) for p in src.path.rglob("*") if p.is_file()):
+        assert (stored.path / f).read_bytes() == (src.path / f).read_bytes(), f
+    bad = tmp_path / "bad" / "edited.dcp"
+    shutil.copytree(src.path, bad)
+    manifest = json.loads((bad / "manifest.json").read_text())
+    chip = manifest["points"][0]["measurements"][0]["chip"]["file"]
+    data = bytearray((bad / chip).read_bytes())
+    data[-20] ^= 0xFF
+    (bad / chip).write_bytes(bytes(data))
+    for target in (store, tmp_path / "new_store"):
+        with pytest.raises(cc.CloudControlError, match="checksum mismatch") as e:
+            cc.DcpPackage.import_(bad, target)
+        assert e.value.status_name == "FORMAT"
+        assert chip in str(e.value) and "edited.dcp" in str(e.value)
+    assert sorted(p.name for p in store.iterdir()) == ["ref.dcp"]
+    assert not (tmp_path / "new_store").exists()

@@ -1,12 +1,71 @@
-//! `cloudcontrol dcp`: inspect, verify and merge Digital Control Photo packages.
+//! `cloudcontrol dcp`: generate, export, import, inspect and merge Digital Control Photo
+//! packages. The work is `control::archive` (selection, export) and `control::dcp`
+//! (verification, import, merge).
 
-use clap::Subcommand;
-use cloudcontrol::control::dcp::DcpPackage;
-use serde_json::json;
-use std::path::PathBuf;
+use clap::{Args, Subcommand};
+use cloudcontrol::control::archive::{
+    self, ControlPointSet, DcpExportOptions, OrientedBlock, LIDAR_CELL_M,
+};
+use cloudcontrol::control::cloud::CloudOptions;
+use cloudcontrol::control::dcp::{Accuracy, DcpPackage, EpochInfo};
+use cloudcontrol::formats::write_bytes_atomically;
+use serde_json::{json, Value};
+use std::path::{Path, PathBuf};
 
 #[derive(Subcommand)]
 pub enum DcpCommand {
+    /// List the cloud control points of an oriented block, without cutting chips.
+    ///
+    /// Picks Förstner-textured points on planar, stable LiDAR ground, one per interval
+    /// cell of each photo, and writes them as JSON: world coordinates, σ, quality, and
+    /// the pixel in every photo that sees them. These are exactly the points `dcp export`
+    /// writes with the same options. The block is the one the workflow writes per epoch
+    /// (block.json and images.json).
+    ///
+    /// Example:
+    ///   cloudcontrol dcp generate --block run/epoch-reference/block.json --images run/epoch-reference/images.json --lidar tiles/ --interval-px 250 --out points.json
+    Generate {
+        #[command(flatten)]
+        select: SelectArgs,
+        /// Write the points here (JSON) instead of printing them.
+        #[arg(long)]
+        out: Option<PathBuf>,
+    },
+    /// Write a DCP package from an oriented block: its cloud control points with chips.
+    ///
+    /// Example:
+    ///   cloudcontrol dcp export --block run/epoch-reference/block.json --images run/epoch-reference/images.json --lidar tiles/ --out reference.dcp --name reference_2024 --date 2024-05-29
+    Export {
+        #[command(flatten)]
+        select: SelectArgs,
+        /// Package folder to write (replaced atomically when it exists).
+        #[arg(long)]
+        out: PathBuf,
+        /// Epoch name (default: the package folder's name without extension).
+        #[arg(long)]
+        name: Option<String>,
+        /// Acquisition date of the photos (ISO 8601).
+        #[arg(long)]
+        date: Option<String>,
+        /// How the control was derived, recorded in the manifest.
+        #[arg(long)]
+        source: Option<String>,
+    },
+    /// Verify packages and copy them into a store folder (STORE/<package folder name>).
+    ///
+    /// Every package is verified in full first (manifest, version, CRS, every chip's
+    /// checksum) and must have the CRS of the packages already in the store; a refused
+    /// package leaves the store untouched.
+    ///
+    /// Example:
+    ///   cloudcontrol dcp import reference.dcp digital_2012.dcp --into dcp_store
+    Import {
+        #[arg(required = true)]
+        packages: Vec<PathBuf>,
+        /// The store folder (created when missing).
+        #[arg(long)]
+        into: PathBuf,
+    },
     /// Verify a package (manifest, CRS, every chip's checksum) and summarise it.
     ///
     /// Example: cloudcontrol dcp info out/reference.dcp
@@ -21,27 +80,178 @@ pub enum DcpCommand {
     },
 }
 
+/// The oriented block, its LiDAR and the selection of control points.
+#[derive(Args)]
+pub struct SelectArgs {
+    /// block.json of an oriented epoch (as `cloudcontrol run` writes it).
+    #[arg(long)]
+    block: PathBuf,
+    /// images.json of the epoch: photo id → image path (a relative path is taken from the
+    /// working directory, else from the folder of images.json).
+    #[arg(long)]
+    images: PathBuf,
+    /// LAS/LAZ tiles or folders of them (classified: ground is class 2).
+    #[arg(long, required = true, num_args = 1..)]
+    lidar: Vec<PathBuf>,
+    /// Spacing of control points in each photo (px, ≤ 1000).
+    #[arg(long, default_value_t = CloudOptions::default().interval_px)]
+    interval_px: f64,
+    /// Pyramid level the interest operator runs on (2 = 4× coarser than the photos).
+    #[arg(long, default_value_t = DcpExportOptions::default().interest_level)]
+    interest_level: usize,
+    /// Chip side (px, odd); points keep half a chip away from the photo borders.
+    #[arg(long, default_value_t = DcpExportOptions::default().chip_size)]
+    chip_size: u32,
+    /// Largest coplanarity (λmin/Σλ) of the LiDAR ground under a point.
+    #[arg(long, default_value_t = CloudOptions::default().max_coplanarity)]
+    max_coplanarity: f64,
+    /// 1σ plan accuracy of the points' object coordinates (m).
+    #[arg(long, default_value_t = DcpExportOptions::default().accuracy.plan_m)]
+    accuracy_plan_m: f64,
+    /// 1σ height accuracy of the points' object coordinates (m).
+    #[arg(long, default_value_t = DcpExportOptions::default().accuracy.height_m)]
+    accuracy_height_m: f64,
+    /// Grid cell of the LiDAR ground model (m).
+    #[arg(long, default_value_t = LIDAR_CELL_M)]
+    lidar_cell_m: f64,
+}
+
+impl SelectArgs {
+    fn options(&self) -> DcpExportOptions {
+        let d = DcpExportOptions::default();
+        DcpExportOptions {
+            cloud: CloudOptions {
+                interval_px: self.interval_px,
+                max_coplanarity: self.max_coplanarity,
+                ..d.cloud.clone()
+            },
+            chip_size: self.chip_size,
+            accuracy: Accuracy {
+                plan_m: self.accuracy_plan_m,
+                height_m: self.accuracy_height_m,
+            },
+            interest_level: self.interest_level,
+            ..d
+        }
+    }
+
+    fn load(&self) -> Result<(OrientedBlock, DcpExportOptions), String> {
+        let opts = self.options();
+        // Bad options are reported before the LiDAR is read.
+        opts.validate()?;
+        let b = OrientedBlock::load(&self.block, &self.images, &self.lidar, self.lidar_cell_m)
+            .map_err(|e| e.to_string())?;
+        Ok((b, opts))
+    }
+}
+
+fn summary(package: &Path, p: &DcpPackage) -> Value {
+    let m = &p.manifest;
+    json!({
+        "package": package,
+        "version": m.version,
+        "crs": m.crs,
+        "epoch": m.epoch,
+        "gsd_m": m.gsd_m,
+        "accuracy": m.accuracy,
+        "photos": m.photos.len(),
+        "points": m.points.len(),
+        "measurements": m.points.iter().map(|p| p.measurements.len()).sum::<usize>(),
+        "files_verified": m.files.len(),
+    })
+}
+
+fn print_json(v: &Value) {
+    println!("{}", serde_json::to_string_pretty(v).expect("json"));
+}
+
+fn points_summary(set: &ControlPointSet) -> (usize, usize) {
+    let photos: std::collections::BTreeSet<u32> = set
+        .points
+        .iter()
+        .flat_map(|p| p.measurements.iter().map(|m| m.photo))
+        .collect();
+    (set.points.len(), photos.len())
+}
+
 pub fn run(cmd: DcpCommand, json_out: bool) -> Result<(), String> {
     match cmd {
+        DcpCommand::Generate { select, out } => {
+            let (b, opts) = select.load()?;
+            let set = b.select(&opts).map_err(|e| e.to_string())?;
+            let text = serde_json::to_string_pretty(&set).map_err(|e| e.to_string())?;
+            let Some(out) = out else {
+                println!("{text}");
+                return Ok(());
+            };
+            write_bytes_atomically(&out, text.as_bytes()).map_err(|e| e.to_string())?;
+            let (points, photos) = points_summary(&set);
+            if json_out {
+                print_json(
+                    &json!({"out": out, "crs": set.crs, "points": points, "photos": photos}),
+                );
+            } else {
+                println!(
+                    "{}: {points} control points in {photos} photos",
+                    out.display()
+                );
+            }
+            Ok(())
+        }
+        DcpCommand::Export {
+            select,
+            out,
+            name,
+            date,
+            source,
+        } => {
+            let (b, mut opts) = select.load()?;
+            if let Some(s) = source {
+                opts.source = s;
+            }
+            let epoch = EpochInfo {
+                name: name.unwrap_or_else(|| archive::package_epoch_name(&out)),
+                date,
+            };
+            let p = b.export(epoch, &out, &opts).map_err(|e| e.to_string())?;
+            let s = summary(&out, &p);
+            if json_out {
+                print_json(&s);
+            } else {
+                println!(
+                    "{}: {} control points, {} photos, {} chips",
+                    out.display(),
+                    s["points"],
+                    s["photos"],
+                    s["measurements"]
+                );
+            }
+            Ok(())
+        }
+        DcpCommand::Import { packages, into } => {
+            let imported = DcpPackage::import(&packages, &into).map_err(|e| e.to_string())?;
+            if json_out {
+                let v: Vec<Value> = imported.iter().map(|p| summary(&p.dir, p)).collect();
+                print_json(&Value::from(v));
+            } else {
+                for (src, p) in packages.iter().zip(&imported) {
+                    println!(
+                        "{} → {}: {} control points, verified",
+                        src.display(),
+                        p.dir.display(),
+                        p.manifest.points.len()
+                    );
+                }
+            }
+            Ok(())
+        }
         DcpCommand::Info { package } => {
             let p = DcpPackage::open(&package).map_err(|e| e.to_string())?;
             let m = &p.manifest;
-            let measurements: usize = m.points.iter().map(|p| p.measurements.len()).sum();
-            let summary = json!({
-                "package": package,
-                "version": m.version,
-                "crs": m.crs,
-                "epoch": m.epoch,
-                "gsd_m": m.gsd_m,
-                "accuracy": m.accuracy,
-                "photos": m.photos.len(),
-                "points": m.points.len(),
-                "measurements": measurements,
-                "files_verified": m.files.len(),
-            });
             if json_out {
-                println!("{}", serde_json::to_string_pretty(&summary).expect("json"));
+                print_json(&summary(&package, &p));
             } else {
+                let measurements: usize = m.points.iter().map(|p| p.measurements.len()).sum();
                 println!("{}: verified ({} files)", package.display(), m.files.len());
                 println!(
                     "  epoch {} ({}), CRS {}, GSD {} m",

@@ -61,7 +61,8 @@ enum Command {
     ///
     /// Exit codes: 0 done, 2 project file invalid (nothing was run), 1 a stage failed.
     Run(run::RunArgs),
-    /// Digital Control Photo packages: verify, summarise, merge.
+    /// Digital Control Photo packages: generate from an oriented block, export, import into
+    /// a store, verify, summarise, merge.
     ///
     /// Example: cloudcontrol dcp info run/dcp-reference_2024/package
     #[command(subcommand)]
