@@ -2,7 +2,9 @@
 //! block, import into a store, query. Strings returned are freed with `ccp_string_free`.
 
 use super::camera::{CcpCamera, CcpPose};
-use super::{finite, finite_rows, guard, handle, input, output, CcpStatus, FfiError, FfiResult};
+use super::{
+    finite, finite_rows, guard, handle, input, opt_str, output, CcpStatus, FfiError, FfiResult,
+};
 use crate::control::archive::{self, ArchiveError, DcpExportOptions, OrientedBlock};
 use crate::control::cloud::CloudOptions;
 use crate::control::dcp::{Accuracy, DcpError, DcpIndex, DcpPackage, EpochInfo};
@@ -88,16 +90,6 @@ fn non_empty_path(p: *const c_char, name: &str) -> FfiResult<PathBuf> {
         return Err(FfiError::invalid(format!("{name} is empty")));
     }
     Ok(PathBuf::from(s))
-}
-
-unsafe fn opt_text(p: *const c_char, name: &str) -> FfiResult<Option<String>> {
-    if p.is_null() {
-        return Ok(None);
-    }
-    let s = CStr::from_ptr(p)
-        .to_str()
-        .map_err(|_| FfiError::invalid(format!("{name} is not UTF-8")))?;
-    Ok((!s.is_empty()).then(|| s.to_string()))
 }
 
 /// Opens and verifies a DCP package folder (manifest, CRS, every chip's checksum).
@@ -198,14 +190,14 @@ unsafe fn export_options(
             plan_m: o.accuracy_plan_m,
             height_m: o.accuracy_height_m,
         },
-        source: opt_text(o.source, "opts.source")?.unwrap_or(d.source),
+        source: opt_str(o.source, "opts.source")?.unwrap_or(d.source),
         interest_level: o.interest_level as usize,
     };
     opts.validate()
         .map_err(|m| FfiError::invalid(format!("opts: {m}")))?;
     let epoch = EpochInfo {
-        name: opt_text(o.name, "opts.name")?.unwrap_or_else(|| archive::package_epoch_name(out)),
-        date: opt_text(o.date, "opts.date")?,
+        name: opt_str(o.name, "opts.name")?.unwrap_or_else(|| archive::package_epoch_name(out)),
+        date: opt_str(o.date, "opts.date")?,
     };
     Ok((opts, epoch, o.lidar_cell_m))
 }

@@ -1,7 +1,7 @@
 //! LiDAR through the C ABI: the source catalogue as a JSON string and the evaluation of
 //! checkpoints. Strings returned by the library are freed with `ccp_string_free`.
 
-use super::{finite, guard, input, output, CcpStatus, FfiError, FfiResult};
+use super::{finite, guard, input, opt_str, output, CcpStatus, FfiError, FfiResult};
 use crate::lidar::eval::evaluate_checkpoints_store;
 use crate::lidar::{Catalogue, CheckpointOptions, LidarError, ScanOptions, TileStore};
 use std::ffi::{c_char, CStr, CString};
@@ -59,16 +59,6 @@ unsafe fn paths(ptr: *const *const c_char, n: usize) -> FfiResult<Vec<PathBuf>> 
             Ok(PathBuf::from(s))
         })
         .collect()
-}
-
-unsafe fn opt_str(p: *const c_char, name: &str) -> FfiResult<Option<String>> {
-    if p.is_null() {
-        return Ok(None);
-    }
-    let s = CStr::from_ptr(p)
-        .to_str()
-        .map_err(|_| FfiError::invalid(format!("{name} is not UTF-8")))?;
-    Ok((!s.is_empty()).then(|| s.to_string()))
 }
 
 /// Scans LAS/LAZ files or folders (or loads one catalogue .json) into the source catalogue

@@ -249,3 +249,15 @@ pub unsafe extern "C" fn ccp_last_error(buf: *mut c_char, buf_len: usize) -> usi
     })
     .unwrap_or(0)
 }
+
+/// An optional C string argument: NULL or empty is `None`; invalid UTF-8 is an error
+/// naming the argument.
+pub(crate) unsafe fn opt_str(p: *const std::ffi::c_char, name: &str) -> FfiResult<Option<String>> {
+    if p.is_null() {
+        return Ok(None);
+    }
+    let s = std::ffi::CStr::from_ptr(p)
+        .to_str()
+        .map_err(|_| FfiError::invalid(format!("{name} is not UTF-8")))?;
+    Ok((!s.is_empty()).then(|| s.to_string()))
+}
