@@ -108,6 +108,13 @@ fn demo_runs_the_workflow_and_a_killed_run_resumes_identically() {
         "pixel {pixel}"
     );
     assert!(run.join("outputs-reference_2024/colmap").is_dir());
+    // The LiDAR of the demo covers just the block: every tile lies under the photos.
+    let sel: Value =
+        serde_json::from_slice(&std::fs::read(run.join("sources/selection.json")).unwrap())
+            .unwrap();
+    let total = sel["tiles_total"].as_u64().unwrap() as usize;
+    assert!(total > 0);
+    assert_eq!(sel["selected"].as_array().unwrap().len(), total);
     assert!(run.join("report/report.html").is_file());
 
     // A second run of the same project skips every stage.

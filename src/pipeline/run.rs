@@ -284,6 +284,67 @@ fn dem_to_world(dem: &Dem, origin: [f64; 3]) -> Result<Dem, String> {
     Dem::new(dem.width, dem.height, tr, data).map_err(|e| e.to_string())
 }
 
+/// `sources/selection.json`: the LiDAR tiles the block needs.
+#[derive(Debug, Clone, Serialize, Deserialize, PartialEq)]
+pub struct TileSelection {
+    /// World plan extent [x_min, y_min, x_max, y_max] the photos can see.
+    pub footprint: [f64; 4],
+    pub tiles_total: usize,
+    /// Indices into the catalogue of the tiles intersecting the footprint.
+    pub selected: Vec<usize>,
+}
+
+/// Plan extent every photo of every epoch can see, from the navigation: the projection
+/// centres' extent widened by each centre's height above the lowest LiDAR point times
+/// `half_view` (tangent of the widest half field of view met in aerial cameras: 230 mm
+/// film at 88 mm focal length reaches about 1.85 on the diagonal).
+pub fn footprint(centres: &[[f64; 3]], ground_z: f64, half_view: f64) -> Option<[f64; 4]> {
+    let mut fp = [
+        f64::INFINITY,
+        f64::INFINITY,
+        f64::NEG_INFINITY,
+        f64::NEG_INFINITY,
+    ];
+    for c in centres.iter().filter(|c| c.iter().all(|v| v.is_finite())) {
+        let r = (c[2] - ground_z).abs() * half_view;
+        fp = [
+            fp[0].min(c[0] - r),
+            fp[1].min(c[1] - r),
+            fp[2].max(c[0] + r),
+            fp[3].max(c[1] + r),
+        ];
+    }
+    (fp[0] <= fp[2]).then_some(fp)
+}
+
+fn select_tiles(project: &Project, cat: &Catalogue) -> Result<([f64; 4], TileSelection), String> {
+    let mut centres = Vec::new();
+    for e in std::iter::once(&project.reference).chain(project.archive.iter()) {
+        let input = epoch_input(e, &project.crs, [0.0; 3])?;
+        match &input.navigation {
+            Navigation::Pos(r) => centres.extend(r.iter().map(|r| r.center)),
+            Navigation::Strips(s) => centres.extend(s.iter().flat_map(|s| [s.first, s.last])),
+        }
+    }
+    let fp = footprint(&centres, cat.bounds[2], 1.85)
+        .ok_or_else(|| "no projection centre in any POS or strip file".to_string())?;
+    let selected = cat.tiles_in(&lidar::Bbox::new(fp[0], fp[1], fp[2], fp[3]));
+    if selected.is_empty() {
+        return Err(format!(
+            "no LiDAR tile lies under the photos (footprint {fp:?}, LiDAR bounds {:?}): wrong CRS or wrong tiles?",
+            cat.bounds
+        ));
+    }
+    Ok((
+        fp,
+        TileSelection {
+            footprint: fp,
+            tiles_total: cat.tiles.len(),
+            selected,
+        },
+    ))
+}
+
 /// Checkpoint measurements and surveyed coordinates, when the project has both.
 struct Checkpoints {
     surveyed: Vec<archive::SurveyedPoint>,
@@ -509,6 +570,12 @@ pub fn run_project(
     if let Some(c) = &project.control.checkpoints {
         src_inputs = src_inputs.file(c);
     }
+    // The navigation decides which tiles the block needs.
+    for e in std::iter::once(&project.reference).chain(project.archive.iter()) {
+        for f in [&e.pos, &e.strips].into_iter().flatten() {
+            src_inputs = src_inputs.file(f);
+        }
+    }
     let sources = stage!("sources".to_string(), src_inputs, |dir: &Path| {
         let e = err("LiDAR sources");
         let cat = Catalogue::scan(&project.control.lidar, &ScanOptions::default())
@@ -524,6 +591,24 @@ pub fn run_project(
         }
         cat.save(&dir.join("catalogue.json"))
             .map_err(|x| e(x.to_string()))?;
+        // Only the tiles under the photos are cleaned and used: the rest of a national
+        // dataset never enters memory.
+        let (footprint, selection) = select_tiles(project, &cat)?;
+        write_json(&dir.join("selection.json"), &selection)?;
+        let cat = Catalogue {
+            tiles: selection
+                .selected
+                .iter()
+                .map(|&i| cat.tiles[i].clone())
+                .collect(),
+            ..cat
+        };
+        tracing::info!(
+            selected = cat.tiles.len(),
+            of = selection.tiles_total,
+            ?footprint,
+            "LiDAR tiles under the photos"
+        );
         let lidar_dir = dir.join("lidar");
         std::fs::create_dir_all(&lidar_dir).map_err(|x| e(x.to_string()))?;
         let clean =
@@ -879,4 +964,19 @@ fn write_products(
 /// A small PNG of an orthophoto for the report's map, and its world extent.
 fn preview_png(path: &Path) -> Result<(Vec<u8>, [f64; 4]), String> {
     formats::ortho::preview(path, 800).map_err(|e| e.to_string())
+}
+
+#[cfg(test)]
+mod tests {
+    use super::footprint;
+
+    #[test]
+    fn footprint_widens_the_centres_by_what_the_camera_sees() {
+        // Two centres 1000 m above ground at z = 100: each sees 1.85 × 1000 m around it.
+        let fp = footprint(&[[0.0, 0.0, 1100.0], [500.0, 200.0, 1100.0]], 100.0, 1.85).unwrap();
+        assert_eq!(fp, [-1850.0, -1850.0, 2350.0, 2050.0]);
+        // Non-finite centres are ignored; none at all gives no footprint.
+        assert_eq!(footprint(&[[f64::NAN, 0.0, 10.0]], 0.0, 1.0), None);
+        assert_eq!(footprint(&[], 0.0, 1.0), None);
+    }
 }
