@@ -19,13 +19,7 @@ struct Setup {
 }
 
 fn lidar_tiles(dir: &Path) -> Vec<PathBuf> {
-    let mut v: Vec<PathBuf> = std::fs::read_dir(dir.join("lidar"))
-        .unwrap()
-        .map(|e| e.unwrap().path())
-        .filter(|p| p.extension().is_some_and(|e| e == "las" || e == "laz"))
-        .collect();
-    v.sort();
-    v
+    cloudcontrol::lidar::catalogue::expand_inputs(&[dir.join("lidar")]).unwrap()
 }
 
 fn export_opts(preset: Preset) -> DcpExportOptions {

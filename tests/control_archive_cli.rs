@@ -28,11 +28,7 @@ fn prepare(root: &Path) -> (PathBuf, PathBuf, PathBuf) {
         &dir,
     )
     .unwrap();
-    let mut tiles: Vec<PathBuf> = std::fs::read_dir(dir.join("lidar"))
-        .unwrap()
-        .map(|e| e.unwrap().path())
-        .collect();
-    tiles.sort();
+    let tiles = cloudcontrol::lidar::catalogue::expand_inputs(&[dir.join("lidar")]).unwrap();
     let surface = archive::lidar_surfaces(&tiles, synth::ORIGIN, 1.0).unwrap();
     // The DEM as a user has it: world coordinates in a GeoTIFF.
     let o = synth::ORIGIN;

@@ -10,13 +10,7 @@ use cloudcontrol::synth::{self, PosQuality, Preset, SynthConfig};
 use std::path::{Path, PathBuf};
 
 fn lidar_tiles(dir: &Path) -> Vec<PathBuf> {
-    let mut v: Vec<PathBuf> = std::fs::read_dir(dir.join("lidar"))
-        .unwrap()
-        .map(|e| e.unwrap().path())
-        .filter(|p| p.extension().is_some_and(|e| e == "las" || e == "laz"))
-        .collect();
-    v.sort();
-    v
+    cloudcontrol::lidar::catalogue::expand_inputs(&[dir.join("lidar")]).unwrap()
 }
 
 #[test]

@@ -77,6 +77,38 @@ pub struct PhotoInput {
     pub image: PathBuf,
 }
 
+impl PhotoInput {
+    /// Every image file (PNG, TIFF, JPEG) of a folder, sorted by name; the photo name is
+    /// the file stem. An empty folder is an error naming it.
+    pub fn from_folder(dir: &Path) -> Result<Vec<Self>, ArchiveError> {
+        let mut v: Vec<Self> = std::fs::read_dir(dir)
+            .map_err(|e| input_err(dir, e.to_string()))?
+            .filter_map(|d| d.ok().map(|d| d.path()))
+            .filter(|p| {
+                p.extension().and_then(|x| x.to_str()).is_some_and(|x| {
+                    matches!(
+                        x.to_ascii_lowercase().as_str(),
+                        "png" | "tif" | "tiff" | "jpg" | "jpeg"
+                    )
+                })
+            })
+            .map(|p| Self {
+                name: p
+                    .file_stem()
+                    .unwrap_or_default()
+                    .to_string_lossy()
+                    .into_owned(),
+                image: p,
+            })
+            .collect();
+        v.sort_by(|a, b| a.name.cmp(&b.name));
+        if v.is_empty() {
+            return Err(input_err(dir, "no photo (PNG, TIFF or JPEG) in the folder"));
+        }
+        Ok(v)
+    }
+}
+
 /// Approximate exterior orientation: a POS (world coordinates, angles with σ), or strips
 /// given by their end points only (world coordinates).
 #[derive(Debug, Clone, PartialEq)]

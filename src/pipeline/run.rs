@@ -29,7 +29,7 @@ use crate::control::reference::{self, ReferenceOptions};
 use crate::formats::crs::Crs;
 use crate::formats::pos::FlightAxis;
 use crate::formats::{self, write_bytes_atomically};
-use crate::geometry::{Camera, Dem, GeoTransform};
+use crate::geometry::Camera;
 use crate::lidar::{self, Catalogue, PlaneIndex, PlaneOptions, ScanOptions, TileStore};
 use crate::matching::CameraDefinition;
 use serde::{Deserialize, Serialize};
@@ -125,49 +125,6 @@ fn read_json<T: for<'de> Deserialize<'de>>(path: &Path) -> Result<T, String> {
     serde_json::from_slice(&bytes).map_err(|e| format!("{}: {e}", path.display()))
 }
 
-fn lidar_files(dir: &Path) -> Result<Vec<PathBuf>, String> {
-    let mut v: Vec<PathBuf> = std::fs::read_dir(dir)
-        .map_err(|e| format!("{}: {e}", dir.display()))?
-        .filter_map(|e| e.ok().map(|e| e.path()))
-        .filter(|p| {
-            p.extension()
-                .and_then(|e| e.to_str())
-                .is_some_and(|e| e.eq_ignore_ascii_case("las") || e.eq_ignore_ascii_case("laz"))
-        })
-        .collect();
-    v.sort();
-    Ok(v)
-}
-
-/// Photos of an epoch: every image file of its folder, by name (the photo name is the
-/// file stem).
-fn epoch_photos(e: &Epoch) -> Result<Vec<PhotoInput>, String> {
-    let mut v: Vec<PhotoInput> = std::fs::read_dir(&e.photos)
-        .map_err(|err| format!("{}: {err}", e.photos.display()))?
-        .filter_map(|d| d.ok().map(|d| d.path()))
-        .filter(|p| {
-            p.extension().and_then(|x| x.to_str()).is_some_and(|x| {
-                ["png", "tif", "tiff", "jpg", "jpeg"].contains(&x.to_ascii_lowercase().as_str())
-            })
-        })
-        .map(|p| PhotoInput {
-            name: p
-                .file_stem()
-                .map(|s| s.to_string_lossy().into_owned())
-                .unwrap_or_default(),
-            image: p,
-        })
-        .collect();
-    v.sort_by(|a, b| a.name.cmp(&b.name));
-    if v.is_empty() {
-        return Err(format!(
-            "{}: no photo (PNG, TIFF or JPEG) in the folder",
-            e.photos.display()
-        ));
-    }
-    Ok(v)
-}
-
 fn first_line(path: &Path) -> Result<String, String> {
     let text = std::fs::read_to_string(path).map_err(|e| format!("{}: {e}", path.display()))?;
     Ok(text
@@ -181,7 +138,7 @@ fn first_line(path: &Path) -> Result<String, String> {
 /// camera certificate with fiducials), and its POS or strip end points in either
 /// documented layout (formats/pos/, or the synthetic block's).
 pub fn epoch_input(e: &Epoch, crs: &str, origin: [f64; 3]) -> Result<EpochInput, String> {
-    let photos = epoch_photos(e)?;
+    let photos = PhotoInput::from_folder(&e.photos).map_err(|x| x.to_string())?;
     let cam_text = std::fs::read_to_string(&e.camera)
         .map_err(|err| format!("{}: {err}", e.camera.display()))?;
     let cam_json: serde_json::Value = serde_json::from_str(&cam_text)
@@ -250,7 +207,8 @@ impl LidarControl {
         if let Some(s) = self.surface.get() {
             return Ok(s);
         }
-        let tiles = lidar_files(&self.tiles_dir)?;
+        let tiles = lidar::catalogue::expand_inputs(std::slice::from_ref(&self.tiles_dir))
+            .map_err(|e| e.to_string())?;
         let s =
             archive::lidar_surfaces(&tiles, self.origin, DEM_CELL_M).map_err(|e| e.to_string())?;
         Ok(self.surface.get_or_init(|| s))
@@ -260,7 +218,8 @@ impl LidarControl {
         if let Some(p) = self.planes.get() {
             return Ok(p);
         }
-        let tiles = lidar_files(&self.tiles_dir)?;
+        let tiles = lidar::catalogue::expand_inputs(std::slice::from_ref(&self.tiles_dir))
+            .map_err(|e| e.to_string())?;
         let p = reference::lidar_plane_index(
             &tiles,
             self.origin,
@@ -270,18 +229,6 @@ impl LidarControl {
         .map_err(|e| e.to_string())?;
         Ok(self.planes.get_or_init(|| p))
     }
-}
-
-/// A block-local DEM back in world coordinates (for GeoTIFF output and orthophotos).
-fn dem_to_world(dem: &Dem, origin: [f64; 3]) -> Result<Dem, String> {
-    let t = dem.transform.0;
-    let tr = GeoTransform([t[0] + origin[0], t[1], t[2], t[3] + origin[1], t[4], t[5]]);
-    let data = dem
-        .data
-        .iter()
-        .map(|v| (*v as f64 + origin[2]) as f32)
-        .collect();
-    Dem::new(dem.width, dem.height, tr, data).map_err(|e| e.to_string())
 }
 
 /// `sources/selection.json`: the LiDAR tiles the block needs.
@@ -919,7 +866,9 @@ fn write_products(
     write_json(&dir.join("skipped.json"), &skipped)?;
     if o.orthophoto || o.dem {
         let crs = Crs::parse(&project.crs).map_err(|e| e.to_string())?;
-        let dem = dem_to_world(&lidar.surface()?.ground, lidar.origin)?;
+        // Back to world coordinates: shifting by the negated origin.
+        let w = lidar.origin;
+        let dem = archive::dem_to_local(&lidar.surface()?.ground, [-w[0], -w[1], -w[2]])?;
         if o.dem {
             formats::raster::write_dem(
                 &dir.join("dem.tif"),

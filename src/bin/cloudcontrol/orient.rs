@@ -85,33 +85,7 @@ fn explicit_input(a: &OrientArgs, dem_crs: Option<String>) -> Result<EpochInput,
         Ok(Camera::Frame(f)) => EpochCamera::Frame(f),
         _ => EpochCamera::Film(CameraDefinition::load(cam_path).map_err(|e| e.to_string())?),
     };
-    let mut photos: Vec<PhotoInput> = std::fs::read_dir(images)
-        .map_err(|e| format!("{}: {e}", images.display()))?
-        .filter_map(|e| e.ok().map(|e| e.path()))
-        .filter(|p| {
-            p.extension().and_then(|e| e.to_str()).is_some_and(|e| {
-                matches!(
-                    e.to_ascii_lowercase().as_str(),
-                    "png" | "tif" | "tiff" | "jpg" | "jpeg"
-                )
-            })
-        })
-        .map(|p| PhotoInput {
-            name: p
-                .file_stem()
-                .unwrap_or_default()
-                .to_string_lossy()
-                .into_owned(),
-            image: p,
-        })
-        .collect();
-    photos.sort_by(|x, y| x.name.cmp(&y.name));
-    if photos.is_empty() {
-        return Err(format!(
-            "{}: no photo (PNG/TIFF/JPEG) found",
-            images.display()
-        ));
-    }
+    let photos = PhotoInput::from_folder(images).map_err(|e| e.to_string())?;
     let navigation = match (&a.pos, &a.strips) {
         (Some(p), _) => Navigation::Pos(formats::pos::read_pos(p).map_err(|e| e.to_string())?),
         (None, Some(s)) => Navigation::Strips(
