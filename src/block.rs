@@ -24,7 +24,8 @@ pub struct BlockCamera {
     pub free_params: Vec<String>,
 }
 
-/// Prior on a photo's exterior orientation from POS (GNSS/IMU) or an approximate source.
+/// Prior on a photo's exterior orientation from POS (GNSS/IMU) or an approximate source
+/// (strip interpolation): the approximate orientation with its covariance.
 #[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
 pub struct PosPrior {
     /// Measured projection centre (block-local).
@@ -37,22 +38,133 @@ pub struct PosPrior {
     pub rotation_sigma_rad: f64,
 }
 
+impl PosPrior {
+    /// The prior as an approximate pose (the identity attitude when the POS has no IMU).
+    pub fn pose(&self) -> Pose {
+        Pose::new(
+            self.rotation.unwrap_or_else(nalgebra::Matrix3::identity),
+            self.center,
+        )
+    }
+
+    /// 6×6 covariance in the local parameterisation of [`Pose::perturbed`] (rotation
+    /// vector, then centre).
+    pub fn covariance(&self) -> nalgebra::SMatrix<f64, 6, 6> {
+        let mut c = nalgebra::SMatrix::<f64, 6, 6>::zeros();
+        for i in 0..3 {
+            c[(i, i)] = self.rotation_sigma_rad.powi(2);
+            c[(i + 3, i + 3)] = self.center_sigma[i].powi(2);
+        }
+        c
+    }
+}
+
+/// Why a photo could not be oriented: what the report shows and the C ABI returns.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize, thiserror::Error)]
+#[serde(tag = "kind", rename_all = "snake_case")]
+pub enum PhotoFailure {
+    #[error("no approximate orientation (the photo is not in the POS or strip file)")]
+    NoNavigation,
+    #[error("image {path}: {message}")]
+    Image { path: String, message: String },
+    #[error("image {path} is {width}×{height} px, the camera {camera_width}×{camera_height}")]
+    ImageSize {
+        path: String,
+        width: usize,
+        height: usize,
+        camera_width: u32,
+        camera_height: u32,
+    },
+    #[error("fiducial interior orientation failed: {message}")]
+    InteriorOrientation { message: String },
+    #[error("footprint on the DEM: {message}")]
+    Footprint { message: String },
+    #[error("no control point predicted inside the photo ({in_footprint} in the footprint)")]
+    NoControlInView { in_footprint: usize },
+    #[error(
+        "{matched} of {predicted} control patches matched; a resection with at least \
+         {needed} inliers was not possible"
+    )]
+    TooFewMatches {
+        matched: usize,
+        predicted: usize,
+        needed: usize,
+    },
+    #[error("{kept} tie observations kept, fewer than {needed}")]
+    TooFewTieObservations { kept: usize, needed: usize },
+    #[error("control chip unusable: {message}")]
+    Chip { message: String },
+    #[error("{first}; with the epoch's own oriented photos as control: {second}")]
+    SecondPass {
+        first: Box<PhotoFailure>,
+        second: Box<PhotoFailure>,
+    },
+}
+
+/// Where a photo stands.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize, Default)]
+#[serde(rename_all = "snake_case")]
+pub enum PhotoStatus {
+    /// The pose is approximate (navigation) or not known yet.
+    #[default]
+    Approximate,
+    /// The pose is a resected or adjusted orientation.
+    Oriented,
+    /// Orientation was tried and failed.
+    Failed(PhotoFailure),
+}
+
 /// A photo with its exterior orientation.
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 pub struct Photo {
     pub id: PhotoId,
-    /// Image file name, relative to the block's image folder.
+    /// Photo name (the image file's name or stem).
     pub name: String,
     pub camera: CameraId,
     pub pose: Pose,
-    /// Whether `pose` is an adjusted orientation (false: approximate or unknown).
     #[serde(default)]
-    pub oriented: bool,
+    pub status: PhotoStatus,
+    /// The approximate orientation with its σ (POS, strip interpolation).
     #[serde(default)]
     pub prior: Option<PosPrior>,
     /// Acquisition date (ISO 8601), when known.
     #[serde(default)]
     pub date: Option<String>,
+    /// Image file, when the block knows it.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub image: Option<std::path::PathBuf>,
+    /// How `pose` was obtained (free text for reports: "POS", "resection from 14 control
+    /// patches", "block adjustment", …).
+    #[serde(default, skip_serializing_if = "String::is_empty")]
+    pub provenance: String,
+}
+
+impl Photo {
+    /// A photo with an approximate (or unknown) pose and nothing else known.
+    pub fn new(id: PhotoId, name: impl Into<String>, camera: CameraId, pose: Pose) -> Self {
+        Self {
+            id,
+            name: name.into(),
+            camera,
+            pose,
+            status: PhotoStatus::Approximate,
+            prior: None,
+            date: None,
+            image: None,
+            provenance: String::new(),
+        }
+    }
+
+    /// Whether `pose` is a resected or adjusted orientation.
+    pub fn is_oriented(&self) -> bool {
+        self.status == PhotoStatus::Oriented
+    }
+
+    /// The same photo marked oriented.
+    pub fn oriented(mut self) -> Self {
+        self.status = PhotoStatus::Oriented;
+        self
+    }
 }
 
 /// Role of an object point in the adjustment.
@@ -158,6 +270,20 @@ impl Block {
 
     pub fn next_point_id(&self) -> PointId {
         self.points.keys().next_back().map_or(1, |k| k + 1)
+    }
+
+    /// The block without its photos that are not oriented (what products such as COLMAP
+    /// models and BlocksExchange files hold).
+    pub fn oriented_only(&self) -> Block {
+        Block {
+            photos: self
+                .photos
+                .iter()
+                .filter(|(_, p)| p.is_oriented())
+                .map(|(k, p)| (*k, p.clone()))
+                .collect(),
+            ..self.clone()
+        }
     }
 
     /// Checks references and finiteness; every error names the item.

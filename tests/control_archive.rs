@@ -4,7 +4,12 @@
 //! surveyed checkpoints; the time series reference → digital → film; damaged packages.
 
 use cloudcontrol::block::PointKind;
-use cloudcontrol::control::archive::{self, ArchiveOptions, DcpExportOptions, EpochInput};
+use cloudcontrol::control::archive::{self, ArchiveOptions};
+use cloudcontrol::control::checkpoints::{self, CheckpointEvaluation};
+use cloudcontrol::control::epoch::{EpochInput, Navigation};
+use cloudcontrol::control::export::{export_dcp, DcpExportOptions};
+use cloudcontrol::formats::control_points;
+use cloudcontrol::synth::reading::synth_truth_block;
 use cloudcontrol::control::cloud::{CloudOptions, GroundSurface};
 use cloudcontrol::control::dcp::{DcpPackage, EpochInfo};
 use cloudcontrol::synth::{self, PosQuality, Preset, SynthConfig};
@@ -60,11 +65,10 @@ fn setup(name: &str, preset: Preset, pos: PosQuality, seed: u64) -> Setup {
         &dir,
     )
     .unwrap();
-    let surface = archive::lidar_surfaces(&lidar_tiles(&dir), synth::ORIGIN, 1.0).unwrap();
-    let (block, images) = archive::synth_truth_block(&dir, "reference_2024").unwrap();
-    let reference = archive::export_dcp(
+    let surface = cloudcontrol::lidar::lidar_surfaces(&lidar_tiles(&dir), synth::ORIGIN, 1.0).unwrap();
+    let block = synth_truth_block(&dir, "reference_2024").unwrap();
+    let reference = export_dcp(
         &block,
-        &images,
         &surface,
         EpochInfo {
             name: "reference_2024".into(),
@@ -89,7 +93,7 @@ fn rough() -> &'static Setup {
 
 struct Outcome {
     oriented: f64,
-    eval: archive::CheckpointEvaluation,
+    eval: CheckpointEvaluation,
     result: archive::EpochResult,
 }
 
@@ -98,8 +102,8 @@ fn orient(s: &Setup, epoch: &str, dcp: &[DcpPackage], opts: &ArchiveOptions) -> 
     let input = EpochInput::from_synth_epoch(&s.dir, epoch).unwrap();
     let result = archive::orient_epoch(&input, dcp, &s.surface.ground, opts).unwrap();
     let meas =
-        archive::read_checkpoint_images(&s.dir.join("truth/checkpoint_images.csv"), epoch).unwrap();
-    let surveyed = archive::read_checkpoints(&s.dir.join("checkpoints.csv")).unwrap();
+        control_points::read_checkpoint_measurements(&s.dir.join("truth/checkpoint_images.csv"), epoch).unwrap();
+    let surveyed = surveyed(&s.dir.join("checkpoints.csv"));
     println!(
         "{epoch}: {} DCP points",
         dcp.iter().map(|p| p.manifest.points.len()).sum::<usize>()
@@ -114,7 +118,7 @@ fn orient(s: &Setup, epoch: &str, dcp: &[DcpPackage], opts: &ArchiveOptions) -> 
         }
     }
     let eval =
-        archive::evaluate_checkpoints(&result.block, &meas, &surveyed, result.gsd_m).unwrap();
+        checkpoints::evaluate_checkpoints(&result.block, &meas, &surveyed, result.gsd_m).unwrap();
     let oriented = result.oriented_fraction();
     println!(
         "{epoch}: oriented {:.0} % of {}, checkpoints {} — plan {:.3} m ({:.2} px), height {:.3} m ({:.2} px), max {:.3} m, gsd {:.3} m, {:.1} s (with evaluation {:.1} s)",
@@ -194,7 +198,7 @@ fn film_epoch_with_rough_pos_is_oriented_to_a_ground_pixel() {
 fn film_epoch_without_pos_is_oriented_from_strip_end_points() {
     let s = setup("nopos", Preset::Small, PosQuality::None, 5);
     let input = EpochInput::from_synth_epoch(&s.dir, "film_1978").unwrap();
-    assert!(matches!(input.navigation, archive::Navigation::Strips(_)));
+    assert!(matches!(input.navigation, Navigation::Strips(_)));
     let o = orient(
         &s,
         "film_1978",
@@ -221,14 +225,14 @@ fn time_series_reference_digital_film() {
     let s = rough();
     let opts = ArchiveOptions::default();
     // The reference epoch (here its true orientation stands for the LiDAR-oriented block).
-    let (refb, _) = archive::synth_truth_block(&s.dir, "reference_2024").unwrap();
-    let meas = archive::read_checkpoint_images(
+    let refb = synth_truth_block(&s.dir, "reference_2024").unwrap();
+    let meas = control_points::read_checkpoint_measurements(
         &s.dir.join("truth/checkpoint_images.csv"),
         "reference_2024",
     )
     .unwrap();
-    let surveyed = archive::read_checkpoints(&s.dir.join("checkpoints.csv")).unwrap();
-    let reference = archive::evaluate_checkpoints(&refb, &meas, &surveyed, 0.1).unwrap();
+    let surveyed = surveyed(&s.dir.join("checkpoints.csv"));
+    let reference = checkpoints::evaluate_checkpoints(&refb, &meas, &surveyed, 0.1).unwrap();
     println!(
         "reference_2024: checkpoints {} — plan {:.3} m ({:.2} px), height {:.3} m ({:.2} px)",
         reference.count,
@@ -243,9 +247,8 @@ fn time_series_reference_digital_film() {
     assert_accuracy(&digital, "time series: digital_2012");
     // ... becomes control for the film epoch.
     let root = s.dir.parent().unwrap();
-    let pkg = archive::export_dcp(
+    let pkg = export_dcp(
         &digital.result.block,
-        &digital.result.images,
         &s.surface,
         EpochInfo {
             name: "digital_2012".into(),
@@ -356,4 +359,13 @@ fn image_tie_points_join_the_digital_block_when_enabled() {
         assert_eq!(ph.len(), t.observations.len(), "{t:?}");
     }
     assert_accuracy(&o, "digital_2012 with image ties");
+}
+
+/// Surveyed checkpoints (world) of the documented control-point CSV.
+fn surveyed(path: &std::path::Path) -> Vec<(String, [f64; 3])> {
+    control_points::read_points(path)
+        .unwrap()
+        .into_iter()
+        .map(|p| (p.id, p.xyz))
+        .collect()
 }

@@ -2,7 +2,10 @@
 //! DCP package in, the oriented digital archive epoch out (block close to the truth, report
 //! with per-iteration records); a damaged package is refused before anything is written.
 
-use cloudcontrol::control::archive::{self, DcpExportOptions};
+use cloudcontrol::control::checkpoints;
+use cloudcontrol::control::export::{export_dcp, DcpExportOptions};
+use cloudcontrol::formats::control_points;
+use cloudcontrol::synth::reading::synth_truth_block;
 use cloudcontrol::control::cloud::CloudOptions;
 use cloudcontrol::control::dcp::EpochInfo;
 use cloudcontrol::formats::crs::Crs;
@@ -29,10 +32,10 @@ fn prepare(root: &Path) -> (PathBuf, PathBuf, PathBuf) {
     )
     .unwrap();
     let tiles = cloudcontrol::lidar::catalogue::expand_inputs(&[dir.join("lidar")]).unwrap();
-    let surface = archive::lidar_surfaces(&tiles, synth::ORIGIN, 1.0).unwrap();
+    let surface = cloudcontrol::lidar::lidar_surfaces(&tiles, synth::ORIGIN, 1.0).unwrap();
     // The DEM as a user has it: world coordinates in a GeoTIFF.
     let o = synth::ORIGIN;
-    let world = archive::dem_to_local(&surface.ground, [-o[0], -o[1], -o[2]]).unwrap();
+    let world = surface.ground.shifted([-o[0], -o[1], -o[2]]).unwrap();
     let dem = root.join("dem.tif");
     write_dem(
         &dem,
@@ -41,10 +44,9 @@ fn prepare(root: &Path) -> (PathBuf, PathBuf, PathBuf) {
         &GeoTiffOptions::default(),
     )
     .unwrap();
-    let (block, images) = archive::synth_truth_block(&dir, "reference_2024").unwrap();
-    let pkg = archive::export_dcp(
+    let block = synth_truth_block(&dir, "reference_2024").unwrap();
+    let pkg = export_dcp(
         &block,
-        &images,
         &surface,
         EpochInfo {
             name: "reference_2024".into(),
@@ -102,14 +104,21 @@ fn orient_cli_writes_the_oriented_epoch_and_refuses_a_damaged_package() {
     // The written block (world = local + origin) reproduces the checkpoints.
     let block: cloudcontrol::block::Block =
         serde_json::from_slice(&std::fs::read(out.join("block.json")).unwrap()).unwrap();
-    assert_eq!(block.origin, synth::ORIGIN);
+    // The origin is the one rule's: a whole kilometre south-west of the photos.
+    assert!(block.origin.iter().all(|v| v % 1000.0 == 0.0), "{:?}", block.origin);
     assert!(!block.photos.is_empty(), "no photo oriented:\n{stdout}");
-    let meas =
-        archive::read_checkpoint_images(&dir.join("truth/checkpoint_images.csv"), "digital_2012")
-            .unwrap();
-    let surveyed = archive::read_checkpoints(&dir.join("checkpoints.csv")).unwrap();
+    let meas = control_points::read_checkpoint_measurements(
+        &dir.join("truth/checkpoint_images.csv"),
+        "digital_2012",
+    )
+    .unwrap();
+    let surveyed: Vec<(String, [f64; 3])> = control_points::read_points(&dir.join("checkpoints.csv"))
+        .unwrap()
+        .into_iter()
+        .map(|p| (p.id, p.xyz))
+        .collect();
     let gsd = report["gsd_m"].as_f64().unwrap();
-    let e = archive::evaluate_checkpoints(&block, &meas, &surveyed, gsd).unwrap();
+    let e = checkpoints::evaluate_checkpoints(&block, &meas, &surveyed, gsd).unwrap();
     println!(
         "checkpoints {}: plan {:.2} px, height {:.2} px",
         e.count, e.rmse_plan_px, e.rmse_height_px

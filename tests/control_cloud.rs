@@ -38,9 +38,11 @@ fn block() -> Block {
                 name: format!("ref_{i}.png"),
                 camera: 1,
                 pose: Pose::from_opk(0.01, -0.01, 0.02, c),
-                oriented: true,
+                status: cloudcontrol::block::PhotoStatus::Oriented,
                 prior: None,
                 date: None,
+                image: None,
+                provenance: String::new(),
             },
         );
     }

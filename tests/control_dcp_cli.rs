@@ -4,9 +4,9 @@
 //! against the truth (reprojection through the true orientation, LiDAR ground heights),
 //! `generate` against `export`, and import against damaged and foreign packages.
 
-use cloudcontrol::control::archive::{
-    self, ControlPointSet, DcpExportOptions, OrientedBlock, LIDAR_CELL_M,
-};
+use cloudcontrol::control::export::{ControlPointSet, DcpExportOptions, OrientedBlock};
+use cloudcontrol::lidar::LIDAR_CELL_M;
+use cloudcontrol::synth::reading::synth_truth_block;
 use cloudcontrol::control::cloud::CloudOptions;
 use cloudcontrol::control::dcp::{DcpPackage, EpochInfo};
 use cloudcontrol::geometry;
@@ -43,7 +43,12 @@ fn setup() -> &'static Setup {
             &dir,
         )
         .unwrap();
-        let (block, images) = archive::synth_truth_block(&dir, "reference_2024").unwrap();
+        let block = synth_truth_block(&dir, "reference_2024").unwrap();
+        let images: std::collections::BTreeMap<u32, PathBuf> = block
+            .photos
+            .values()
+            .filter_map(|p| Some((p.id, p.image.clone()?)))
+            .collect();
         let epoch = root.join("epoch-reference_2024");
         std::fs::create_dir_all(&epoch).unwrap();
         let block_json = epoch.join("block.json");

@@ -3,7 +3,10 @@
 //! the small synthetic block; checkpoints (never used in the solution) within a ground
 //! pixel in plan and height, and projection centres close to the truth.
 
-use cloudcontrol::control::archive::{self, EpochInput};
+use cloudcontrol::control::checkpoints::evaluate_checkpoints;
+use cloudcontrol::control::EpochInput;
+use cloudcontrol::formats::control_points;
+use cloudcontrol::synth::reading::synth_truth_block;
 use cloudcontrol::control::reference::{self, ReferenceOptions};
 use cloudcontrol::lidar::PlaneOptions;
 use cloudcontrol::synth::{self, PosQuality, Preset, SynthConfig};
@@ -30,7 +33,7 @@ fn reference_epoch_oriented_with_lidar_only_is_within_a_ground_pixel() {
     )
     .unwrap();
     let tiles = lidar_tiles(&dir);
-    let surface = archive::lidar_surfaces(&tiles, synth::ORIGIN, 1.0).unwrap();
+    let surface = cloudcontrol::lidar::lidar_surfaces(&tiles, synth::ORIGIN, 1.0).unwrap();
     let index =
         reference::lidar_plane_index(&tiles, synth::ORIGIN, &[2, 6], PlaneOptions::default())
             .unwrap();
@@ -76,12 +79,17 @@ fn reference_epoch_oriented_with_lidar_only_is_within_a_ground_pixel() {
         adj.datum
     );
 
-    let surveyed = archive::read_checkpoints(&dir.join("checkpoints.csv")).unwrap();
-    let measured =
-        archive::read_checkpoint_images(&dir.join("truth/checkpoint_images.csv"), "reference_2024")
-            .unwrap();
-    let ev =
-        archive::evaluate_checkpoints(&result.block, &measured, &surveyed, result.gsd_m).unwrap();
+    let surveyed: Vec<(String, [f64; 3])> = control_points::read_points(&dir.join("checkpoints.csv"))
+        .unwrap()
+        .into_iter()
+        .map(|p| (p.id, p.xyz))
+        .collect();
+    let measured = control_points::read_checkpoint_measurements(
+        &dir.join("truth/checkpoint_images.csv"),
+        "reference_2024",
+    )
+    .unwrap();
+    let ev = evaluate_checkpoints(&result.block, &measured, &surveyed, result.gsd_m).unwrap();
     eprintln!(
         "checkpoints: {} at GSD {:.3} m: plan {:.3} m ({:.2} px), height {:.3} m ({:.2} px), max {:.3} m",
         ev.count, ev.gsd_m, ev.rmse_plan_m, ev.rmse_plan_px, ev.rmse_height_m, ev.rmse_height_px, ev.max_m
@@ -95,8 +103,8 @@ fn reference_epoch_oriented_with_lidar_only_is_within_a_ground_pixel() {
     );
 
     // Projection centres against the truth.
-    let (truth, _) = archive::synth_truth_block(&dir, "reference_2024").unwrap();
-    let floor = archive::evaluate_checkpoints(&truth, &measured, &surveyed, result.gsd_m).unwrap();
+    let truth = synth_truth_block(&dir, "reference_2024").unwrap();
+    let floor = evaluate_checkpoints(&truth, &measured, &surveyed, result.gsd_m).unwrap();
     eprintln!(
         "true orientation at the same checkpoints (survey noise): plan {:.3} m, height {:.3} m",
         floor.rmse_plan_m, floor.rmse_height_m

@@ -34,9 +34,11 @@ fn block() -> Block {
                 name: name.into(),
                 camera: 1,
                 pose: Pose::new(nalgebra::Matrix3::identity(), nalgebra::Vector3::zeros()),
-                oriented: true,
+                status: cloudcontrol::block::PhotoStatus::Oriented,
                 prior: None,
                 date: None,
+                image: None,
+                provenance: String::new(),
             },
         );
     }

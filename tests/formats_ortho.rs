@@ -113,9 +113,11 @@ fn scene() -> (Block, Dem, BTreeMap<u32, RgbImage>) {
                 name: format!("p{id}.tif"),
                 camera: 1,
                 pose,
-                oriented: true,
+                status: cloudcontrol::block::PhotoStatus::Oriented,
                 prior: None,
                 date: None,
+                image: None,
+                provenance: String::new(),
             },
         );
     }

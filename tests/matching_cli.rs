@@ -161,7 +161,7 @@ fn ties_subcommand_uses_the_approximate_orientation() {
                 name,
                 camera: 1,
                 pose: approx,
-                oriented: false,
+                status: cloudcontrol::block::PhotoStatus::Approximate,
                 prior: Some(PosPrior {
                     center: approx.center,
                     center_sigma: [2.0; 3],
@@ -169,6 +169,8 @@ fn ties_subcommand_uses_the_approximate_orientation() {
                     rotation_sigma_rad: 0.3f64.to_radians(),
                 }),
                 date: None,
+                image: None,
+                provenance: String::new(),
             },
         );
     }

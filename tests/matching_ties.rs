@@ -304,7 +304,7 @@ fn block_ties_from_approximate_orientation() {
                 name: format!("photo_{id}.tif"),
                 camera: 1,
                 pose: approx,
-                oriented: false,
+                status: cloudcontrol::block::PhotoStatus::Approximate,
                 prior: Some(PosPrior {
                     center: approx.center,
                     center_sigma: [2.0; 3],
@@ -312,6 +312,8 @@ fn block_ties_from_approximate_orientation() {
                     rotation_sigma_rad: deg,
                 }),
                 date: None,
+                image: None,
+                provenance: String::new(),
             },
         );
         images.insert(id, img.clone());
@@ -504,9 +506,11 @@ fn block_ties_bad_input() {
                 name: format!("{k}"),
                 camera: 1,
                 pose: s.poses[k as usize],
-                oriented: false,
+                status: cloudcontrol::block::PhotoStatus::Approximate,
                 prior: None,
                 date: None,
+                image: None,
+                provenance: String::new(),
             },
         );
     }

@@ -699,7 +699,7 @@ fn finish(
     for (i, &pid) in pb.photo_ids.iter().enumerate() {
         let ph = block.photos.get_mut(&pid).expect("photo");
         ph.pose = pb.state.poses[i];
-        ph.oriented = true;
+        ph.status = crate::block::PhotoStatus::Oriented;
     }
     for (i, &cid) in pb.camera_ids.iter().enumerate() {
         block.cameras.get_mut(&cid).expect("camera").model = pb.state.cameras[i].clone();

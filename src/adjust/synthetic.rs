@@ -132,15 +132,13 @@ pub fn generate(o: &SyntheticOptions) -> SyntheticBlock {
             );
             truth.photos.insert(
                 id,
-                Photo {
+                Photo::new(
                     id,
-                    name: format!("s{s:02}_p{i:03}.tif"),
-                    camera: 1,
-                    pose: Pose::new(rotation_from_vector(&d) * r0, c),
-                    oriented: true,
-                    prior: None,
-                    date: None,
-                },
+                    format!("s{s:02}_p{i:03}.tif"),
+                    1,
+                    Pose::new(rotation_from_vector(&d) * r0, c),
+                )
+                .oriented(),
             );
             id += 1;
         }
@@ -281,7 +279,7 @@ pub fn generate(o: &SyntheticOptions) -> SyntheticBlock {
             cn.sample(&mut rng),
         );
         p.pose = p.pose.perturbed(&d, &c);
-        p.oriented = false;
+        p.status = crate::block::PhotoStatus::Approximate;
     }
     for p in start.points.values_mut() {
         if p.kind == PointKind::Tie {

@@ -73,22 +73,12 @@ impl ControlSurface for Dem {
     }
 }
 
-/// The LiDAR as a control surface: planes from the ground DEM (class 2), stability from
-/// the surface model of all returns. Where the surface model stands above the ground
-/// (roofs, canopy) or no ground return exists nearby, the point is not stable: those are
-/// the places that change between epochs or whose height is not the LiDAR ground's.
-#[derive(Debug, Clone)]
-pub struct GroundSurface {
-    /// Ground DEM (block-local), holes filled.
-    pub ground: Dem,
-    /// Mean height of all non-noise returns per cell (block-local).
-    pub surface: Dem,
-    /// Largest surface-above-ground difference still taken as bare ground (m).
-    pub max_above_ground_m: f64,
-    /// Radius (m) around the point that must be bare ground too (the chip's footprint).
-    pub radius_m: f64,
-}
+pub use crate::lidar::GroundSurface;
 
+// The LiDAR as a control surface: planes from the ground DEM (class 2), stability from
+// the surface model of all returns. Where the surface model stands above the ground
+// (roofs, canopy) or no ground return exists nearby, the point is not stable: those are
+// the places that change between epochs or whose height is not the LiDAR ground's.
 impl ControlSurface for GroundSurface {
     fn plane_near(&self, x: f64, y: f64) -> Option<SurfacePlane> {
         let mut plane = self.ground.plane_near(x, y)?;

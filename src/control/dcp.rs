@@ -822,39 +822,31 @@ fn store_crs(store: &Path) -> Result<Option<(String, PathBuf)>> {
     Ok(found)
 }
 
-/// Spatial index over the control points of one or more packages, for footprint queries.
-pub struct DcpIndex {
+/// Plan (XY) index over points, for footprint queries.
+pub struct PlanIndex {
     tree: KdTree<f64, 2>,
-    entries: Vec<(usize, usize)>,
     xy: Vec<[f64; 2]>,
 }
 
-impl DcpIndex {
-    pub fn new(packages: &[DcpPackage]) -> Self {
+impl PlanIndex {
+    pub fn new(xy: Vec<[f64; 2]>) -> Self {
         let mut tree = KdTree::new();
-        let mut entries = Vec::new();
-        let mut xy = Vec::new();
-        for (k, pkg) in packages.iter().enumerate() {
-            for (i, p) in pkg.points_xy() {
-                tree.add(&p, entries.len() as u64);
-                entries.push((k, i));
-                xy.push(p);
-            }
+        for (i, p) in xy.iter().enumerate() {
+            tree.add(p, i as u64);
         }
-        Self { tree, entries, xy }
+        Self { tree, xy }
     }
 
     pub fn len(&self) -> usize {
-        self.entries.len()
+        self.xy.len()
     }
 
     pub fn is_empty(&self) -> bool {
-        self.entries.is_empty()
+        self.xy.is_empty()
     }
 
-    /// (package, point) indices inside a polygon (world XY, any orientation), in a
-    /// deterministic order.
-    pub fn query_polygon(&self, polygon: &[[f64; 2]]) -> Vec<(usize, usize)> {
+    /// Indices of the points inside a polygon (any orientation), in increasing order.
+    pub fn query_polygon(&self, polygon: &[[f64; 2]]) -> Vec<usize> {
         if polygon.len() < 3 || self.is_empty() {
             return Vec::new();
         }
@@ -875,7 +867,48 @@ impl DcpIndex {
             .filter(|&i| point_in_polygon(self.xy[i], polygon))
             .collect();
         hits.sort_unstable();
-        hits.into_iter().map(|i| self.entries[i]).collect()
+        hits
+    }
+}
+
+/// Spatial index over the control points of one or more packages (world XY).
+pub struct DcpIndex {
+    index: PlanIndex,
+    entries: Vec<(usize, usize)>,
+}
+
+impl DcpIndex {
+    pub fn new(packages: &[DcpPackage]) -> Self {
+        let mut entries = Vec::new();
+        let mut xy = Vec::new();
+        for (k, pkg) in packages.iter().enumerate() {
+            for (i, p) in pkg.points_xy() {
+                entries.push((k, i));
+                xy.push(p);
+            }
+        }
+        Self {
+            index: PlanIndex::new(xy),
+            entries,
+        }
+    }
+
+    pub fn len(&self) -> usize {
+        self.entries.len()
+    }
+
+    pub fn is_empty(&self) -> bool {
+        self.entries.is_empty()
+    }
+
+    /// (package, point) indices inside a polygon (world XY, any orientation), in a
+    /// deterministic order.
+    pub fn query_polygon(&self, polygon: &[[f64; 2]]) -> Vec<(usize, usize)> {
+        self.index
+            .query_polygon(polygon)
+            .into_iter()
+            .map(|i| self.entries[i])
+            .collect()
     }
 }
 

@@ -1,13 +1,28 @@
-//! Control from previously oriented photos: Digital Control Photo (DCP) packages, their
-//! spatial index, and approximate orientation of archive photos (strip interpolation when
-//! no POS exists).
+//! Control from existing geodata: the reference epoch oriented against LiDAR, cloud
+//! control points exported as Digital Control Photo (DCP) packages, and archive epochs
+//! oriented from them.
+//!
+//! - [`epoch`]: an epoch as specified and as held, the one builder, the origin rule,
+//!   approximate orientations, the one error type;
+//! - [`reference`]: the reference epoch against the LiDAR;
+//! - [`cloud`], [`export`]: cloud control points of an oriented block and their package;
+//! - [`dcp`]: the package format, its store and index;
+//! - [`chips`], [`predict`], [`orient`], [`photo`]: one photo from control patches;
+//! - [`archive`]: an archive epoch; [`checkpoints`]: the checkpoint evaluation;
+//! - [`strips`]: approximate orientation from strip end points.
 
 pub mod archive;
+pub mod checkpoints;
+pub mod chips;
 pub mod cloud;
 pub mod dcp;
+pub mod epoch;
+pub mod export;
 pub mod orient;
+pub mod photo;
 pub mod predict;
 pub mod reference;
 pub mod strips;
 
 pub use dcp::{DcpError, DcpIndex, DcpPackage, Manifest};
+pub use epoch::{EpochError, EpochInput, EpochSpec};

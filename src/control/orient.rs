@@ -16,7 +16,7 @@ use serde::Serialize;
 /// and an identifier the matcher understands (which chip, which package).
 #[derive(Debug, Clone)]
 pub struct ControlPatch {
-    pub id: u64,
+    pub id: usize,
     pub position: Vector3<f64>,
     pub covariance: Matrix3<f64>,
 }
@@ -106,7 +106,7 @@ pub struct Oriented {
     pub pose: Pose,
     pub covariance: SMatrix<f64, 6, 6>,
     /// Accepted matches (patch id, pixel, σ) used by the final resection.
-    pub matches: Vec<(u64, Vector2<f64>, f64)>,
+    pub matches: Vec<(usize, Vector2<f64>, f64)>,
     pub iterations: Vec<IterationRecord>,
     pub oriented: bool,
 }
@@ -128,7 +128,7 @@ pub fn orient_photo(
     let mut oriented = false;
     let mut records = Vec::new();
     let mut banned = std::collections::BTreeSet::new();
-    let mut kept: Vec<(u64, Vector2<f64>, f64)> = Vec::new();
+    let mut kept: Vec<(usize, Vector2<f64>, f64)> = Vec::new();
     let mut previous_count = 0usize;
     for iteration in 0..opts.max_iterations {
         let mut found: Vec<(usize, PatchMatch)> = Vec::new();

@@ -8,10 +8,15 @@
 //! The result is an [`EpochResult`] like an archive epoch's, so DCP export, outputs and
 //! the report treat every epoch alike.
 
-use super::archive::{mean_gsd, ArchiveError, EpochCamera, EpochInput, EpochResult, Navigation};
-use super::archive::{MatchStats, PhotoReport};
+use super::archive::{mean_gsd, EpochResult};
+use super::chips::MatchStats;
+use super::epoch::{EpochCamera, EpochError, EpochInput, Navigation};
+use super::photo::PhotoReport;
 use crate::adjust::{self, AdjustOptions, AdjustReport, PlaneConstraint, PlaneRefitter, Rejection};
-use crate::block::{Block, BlockCamera, Photo, PhotoId, PointId, PointKind, PosPrior};
+use crate::block::{
+    Block, BlockCamera, Photo, PhotoFailure, PhotoId, PhotoStatus, PointId, PointKind, PosPrior,
+};
+use crate::formats::pos::photo_key;
 use crate::geometry::{matrix_from_opk, Camera, Dem, Pose, Similarity};
 use crate::lidar::{icp_point_to_plane, IcpOptions, IcpResult, PlaneIndex};
 use crate::matching::oriented::{block_tie_points, BlockTieOptions, BlockTieReport, Surface};
@@ -127,8 +132,8 @@ impl PlaneRefitter for LidarPlanes<'_> {
 }
 
 /// Block of the reference epoch at its POS (block-local), every photo with its prior.
-fn pos_block(input: &EpochInput) -> Result<Block, ArchiveError> {
-    let ep = |message: String| ArchiveError::Epoch {
+fn pos_block(input: &EpochInput) -> Result<Block, EpochError> {
+    let ep = |message: String| EpochError::Epoch {
         epoch: input.name.clone(),
         message,
     };
@@ -157,32 +162,32 @@ fn pos_block(input: &EpochInput) -> Result<Block, ArchiveError> {
             free_params: Vec::new(),
         },
     );
-    let by_name: BTreeMap<&str, _> = records.iter().map(|r| (r.name.as_str(), r)).collect();
+    let by_name: BTreeMap<&str, _> = records.iter().map(|r| (photo_key(&r.name), r)).collect();
     for (k, ph) in input.photos.iter().enumerate() {
         let r = by_name
             .get(ph.name.as_str())
-            .ok_or_else(|| ep(format!("photo {} has no POS record", ph.name)))?;
+            .ok_or_else(|| {
+                ep(format!(
+                    "photo {} ({}) has no POS record: the reference epoch needs one for every photo",
+                    ph.name,
+                    ph.image.display()
+                ))
+            })?;
         let c = Vector3::from(r.center) - origin;
         let rot = matrix_from_opk(r.opk[0], r.opk[1], r.opk[2]);
         let sc = r.sigma_xyz.unwrap_or(0.1);
         let id = k as PhotoId + 1;
-        block.photos.insert(
-            id,
-            Photo {
-                id,
-                name: ph.name.clone(),
-                camera: 1,
-                pose: Pose::new(rot, c),
-                oriented: false,
-                prior: Some(PosPrior {
-                    center: c,
-                    center_sigma: [sc; 3],
-                    rotation: Some(rot),
-                    rotation_sigma_rad: r.sigma_angle.unwrap_or(0.01f64.to_radians()),
-                }),
-                date: input.date.clone(),
-            },
-        );
+        let mut photo = Photo::new(id, ph.name.clone(), 1, Pose::new(rot, c));
+        photo.prior = Some(PosPrior {
+            center: c,
+            center_sigma: [sc; 3],
+            rotation: Some(rot),
+            rotation_sigma_rad: r.sigma_angle.unwrap_or(0.01f64.to_radians()),
+        });
+        photo.date = input.date.clone();
+        photo.image = Some(ph.image.clone());
+        photo.provenance = "POS".into();
+        block.photos.insert(id, photo);
     }
     Ok(block)
 }
@@ -195,11 +200,11 @@ pub fn lidar_plane_index(
     origin: [f64; 3],
     classes: &[u8],
     options: crate::lidar::PlaneOptions,
-) -> Result<PlaneIndex, ArchiveError> {
+) -> Result<PlaneIndex, EpochError> {
     let mut local = Vec::new();
     for t in tiles {
         let b = crate::lidar::las::read_points(t, None, Some(classes)).map_err(|e| {
-            ArchiveError::Input {
+            EpochError::Input {
                 path: t.clone(),
                 message: e.to_string(),
             }
@@ -211,7 +216,7 @@ pub fn lidar_plane_index(
         );
     }
     let first = tiles.first().cloned().unwrap_or_default();
-    PlaneIndex::from_local(local, Vector3::from(origin), options).map_err(|e| ArchiveError::Input {
+    PlaneIndex::from_local(local, Vector3::from(origin), options).map_err(|e| EpochError::Input {
         path: first,
         message: format!("LiDAR plane index: {e}"),
     })
@@ -245,9 +250,9 @@ pub fn orient_reference(
     lidar: &PlaneIndex,
     dem: &Dem,
     opts: &ReferenceOptions,
-) -> Result<(EpochResult, ReferenceReport), ArchiveError> {
+) -> Result<(EpochResult, ReferenceReport), EpochError> {
     let t0 = Instant::now();
-    let ep = |message: String| ArchiveError::Epoch {
+    let ep = |message: String| EpochError::Epoch {
         epoch: input.name.clone(),
         message,
     };
@@ -267,7 +272,7 @@ pub fn orient_reference(
         .map(|(k, p)| {
             GreyImage::load(&p.image)
                 .map(|g| (k as PhotoId + 1, g))
-                .map_err(|e| ArchiveError::Input {
+                .map_err(|e| EpochError::Input {
                     path: p.image.clone(),
                     message: e.to_string(),
                 })
@@ -296,7 +301,7 @@ pub fn orient_reference(
         observations = ties.observations_added,
         "tie points"
     );
-    let adjust_err = |source| ArchiveError::Adjust {
+    let adjust_err = |source| EpochError::Adjust {
         epoch: input.name.clone(),
         source,
     };
@@ -386,16 +391,19 @@ pub fn orient_reference(
     let mut photos = Vec::new();
     for ph in block.photos.values_mut() {
         let n = per_photo.get(&ph.id).copied().unwrap_or(0);
-        ph.oriented = n >= opts.min_observations;
+        let reason = (n < opts.min_observations).then_some(PhotoFailure::TooFewTieObservations {
+            kept: n,
+            needed: opts.min_observations,
+        });
+        ph.status = match &reason {
+            None => PhotoStatus::Oriented,
+            Some(r) => PhotoStatus::Failed(r.clone()),
+        };
+        ph.provenance = "tie points, ICP onto the LiDAR, adjustment with LiDAR planes".into();
         photos.push(PhotoReport {
             name: ph.name.clone(),
-            oriented: ph.oriented,
-            reason: (!ph.oriented).then(|| {
-                format!(
-                    "{n} tie observations kept, fewer than {}",
-                    opts.min_observations
-                )
-            }),
+            oriented: reason.is_none(),
+            reason,
             iterations: Vec::new(),
             control_matches: 0,
             sigma_px: precision.get(&ph.id).copied().unwrap_or(f64::NAN),
@@ -407,17 +415,10 @@ pub fn orient_reference(
         });
     }
     let gsd_m = mean_gsd(&block, dem);
-    let images = input
-        .photos
-        .iter()
-        .enumerate()
-        .map(|(k, p)| (k as PhotoId + 1, p.image.clone()))
-        .collect();
     Ok((
         EpochResult {
             epoch: input.name.clone(),
             block,
-            images,
             photos,
             adjustment: Some(report),
             gsd_m,

@@ -178,15 +178,7 @@ pub unsafe extern "C" fn ccp_block_add_photo(
         let pose = handle(pose, "pose")?.to_pose()?;
         b.block.photos.insert(
             photo_id,
-            Photo {
-                id: photo_id,
-                name: format!("photo {photo_id}"),
-                camera: camera_id,
-                pose,
-                oriented: false,
-                prior: None,
-                date: None,
-            },
+            Photo::new(photo_id, format!("photo {photo_id}"), camera_id, pose),
         );
         Ok(())
     })

@@ -5,7 +5,8 @@ use super::camera::{CcpCamera, CcpPose};
 use super::{
     finite, finite_rows, guard, handle, input, opt_str, output, CcpStatus, FfiError, FfiResult,
 };
-use crate::control::archive::{self, ArchiveError, DcpExportOptions, OrientedBlock};
+use crate::control::epoch::EpochError;
+use crate::control::export::{self, DcpExportOptions, OrientedBlock};
 use crate::control::cloud::CloudOptions;
 use crate::control::dcp::{Accuracy, DcpError, DcpIndex, DcpPackage, EpochInfo};
 use crate::control::predict;
@@ -47,20 +48,22 @@ impl From<DcpError> for FfiError {
     }
 }
 
-impl From<ArchiveError> for FfiError {
-    fn from(e: ArchiveError) -> Self {
+impl From<EpochError> for FfiError {
+    fn from(e: EpochError) -> Self {
         let e = match e {
-            ArchiveError::Lidar(l) => return FfiError::from(l),
+            EpochError::Lidar(l) => return FfiError::from(l),
+            EpochError::Format(f) => return FfiError::from(f),
             e => e,
         };
         let status = match &e {
-            ArchiveError::Dcp(d) => dcp_status(d),
+            EpochError::Dcp(d) => dcp_status(d),
             // The message says what was wrong with the file; a file that is not there at
             // all is worth its own status.
-            ArchiveError::Input { path, .. } if !path.exists() => CcpStatus::NotFound,
-            ArchiveError::Input { .. } | ArchiveError::Lidar(_) => CcpStatus::Format,
-            ArchiveError::Epoch { .. } | ArchiveError::Block(_) => CcpStatus::InvalidArgument,
-            ArchiveError::Adjust { .. } => CcpStatus::Numeric,
+            EpochError::Input { path, .. } if !path.exists() => CcpStatus::NotFound,
+            EpochError::Input { .. } | EpochError::Lidar(_) => CcpStatus::Format,
+            EpochError::Format(_) => CcpStatus::Format,
+            EpochError::Epoch { .. } | EpochError::Block(_) => CcpStatus::InvalidArgument,
+            EpochError::Adjust { .. } => CcpStatus::Numeric,
         };
         FfiError::new(status, e.to_string())
     }
@@ -146,7 +149,7 @@ impl Default for CcpDcpExportOptions {
             min_photos: d.cloud.min_photos as u32,
             accuracy_plan_m: d.accuracy.plan_m,
             accuracy_height_m: d.accuracy.height_m,
-            lidar_cell_m: archive::LIDAR_CELL_M,
+            lidar_cell_m: crate::lidar::LIDAR_CELL_M,
         }
     }
 }
@@ -196,7 +199,7 @@ unsafe fn export_options(
     opts.validate()
         .map_err(|m| FfiError::invalid(format!("opts: {m}")))?;
     let epoch = EpochInfo {
-        name: opt_str(o.name, "opts.name")?.unwrap_or_else(|| archive::package_epoch_name(out)),
+        name: opt_str(o.name, "opts.name")?.unwrap_or_else(|| export::package_epoch_name(out)),
         date: opt_str(o.date, "opts.date")?,
     };
     Ok((opts, epoch, o.lidar_cell_m))

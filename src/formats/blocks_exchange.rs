@@ -916,18 +916,17 @@ fn read_photo(
         }
     }
     let oriented = rotation.is_some() && center.is_some() && xp.component != Some(0);
-    Ok((
-        Photo {
-            id,
-            name,
-            camera,
-            pose: Pose::new(rotation.unwrap_or_else(Matrix3::identity), Vector3::zeros()),
-            oriented,
-            prior: None,
-            date: xp.exif.as_ref().and_then(|e| e.date_time_original.clone()),
-        },
-        center,
-    ))
+    let mut photo = Photo::new(
+        id,
+        name,
+        camera,
+        Pose::new(rotation.unwrap_or_else(Matrix3::identity), Vector3::zeros()),
+    );
+    if oriented {
+        photo.status = crate::block::PhotoStatus::Oriented;
+    }
+    photo.date = xp.exif.as_ref().and_then(|e| e.date_time_original.clone());
+    Ok((photo, center))
 }
 
 // ---------------------------------------------------------------------------------------
@@ -1007,7 +1006,7 @@ pub fn to_string(block: &Block, opts: &WriteOptions) -> std::result::Result<Stri
             id: Some(p.id),
             image_path: Some(p.name.clone()),
             mask_path: None,
-            component: Some(if p.oriented { 1 } else { 0 }),
+            component: Some(if p.is_oriented() { 1 } else { 0 }),
             pose: Some(XPose {
                 rotation: Some(XRotation {
                     m00: Some(r[(0, 0)]),

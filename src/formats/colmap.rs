@@ -469,15 +469,7 @@ pub fn read(dir: &Path) -> Result<Block> {
         }
         block.photos.insert(
             im.id,
-            Photo {
-                id: im.id,
-                name: im.name,
-                camera: im.camera,
-                pose: im.pose,
-                oriented: true,
-                prior: None,
-                date: None,
-            },
+            Photo::new(im.id, im.name, im.camera, im.pose).oriented(),
         );
     }
 

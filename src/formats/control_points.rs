@@ -337,3 +337,18 @@ pub fn write_points(path: &Path, block: &Block) -> Result<()> {
     }
     write_bytes_atomically(path, s.as_bytes())
 }
+
+// TEMPORARY (replaced by the h1 merge)
+#[derive(Debug, Clone, PartialEq)]
+pub struct CheckpointMeasurement {
+    pub line: usize,
+    pub photo: String,
+    pub id: String,
+    pub pixel: [f64; 2],
+}
+pub fn read_checkpoint_measurements(
+    _path: &Path,
+    _epoch: &str,
+) -> Result<Vec<CheckpointMeasurement>> {
+    unimplemented!()
+}

@@ -103,7 +103,7 @@ pub fn load_images(
     images_dir: &Path,
 ) -> Result<BTreeMap<crate::block::PhotoId, super::ortho::RgbImage>> {
     let mut out = BTreeMap::new();
-    for p in block.photos.values().filter(|p| p.oriented) {
+    for p in block.photos.values().filter(|p| p.is_oriented()) {
         let path = images_dir.join(p.name.replace('\\', "/"));
         if !path.is_file() {
             return Err(FormatError::invalid(

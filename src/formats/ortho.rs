@@ -201,7 +201,7 @@ pub fn write_orthophoto(
     opts: &OrthoOptions,
 ) -> Result<OrthoReport> {
     let mut views = Vec::new();
-    for p in block.photos.values().filter(|p| p.oriented) {
+    for p in block.photos.values().filter(|p| p.is_oriented()) {
         let Some(image) = images.get(&p.id) else {
             continue;
         };

@@ -191,8 +191,26 @@ pub fn write_pos(path: &Path, records: &[PosRecord]) -> Result<()> {
     super::write_bytes_atomically(path, s.as_bytes())
 }
 
-/// Reads a strips file into strips with world end points (`flight_axis` as given).
-pub fn read_strips(path: &Path, flight_axis: FlightAxis) -> Result<Vec<StripEnds>> {
+/// The photo a POS or strip name refers to: the file name without folders and without
+/// an image extension (PNG, TIFF, JPEG), so a name may be given with or without them.
+pub fn photo_key(name: &str) -> &str {
+    let file = name.rsplit(['/', '\\']).next().unwrap_or(name);
+    match file.rsplit_once('.') {
+        Some((stem, ext))
+            if !stem.is_empty()
+                && ["png", "tif", "tiff", "jpg", "jpeg"]
+                    .iter()
+                    .any(|e| ext.eq_ignore_ascii_case(e)) =>
+        {
+            stem
+        }
+        _ => file,
+    }
+}
+
+/// Reads a strips file into strips with world end points.
+pub fn read_strips(path: &Path) -> Result<Vec<StripEnds>> {
+    let flight_axis = FlightAxis::default();
     let rows = rows(path)?;
     check_header(path, &rows[0].1, &["strip", "photo", "x", "y", "z"], &[])?;
     // (photo, centre if given, line) per strip, in file order.
@@ -306,12 +324,12 @@ mod tests {
         let d = tempfile::tempdir().unwrap();
         let p = d.path().join("strips.csv");
         std::fs::write(&p, "strip,photo,x,y,z\n1,f1,0,0,3000\n1,f2,,,\n1,f3,2000,10,3000\n2,g1,2000,900,3000\n2,g2,0,900,3000\n").unwrap();
-        let s = read_strips(&p, FlightAxis::ImageX).unwrap();
+        let s = read_strips(&p).unwrap();
         assert_eq!(s.len(), 2);
         assert_eq!(s[0].photos, vec!["f1", "f2", "f3"]);
         assert_eq!(s[1].first, [2000.0, 900.0, 3000.0]);
         std::fs::write(&p, "strip,photo,x,y,z\n1,f1,0,0,3000\n1,f2,,,\n").unwrap();
-        let e = read_strips(&p, FlightAxis::ImageX).unwrap_err().to_string();
+        let e = read_strips(&p).unwrap_err().to_string();
         assert!(
             e.contains("last photo needs its centre") && e.contains("line 3"),
             "{e}"

@@ -50,6 +50,19 @@ pub struct Dem {
 }
 
 impl Dem {
+    /// The same DEM in a frame whose origin is at `origin` of this one (world → block
+    /// local with the block origin; block local → world with its negation).
+    pub fn shifted(&self, origin: [f64; 3]) -> Result<Self> {
+        let t = self.transform.0;
+        let tr = GeoTransform([t[0] - origin[0], t[1], t[2], t[3] - origin[1], t[4], t[5]]);
+        let data = self
+            .data
+            .iter()
+            .map(|v| (*v as f64 - origin[2]) as f32)
+            .collect();
+        Self::new(self.width, self.height, tr, data)
+    }
+
     pub fn new(
         width: usize,
         height: usize,

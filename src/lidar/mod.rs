@@ -16,6 +16,7 @@ pub mod las;
 pub mod planes;
 pub mod points_io;
 pub mod store;
+pub mod surfaces;
 
 pub use catalogue::{Catalogue, ScanOptions, TileEntry};
 pub use clean::{
@@ -29,6 +30,7 @@ pub use icp::{icp_point_to_plane, IcpIteration, IcpModel, IcpOptions, IcpResult}
 pub use las::{LasInfo, LasStream, PointBatch};
 pub use planes::{LocalPlane, PlaneIndex, PlaneOptions};
 pub use store::{Bbox, TileStore};
+pub use surfaces::{lidar_surfaces, GroundSurface, LIDAR_CELL_M};
 
 use std::path::PathBuf;
 

@@ -2,6 +2,8 @@
 //! `demo` that runs on built-in data.
 
 pub mod demo;
+pub mod epoch_files;
+pub mod products;
 pub mod project;
 pub mod report;
 pub mod run;

@@ -35,6 +35,10 @@ pub struct ControlSources {
     /// operator takes them: each epoch's checkpoints are intersected from them.
     #[serde(default)]
     pub checkpoint_images: Option<PathBuf>,
+    /// CRS of the checkpoint file when it is not the project's (`EPSG:n` or WKT); the
+    /// points are converted to the project CRS.
+    #[serde(default)]
+    pub checkpoints_crs: Option<String>,
 }
 
 /// How the approximate exterior orientation of an epoch is known.
@@ -72,6 +76,20 @@ pub struct Thresholds {
     pub chip_size_px: u32,
 }
 
+impl Thresholds {
+    /// Archive epoch options with these thresholds (the `orient` command and the C ABI
+    /// start from the same defaults, so every caller orients an epoch alike).
+    pub fn archive_options(&self) -> crate::control::archive::ArchiveOptions {
+        let mut o = crate::control::archive::ArchiveOptions {
+            reject_k: self.reject_k,
+            ..Default::default()
+        };
+        o.photo.patch.matching.ncc_threshold = self.ncc_min;
+        o.photo.patch.matching.agreement_px = self.lsm_agreement_px;
+        o
+    }
+}
+
 impl Default for Thresholds {
     fn default() -> Self {
         Self {
@@ -106,6 +124,23 @@ impl Default for Outputs {
             dem: true,
             html_report: true,
             ortho_gsd_factor: 1.0,
+        }
+    }
+}
+
+impl Epoch {
+    /// The epoch as the one epoch builder takes it ([`EpochInput::build`]).
+    ///
+    /// [`EpochInput::build`]: crate::control::EpochInput::build
+    pub fn spec(&self) -> crate::control::EpochSpec {
+        crate::control::EpochSpec {
+            name: self.name.clone(),
+            date: Some(self.date.clone()),
+            photos: self.photos.clone(),
+            camera: self.camera.clone(),
+            pos: self.pos.clone(),
+            strips: self.strips.clone(),
+            scan_pixel_um: None,
         }
     }
 }

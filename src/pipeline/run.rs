@@ -14,24 +14,21 @@
 //! A stage's inputs are the files it reads (earlier stages' folders included) and its
 //! parameters, so a rerun skips every stage whose inputs are unchanged and redoes the rest.
 
+use super::epoch_files::{epoch_report, load_block, read_json, save_epoch, write_json};
 use super::project::{Epoch, Project, ProjectError};
-use super::report::{self, CheckpointError, EpochReport, IcpIteration, OrthoPreview, PhotoSummary};
-use super::stages::{Inputs, Runner, StageError};
-use crate::adjust::ObservationRef;
-use crate::block::{Block, PhotoId};
-use crate::control::archive::{
-    self, ArchiveOptions, CheckpointEvaluation, DcpExportOptions, EpochCamera, EpochInput,
-    EpochResult, Navigation, PhotoInput,
-};
-use crate::control::cloud::{CloudOptions, GroundSurface};
+use super::report::{self, EpochReport, IcpIteration, OrthoPreview};
+use super::stages::{Inputs, Runner, StageError, WorkError};
+use crate::block::Block;
+use crate::control::archive::{self, ArchiveOptions};
+use crate::control::checkpoints::{self, CheckpointEvaluation, EvaluationError};
+use crate::control::cloud::CloudOptions;
 use crate::control::dcp::{Accuracy, DcpPackage, EpochInfo};
+use crate::control::epoch::{block_origin, EpochInput, Navigation};
+use crate::control::export::{self, DcpExportOptions};
 use crate::control::reference::{self, ReferenceOptions};
-use crate::formats::crs::Crs;
-use crate::formats::pos::FlightAxis;
-use crate::formats::{self, write_bytes_atomically};
-use crate::geometry::Camera;
-use crate::lidar::{self, Catalogue, PlaneIndex, PlaneOptions, ScanOptions, TileStore};
-use crate::matching::CameraDefinition;
+use crate::formats::control_points;
+use crate::formats::crs::{Crs, Transformer};
+use crate::lidar::{self, Catalogue, GroundSurface, PlaneIndex, PlaneOptions, ScanOptions, TileStore};
 use serde::{Deserialize, Serialize};
 use std::cell::OnceCell;
 use std::collections::BTreeMap;
@@ -91,106 +88,11 @@ impl RunSummary {
 /// Classes whose LiDAR points give planes for the reference adjustment: ground and
 /// buildings (stable, planar, present in the reference photos).
 const PLANE_CLASSES: [u8; 2] = [2, 6];
-/// DEM cell (m) of the control surface and the output DEM.
-const DEM_CELL_M: f64 = 1.0;
 
 /// `sources/origin.json`: the block-local origin shared by every epoch.
 #[derive(Debug, Clone, Copy, Serialize, Deserialize)]
 struct Origin {
     origin: [f64; 3],
-}
-
-/// Origin of the numerics: the LiDAR's south-west corner rounded down to a kilometre, so
-/// local coordinates stay small and the origin reads well.
-fn origin_of(cat: &Catalogue) -> [f64; 3] {
-    let b = cat.bounds;
-    [
-        (b[0] / 1000.0).floor() * 1000.0,
-        (b[1] / 1000.0).floor() * 1000.0,
-        0.0,
-    ]
-}
-
-fn err(stage: &str) -> impl Fn(String) -> String + '_ {
-    move |m| format!("{stage}: {m}")
-}
-
-fn write_json<T: Serialize>(path: &Path, v: &T) -> Result<(), String> {
-    let bytes = serde_json::to_vec_pretty(v).map_err(|e| e.to_string())?;
-    write_bytes_atomically(path, &bytes).map_err(|e| e.to_string())
-}
-
-fn read_json<T: for<'de> Deserialize<'de>>(path: &Path) -> Result<T, String> {
-    let bytes = std::fs::read(path).map_err(|e| format!("{}: {e}", path.display()))?;
-    serde_json::from_slice(&bytes).map_err(|e| format!("{}: {e}", path.display()))
-}
-
-fn first_line(path: &Path) -> Result<String, String> {
-    let text = std::fs::read_to_string(path).map_err(|e| format!("{}: {e}", path.display()))?;
-    Ok(text
-        .lines()
-        .find(|l| !l.trim().is_empty() && !l.trim_start().starts_with('#'))
-        .unwrap_or("")
-        .to_ascii_lowercase())
-}
-
-/// The epoch as [`EpochInput`]: photos of its folder, its camera (a frame camera, or a film
-/// camera certificate with fiducials), and its POS or strip end points in either
-/// documented layout (formats/pos/, or the synthetic block's).
-pub fn epoch_input(e: &Epoch, crs: &str, origin: [f64; 3]) -> Result<EpochInput, String> {
-    let photos = PhotoInput::from_folder(&e.photos).map_err(|x| x.to_string())?;
-    let cam_text = std::fs::read_to_string(&e.camera)
-        .map_err(|err| format!("{}: {err}", e.camera.display()))?;
-    let cam_json: serde_json::Value = serde_json::from_str(&cam_text)
-        .map_err(|err| format!("{}: not JSON: {err}", e.camera.display()))?;
-    let camera = if cam_json.get("fiducials").is_some() {
-        EpochCamera::Film(
-            CameraDefinition::load(&e.camera)
-                .map_err(|err| format!("{}: {err}", e.camera.display()))?,
-        )
-    } else {
-        match serde_json::from_value::<Camera>(cam_json)
-            .map_err(|err| format!("{}: {err}", e.camera.display()))?
-        {
-            Camera::Frame(f) => EpochCamera::Frame(f),
-            Camera::Film(_) => {
-                return Err(format!(
-                    "{}: a film camera needs its calibration certificate (fiducials)",
-                    e.camera.display()
-                ))
-            }
-        }
-    };
-    let names: Vec<String> = photos.iter().map(|p| p.name.clone()).collect();
-    let navigation = match (&e.pos, &e.strips) {
-        (Some(p), _) => {
-            let recs = if first_line(p)?.starts_with("photo,") {
-                archive::read_synth_pos(p).map_err(|x| x.to_string())?
-            } else {
-                formats::pos::read_pos(p).map_err(|x| x.to_string())?
-            };
-            Navigation::Pos(recs)
-        }
-        (None, Some(s)) => {
-            let strips = if first_line(s)?.starts_with("strip,first_photo") {
-                archive::read_synth_strips(s, &names, FlightAxis::ImageUp)
-                    .map_err(|x| x.to_string())?
-            } else {
-                formats::pos::read_strips(s, FlightAxis::ImageUp).map_err(|x| x.to_string())?
-            };
-            Navigation::Strips(strips)
-        }
-        (None, None) => return Err(format!("epoch {}: neither pos nor strips", e.name)),
-    };
-    Ok(EpochInput {
-        name: e.name.clone(),
-        date: Some(e.date.clone()),
-        crs: crs.to_string(),
-        origin,
-        camera,
-        photos,
-        navigation,
-    })
 }
 
 /// What the epoch stages need from the cleaned LiDAR, built once per run when first
@@ -203,30 +105,26 @@ struct LidarControl {
 }
 
 impl LidarControl {
-    fn surface(&self) -> Result<&GroundSurface, String> {
+    fn surface(&self) -> Result<&GroundSurface, WorkError> {
         if let Some(s) = self.surface.get() {
             return Ok(s);
         }
-        let tiles = lidar::catalogue::expand_inputs(std::slice::from_ref(&self.tiles_dir))
-            .map_err(|e| e.to_string())?;
-        let s =
-            archive::lidar_surfaces(&tiles, self.origin, DEM_CELL_M).map_err(|e| e.to_string())?;
+        let tiles = lidar::catalogue::expand_inputs(std::slice::from_ref(&self.tiles_dir))?;
+        let s = lidar::lidar_surfaces(&tiles, self.origin, lidar::LIDAR_CELL_M)?;
         Ok(self.surface.get_or_init(|| s))
     }
 
-    fn planes(&self) -> Result<&PlaneIndex, String> {
+    fn planes(&self) -> Result<&PlaneIndex, WorkError> {
         if let Some(p) = self.planes.get() {
             return Ok(p);
         }
-        let tiles = lidar::catalogue::expand_inputs(std::slice::from_ref(&self.tiles_dir))
-            .map_err(|e| e.to_string())?;
+        let tiles = lidar::catalogue::expand_inputs(std::slice::from_ref(&self.tiles_dir))?;
         let p = reference::lidar_plane_index(
             &tiles,
             self.origin,
             &PLANE_CLASSES,
             PlaneOptions::default(),
-        )
-        .map_err(|e| e.to_string())?;
+        )?;
         Ok(self.planes.get_or_init(|| p))
     }
 }
@@ -264,23 +162,23 @@ pub fn footprint(centres: &[[f64; 3]], ground_z: f64, half_view: f64) -> Option<
     (fp[0] <= fp[2]).then_some(fp)
 }
 
-fn select_tiles(project: &Project, cat: &Catalogue) -> Result<([f64; 4], TileSelection), String> {
+fn select_tiles(
+    project: &Project,
+    cat: &Catalogue,
+) -> Result<([f64; 4], TileSelection), WorkError> {
     let mut centres = Vec::new();
     for e in std::iter::once(&project.reference).chain(project.archive.iter()) {
-        let input = epoch_input(e, &project.crs, [0.0; 3])?;
-        match &input.navigation {
-            Navigation::Pos(r) => centres.extend(r.iter().map(|r| r.center)),
-            Navigation::Strips(s) => centres.extend(s.iter().flat_map(|s| [s.first, s.last])),
-        }
+        centres.extend(Navigation::load(e.pos.as_deref(), e.strips.as_deref())?.centres());
     }
-    let fp = footprint(&centres, cat.bounds[2], 1.85)
-        .ok_or_else(|| "no projection centre in any POS or strip file".to_string())?;
+    let fp = footprint(&centres, cat.bounds[2], 1.85).ok_or_else(|| {
+        WorkError::Inconsistent("no projection centre in any POS or strip file".into())
+    })?;
     let selected = cat.tiles_in(&lidar::Bbox::new(fp[0], fp[1], fp[2], fp[3]));
     if selected.is_empty() {
-        return Err(format!(
+        return Err(WorkError::Inconsistent(format!(
             "no LiDAR tile lies under the photos (footprint {fp:?}, LiDAR bounds {:?}): wrong CRS or wrong tiles?",
             cat.bounds
-        ));
+        )));
     }
     Ok((
         fp,
@@ -289,142 +187,6 @@ fn select_tiles(project: &Project, cat: &Catalogue) -> Result<([f64; 4], TileSel
             tiles_total: cat.tiles.len(),
             selected,
         },
-    ))
-}
-
-/// Checkpoint measurements and surveyed coordinates, when the project has both.
-struct Checkpoints {
-    surveyed: Vec<archive::SurveyedPoint>,
-    images: PathBuf,
-}
-
-fn evaluate(
-    cps: &Option<Checkpoints>,
-    block: &Block,
-    epoch: &str,
-    gsd_m: f64,
-) -> Result<Option<CheckpointEvaluation>, String> {
-    let Some(c) = cps else { return Ok(None) };
-    let meas = archive::read_checkpoint_images(&c.images, epoch).map_err(|e| e.to_string())?;
-    if meas.is_empty() {
-        return Ok(None);
-    }
-    match archive::evaluate_checkpoints(block, &meas, &c.surveyed, gsd_m) {
-        Ok(e) => Ok(Some(e)),
-        // Too few oriented photos see a checkpoint: the report says so with NaN.
-        Err(m) => {
-            tracing::warn!(epoch, "checkpoints not evaluated: {m}");
-            Ok(None)
-        }
-    }
-}
-
-/// The report rows of an oriented epoch.
-fn epoch_report(
-    result: &EpochResult,
-    date: &str,
-    eval: &Option<CheckpointEvaluation>,
-    surveyed: &[archive::SurveyedPoint],
-    icp: Vec<IcpIteration>,
-) -> EpochReport {
-    let block = &result.block;
-    let origin = block.origin;
-    // Mean residual vector and matching counts per photo.
-    let mut res: BTreeMap<PhotoId, ([f64; 2], usize)> = BTreeMap::new();
-    if let Some(a) = &result.adjustment {
-        for r in &a.residuals {
-            if let (ObservationRef::Image { photo, .. }, [dx, dy, ..]) =
-                (&r.observation, r.residual.as_slice())
-            {
-                let e = res.entry(*photo).or_insert(([0.0; 2], 0));
-                e.0[0] += dx;
-                e.0[1] += dy;
-                e.1 += 1;
-            }
-        }
-    }
-    let by_name: BTreeMap<&str, &archive::PhotoReport> =
-        result.photos.iter().map(|p| (p.name.as_str(), p)).collect();
-    let photos = block
-        .photos
-        .values()
-        .map(|p| {
-            let rep = by_name.get(p.name.as_str());
-            let (sum, n) = res.get(&p.id).copied().unwrap_or(([0.0; 2], 0));
-            let n = n.max(1) as f64;
-            PhotoSummary {
-                name: p.name.clone(),
-                x: p.pose.center.x + origin[0],
-                y: p.pose.center.y + origin[1],
-                oriented: p.oriented,
-                mean_residual_px: [sum[0] / n, sum[1] / n],
-                rmse_px: rep.map_or(f64::NAN, |r| r.sigma_px),
-                patches_predicted: rep.map_or(0, |r| r.predicted),
-                patches_matched: rep.map_or(0, |r| r.control_matches),
-            }
-        })
-        .collect();
-    let checkpoints = eval
-        .as_ref()
-        .map(|e| {
-            e.points
-                .iter()
-                .filter_map(|p| {
-                    let s = surveyed.iter().find(|s| s.id == p.id)?;
-                    Some(CheckpointError {
-                        id: p.id.clone(),
-                        x: s.xyz[0],
-                        y: s.xyz[1],
-                        dx: p.error[0],
-                        dy: p.error[1],
-                        dz: p.error[2],
-                    })
-                })
-                .collect()
-        })
-        .unwrap_or_default();
-    let mut rep = EpochReport {
-        name: result.epoch.clone(),
-        date: date.to_string(),
-        gsd_m: result.gsd_m,
-        photos_total: result.photos.len(),
-        photos_oriented: result.photos.iter().filter(|p| p.oriented).count(),
-        check_rmse_plan_m: f64::NAN,
-        check_rmse_height_m: f64::NAN,
-        check_max_m: f64::NAN,
-        sigma0: result.adjustment.as_ref().map_or(f64::NAN, |a| a.sigma0),
-        rmse_px: result.adjustment.as_ref().map_or(f64::NAN, |a| a.rmse_px),
-        time_s: result.time_s,
-        checkpoints,
-        photos,
-        icp,
-    };
-    rep.set_check_statistics();
-    rep
-}
-
-/// Files of an epoch stage: the oriented block, its images, the per-photo results and
-/// the report rows.
-fn save_epoch(
-    dir: &Path,
-    result: &EpochResult,
-    report: &EpochReport,
-    eval: &Option<CheckpointEvaluation>,
-) -> Result<(), String> {
-    write_json(&dir.join("block.json"), &result.block)?;
-    write_json(&dir.join("images.json"), &result.images)?;
-    write_json(&dir.join("result.json"), result)?;
-    write_json(&dir.join("epoch.json"), report)?;
-    if let Some(e) = eval {
-        write_json(&dir.join("checkpoints.json"), e)?;
-    }
-    Ok(())
-}
-
-fn load_block(dir: &Path) -> Result<(Block, BTreeMap<PhotoId, PathBuf>), String> {
-    Ok((
-        read_json(&dir.join("block.json"))?,
-        read_json(&dir.join("images.json"))?,
     ))
 }
 
@@ -447,17 +209,64 @@ fn dcp_options(project: &Project, reference_gsd: f64, gsd: f64, epoch: &str) -> 
 }
 
 fn archive_options(project: &Project) -> ArchiveOptions {
-    let t = &project.thresholds;
-    let mut o = ArchiveOptions {
-        reject_k: t.reject_k,
-        // Four matches leave a resection two redundant observations, too few to expose
-        // one mismatch among them once the control points' own σ absorbs part of it.
-        min_inliers: 6,
-        ..ArchiveOptions::default()
+    project.thresholds.archive_options()
+}
+
+/// Surveyed checkpoints converted to the project CRS, with the file of their image
+/// measurements.
+struct Checkpoints {
+    surveyed: Vec<(String, [f64; 3])>,
+    images: PathBuf,
+}
+
+fn read_checkpoints(project: &Project) -> Result<Option<Checkpoints>, WorkError> {
+    let (Some(c), Some(i)) = (
+        &project.control.checkpoints,
+        &project.control.checkpoint_images,
+    ) else {
+        return Ok(None);
     };
-    o.matching.ncc_threshold = t.ncc_min;
-    o.matching.agreement_px = t.lsm_agreement_px;
-    o
+    let points = control_points::read_points(c)?;
+    let crs = Crs::parse(&project.crs)?;
+    let source = match &project.control.checkpoints_crs {
+        Some(d) => Crs::parse(d)?,
+        None => crs.clone(),
+    };
+    let t = Transformer::new(&source, &crs)?;
+    let surveyed = points
+        .iter()
+        .map(|p| Ok((p.id.clone(), t.transform_point(p.xyz)?)))
+        .collect::<Result<_, crate::formats::FormatError>>()?;
+    Ok(Some(Checkpoints {
+        surveyed,
+        images: i.clone(),
+    }))
+}
+
+/// The checkpoint evaluation of an epoch; too few rays is a result (NaN in the report),
+/// a measurement in a photo the epoch does not have is an input error.
+fn evaluate(
+    cps: &Option<Checkpoints>,
+    block: &Block,
+    epoch: &str,
+    gsd_m: f64,
+) -> Result<Option<CheckpointEvaluation>, WorkError> {
+    let Some(c) = cps else { return Ok(None) };
+    let meas = control_points::read_checkpoint_measurements(&c.images, epoch)?;
+    if meas.is_empty() {
+        return Ok(None);
+    }
+    match checkpoints::evaluate_checkpoints(block, &meas, &c.surveyed, gsd_m) {
+        Ok(e) => Ok(Some(e)),
+        Err(EvaluationError::TooFewRays) => {
+            tracing::warn!(epoch, "checkpoints not evaluated: too few rays");
+            Ok(None)
+        }
+        Err(e) => Err(WorkError::Inconsistent(format!(
+            "{}: epoch {epoch}: {e}",
+            c.images.display()
+        ))),
+    }
 }
 
 /// The reference adjustment tests its gross errors by Baarda's data snooping (its tie
@@ -523,21 +332,22 @@ pub fn run_project(
             src_inputs = src_inputs.file(f);
         }
     }
+    let checkpoints = read_checkpoints(project).map_err(|source| StageError::Failed {
+        stage: "sources".into(),
+        source,
+    })?;
     let sources = stage!("sources".to_string(), src_inputs, |dir: &Path| {
-        let e = err("LiDAR sources");
-        let cat = Catalogue::scan(&project.control.lidar, &ScanOptions::default())
-            .map_err(|x| e(x.to_string()))?;
-        let crs = Crs::parse(&project.crs).map_err(|x| e(x.to_string()))?;
-        let lcrs = cat.crs().map_err(|x| e(x.to_string()))?;
+        let cat = Catalogue::scan(&project.control.lidar, &ScanOptions::default())?;
+        let crs = Crs::parse(&project.crs)?;
+        let lcrs = cat.crs()?;
         if lcrs.spatial_ref() != crs.spatial_ref() {
-            return Err(e(format!(
+            return Err(WorkError::Inconsistent(format!(
                 "the LiDAR is in {} but the project in {}; reproject the LiDAR (e.g. with PDAL) or set crs",
                 lcrs.label(),
                 crs.label()
             )));
         }
-        cat.save(&dir.join("catalogue.json"))
-            .map_err(|x| e(x.to_string()))?;
+        cat.save(&dir.join("catalogue.json"))?;
         // Only the tiles under the photos are cleaned and used: the rest of a national
         // dataset never enters memory.
         let (footprint, selection) = select_tiles(project, &cat)?;
@@ -557,40 +367,34 @@ pub fn run_project(
             "LiDAR tiles under the photos"
         );
         let lidar_dir = dir.join("lidar");
-        std::fs::create_dir_all(&lidar_dir).map_err(|x| e(x.to_string()))?;
+        std::fs::create_dir_all(&lidar_dir)
+            .map_err(|x| crate::formats::FormatError::io(&lidar_dir, x))?;
         let clean =
-            lidar::clean::clean_tiles(&cat, &lidar_dir, &lidar::clean::CleanOptions::default())
-                .map_err(|x| e(x.to_string()))?;
+            lidar::clean::clean_tiles(&cat, &lidar_dir, &lidar::clean::CleanOptions::default())?;
         write_json(&dir.join("clean.json"), &clean)?;
-        if let Some(cp) = &project.control.checkpoints {
-            let pts = archive::read_checkpoints(cp).map_err(|x| x.to_string())?;
-            let list: Vec<(String, [f64; 3])> = pts.iter().map(|p| (p.id.clone(), p.xyz)).collect();
+        if let Some(cps) = &checkpoints {
             let cleaned =
-                Catalogue::scan(std::slice::from_ref(&lidar_dir), &ScanOptions::default())
-                    .map_err(|x| e(x.to_string()))?;
+                Catalogue::scan(std::slice::from_ref(&lidar_dir), &ScanOptions::default())?;
             let mut store = TileStore::new(cleaned, 50_000_000);
             let rep = lidar::eval::evaluate_checkpoints_store(
                 &mut store,
-                &list,
+                &cps.surveyed,
                 Some(&[2]),
                 &lidar::CheckpointOptions::default(),
-            )
-            .map_err(|x| e(format!("evaluation against checkpoints: {x}")))?;
+            )?;
             write_json(&dir.join("lidar_checkpoints.json"), &rep)?;
-            std::fs::write(dir.join("lidar_checkpoints.txt"), rep.to_text())
-                .map_err(|x| e(x.to_string()))?;
+            let txt = dir.join("lidar_checkpoints.txt");
+            std::fs::write(&txt, rep.to_text())
+                .map_err(|x| crate::formats::FormatError::io(&txt, x))?;
         }
-        write_json(
-            &dir.join("origin.json"),
-            &Origin {
-                origin: origin_of(&cat),
-            },
-        )
+        // The block origin: the one rule, over the LiDAR under the photos.
+        let origin = block_origin([[cat.bounds[0], cat.bounds[1]]]);
+        Ok(write_json(&dir.join("origin.json"), &Origin { origin })?)
     });
     let origin = read_json::<Origin>(&sources.join("origin.json"))
-        .map_err(|m| StageError::Failed {
+        .map_err(|e| StageError::Failed {
             stage: "sources".into(),
-            message: m,
+            source: e.into(),
         })?
         .origin;
     let lidar = LidarControl {
@@ -598,19 +402,6 @@ pub fn run_project(
         origin,
         surface: OnceCell::new(),
         planes: OnceCell::new(),
-    };
-    let checkpoints = match (
-        &project.control.checkpoints,
-        &project.control.checkpoint_images,
-    ) {
-        (Some(c), Some(i)) => Some(Checkpoints {
-            surveyed: archive::read_checkpoints(c).map_err(|e| StageError::Failed {
-                stage: "sources".into(),
-                message: e.to_string(),
-            })?,
-            images: i.clone(),
-        }),
-        _ => None,
     };
     let cp_inputs = |i: Inputs| match &project.control.checkpoint_images {
         Some(p) => i.file(p),
@@ -639,15 +430,14 @@ pub fn run_project(
         }
         let inputs = cp_inputs(inputs);
         let edir = stage!(format!("epoch-{}", e.name), inputs, |dir: &Path| {
-            let input = epoch_input(e, &project.crs, origin)?;
+            let input = EpochInput::build(&e.spec(), &project.crs, origin)?;
             let (result, icp) = if k == 0 {
                 let (r, rep) = reference::orient_reference(
                     &input,
                     lidar.planes()?,
                     &lidar.surface()?.ground,
                     &reference_options(project),
-                )
-                .map_err(|x| x.to_string())?;
+                )?;
                 write_json(&dir.join("reference.json"), &rep)?;
                 let icp = rep
                     .icp
@@ -669,26 +459,25 @@ pub fn run_project(
                 // closest in time and appearance, the reference's the most accurate.
                 let pkgs = dcp_dirs
                     .iter()
-                    .map(|d| DcpPackage::open(&d.join("package")).map_err(|x| x.to_string()))
+                    .map(|d| DcpPackage::open(&d.join("package")))
                     .collect::<Result<Vec<_>, _>>()?;
                 let r = archive::orient_epoch(
                     &input,
                     &pkgs,
                     &lidar.surface()?.ground,
                     &archive_options(project),
-                )
-                .map_err(|x| x.to_string())?;
+                )?;
                 (r, Vec::new())
             };
             let eval = evaluate(&checkpoints, &result.block, &e.name, result.gsd_m)?;
             let surveyed = checkpoints.as_ref().map_or(&[][..], |c| &c.surveyed[..]);
             let rep = epoch_report(&result, &e.date, &eval, surveyed, icp);
-            save_epoch(dir, &result, &rep, &eval)
+            Ok(save_epoch(dir, &result, &rep, &eval)?)
         });
         let rep: EpochReport =
-            read_json(&edir.join("epoch.json")).map_err(|m| StageError::Failed {
+            read_json(&edir.join("epoch.json")).map_err(|x| StageError::Failed {
                 stage: format!("epoch-{}", e.name),
-                message: m,
+                source: x.into(),
             })?;
         if k == 0 {
             reference_gsd = rep.gsd_m;
@@ -705,7 +494,7 @@ pub fn run_project(
                 .file(&edir)
                 .param("thresholds", &project.thresholds),
             |dir: &Path| {
-                let (block, images) = load_block(&edir)?;
+                let block = load_block(&edir)?;
                 let mut opts = dcp_options(project, reference_gsd, rep.gsd_m, &e.name);
                 // The package's stated accuracy: what the checkpoints showed, never
                 // better than half a ground pixel.
@@ -722,9 +511,8 @@ pub fn run_project(
                         rep.gsd_m
                     },
                 };
-                archive::export_dcp(
+                export::export_dcp(
                     &block,
-                    &images,
                     lidar.surface()?,
                     EpochInfo {
                         name: e.name.clone(),
@@ -732,9 +520,8 @@ pub fn run_project(
                     },
                     &dir.join("package"),
                     &opts,
-                )
-                .map(|_| ())
-                .map_err(|x| x.to_string())
+                )?;
+                Ok(())
             }
         );
         products
@@ -755,7 +542,15 @@ pub fn run_project(
                     .file(&sources)
                     .file(&edir)
                     .param("outputs", &project.outputs),
-                |dir: &Path| write_products(project, &lidar, &edir, dir)
+                |dir: &Path| {
+                    super::products::write_products(
+                        project,
+                        lidar.surface()?,
+                        lidar.origin,
+                        &edir,
+                        dir,
+                    )
+                }
             );
             let files = products.entry(e.name.clone()).or_default();
             for f in ["colmap", "blocks_exchange.xml", "orthophoto.tif", "dem.tif"] {
@@ -791,15 +586,15 @@ pub fn run_project(
             ortho: preview,
         };
         if project.outputs.html_report {
-            report::write(&rep, dir).map_err(|x| x.to_string())
+            Ok(report::write(&rep, dir)?)
         } else {
-            write_json(&dir.join("report.json"), &rep)
+            Ok(write_json(&dir.join("report.json"), &rep)?)
         }
     });
     let mut report: report::Report =
-        read_json(&rdir.join("report.json")).map_err(|m| StageError::Failed {
+        read_json(&rdir.join("report.json")).map_err(|x| StageError::Failed {
             stage: "report".into(),
-            message: m,
+            source: x.into(),
         })?;
     report.ortho = ortho_preview;
     Ok(RunSummary {
@@ -809,110 +604,6 @@ pub fn run_project(
         skipped: runner.skipped.clone(),
         products,
     })
-}
-
-/// COLMAP model, BlocksExchange XML, orthophoto and DEM of one oriented epoch.
-fn write_products(
-    project: &Project,
-    lidar: &LidarControl,
-    edir: &Path,
-    dir: &Path,
-) -> Result<(), String> {
-    let (block, images) = load_block(edir)?;
-    let o = &project.outputs;
-    // Products name photos by their image file, as COLMAP and ContextCapture expect.
-    let mut named = block.clone();
-    for (id, p) in named.photos.iter_mut() {
-        if let Some(f) = images.get(id).and_then(|p| p.file_name()) {
-            p.name = f.to_string_lossy().into_owned();
-        }
-    }
-    // A film camera whose scan affine is not a pure scale has no exact COLMAP or
-    // BlocksExchange camera: such products are skipped with the reason recorded (the
-    // orthophoto and the block JSON hold the epoch in full).
-    let mut skipped: BTreeMap<&str, String> = BTreeMap::new();
-    // Reasons name files relative to the stage folder (its temporary name is per process).
-    let reason =
-        |e: &dyn std::fmt::Display| e.to_string().replace(&format!("{}/", dir.display()), "");
-    if o.colmap {
-        if let Err(e) = formats::colmap::write(
-            &dir.join("colmap"),
-            &named,
-            &formats::colmap::WriteOptions::default(),
-        ) {
-            let _ = std::fs::remove_dir_all(dir.join("colmap"));
-            tracing::warn!("COLMAP model not written: {e}");
-            skipped.insert("colmap", reason(&e));
-        }
-    }
-    if o.blocks_exchange {
-        let base = images
-            .values()
-            .next()
-            .and_then(|p| p.parent())
-            .map(|p| p.display().to_string());
-        if let Err(e) = formats::blocks_exchange::write(
-            &dir.join("blocks_exchange.xml"),
-            &named,
-            &formats::blocks_exchange::WriteOptions {
-                base_image_path: base,
-                block_name: Some(project.name.clone()),
-            },
-        ) {
-            tracing::warn!("BlocksExchange XML not written: {e}");
-            skipped.insert("blocks_exchange", reason(&e));
-        }
-    }
-    write_json(&dir.join("skipped.json"), &skipped)?;
-    if o.orthophoto || o.dem {
-        let crs = Crs::parse(&project.crs).map_err(|e| e.to_string())?;
-        // Back to world coordinates: shifting by the negated origin.
-        let w = lidar.origin;
-        let dem = archive::dem_to_local(&lidar.surface()?.ground, [-w[0], -w[1], -w[2]])?;
-        if o.dem {
-            formats::raster::write_dem(
-                &dir.join("dem.tif"),
-                &dem,
-                &crs,
-                &formats::raster::GeoTiffOptions::default(),
-            )
-            .map_err(|e| e.to_string())?;
-        }
-        if o.orthophoto {
-            let mut rgb = BTreeMap::new();
-            for (id, p) in &images {
-                if block.photos.get(id).is_some_and(|p| p.oriented) {
-                    rgb.insert(
-                        *id,
-                        formats::ortho::RgbImage::load(p).map_err(|e| e.to_string())?,
-                    );
-                }
-            }
-            let gsd = formats::ortho::default_gsd(&block, &dem).map(|g| g * o.ortho_gsd_factor);
-            let rep = formats::ortho::write_orthophoto(
-                &dir.join("orthophoto.tif"),
-                &block,
-                &dem,
-                &rgb,
-                &crs,
-                &formats::ortho::OrthoOptions {
-                    gsd,
-                    ..Default::default()
-                },
-            )
-            .map_err(|e| e.to_string())?;
-            write_json(&dir.join("orthophoto.json"), &rep)?;
-            let (png, extent) = preview_png(&dir.join("orthophoto.tif"))?;
-            std::fs::write(dir.join("preview.png"), png).map_err(|e| e.to_string())?;
-            write_json(&dir.join("preview.json"), &extent)?;
-        }
-    }
-    Ok(())
-}
-
-/// A small PNG of an orthophoto for the report's map, and its world extent.
-fn preview_png(path: &Path) -> Result<(Vec<u8>, [f64; 4]), String> {
-    formats::ortho::preview(path, 800).map_err(|e| e.to_string())
 }
 
 #[cfg(test)]

@@ -12,10 +12,34 @@ use std::path::{Path, PathBuf};
 
 #[derive(Debug, thiserror::Error)]
 pub enum StageError {
-    #[error("stage {stage}: {message}")]
-    Failed { stage: String, message: String },
+    #[error("stage {stage}: {source}")]
+    Failed {
+        stage: String,
+        #[source]
+        source: WorkError,
+    },
     #[error(transparent)]
     Format(#[from] FormatError),
+}
+
+/// What a stage's work failed on: the error of the module that failed, kept typed so that
+/// callers (the C ABI above all) can tell a missing file from a numeric failure.
+#[derive(Debug, thiserror::Error)]
+pub enum WorkError {
+    #[error(transparent)]
+    Epoch(#[from] crate::control::EpochError),
+    #[error(transparent)]
+    Lidar(#[from] crate::lidar::LidarError),
+    #[error(transparent)]
+    Format(#[from] FormatError),
+    #[error(transparent)]
+    Dcp(#[from] crate::control::DcpError),
+    #[error(transparent)]
+    Checkpoints(#[from] crate::control::checkpoints::EvaluationError),
+    /// Inputs that are each valid but do not fit together (LiDAR in another CRS, no tile
+    /// under the photos).
+    #[error("{0}")]
+    Inconsistent(String),
 }
 
 /// What a stage depends on: files (hashed by content) and parameters (any serialisable).
@@ -128,7 +152,7 @@ impl Runner {
         &mut self,
         name: &str,
         inputs: &Inputs,
-        work: impl FnOnce(&Path) -> Result<(), String>,
+        work: impl FnOnce(&Path) -> Result<(), WorkError>,
     ) -> Result<PathBuf, StageError> {
         let dir = self.dir(name);
         let fp = inputs.fingerprint()?;
@@ -150,11 +174,11 @@ impl Runner {
         }
         std::fs::create_dir_all(&tmp).map_err(|e| FormatError::io(&tmp, e))?;
         tracing::info!(stage = name, "running");
-        if let Err(message) = work(&tmp) {
+        if let Err(source) = work(&tmp) {
             let _ = std::fs::remove_dir_all(&tmp);
             return Err(StageError::Failed {
                 stage: name.into(),
-                message,
+                source,
             });
         }
         if dir.exists() {
@@ -187,14 +211,15 @@ mod tests {
             let a = r
                 .stage("one", &Inputs::new().file(&input).param("k", &3), |dir| {
                     std::fs::write(dir.join("x.txt"), std::fs::read(&input).unwrap())
-                        .map_err(|e| e.to_string())
+                        .map_err(|e| FormatError::io(dir, e).into())
                 })
                 .unwrap();
             let second = r.stage("two", &Inputs::new().file(&a), |dir| {
                 if fail_second {
-                    return Err("killed".into());
+                    return Err(WorkError::Inconsistent("killed".into()));
                 }
-                std::fs::write(dir.join("y.txt"), "done").map_err(|e| e.to_string())
+                std::fs::write(dir.join("y.txt"), "done")
+                    .map_err(|e| FormatError::io(dir, e).into())
             });
             (r.ran.clone(), r.skipped.clone(), second.is_ok())
         };

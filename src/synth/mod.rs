@@ -16,7 +16,9 @@ pub mod flight;
 pub mod lidar;
 pub mod noise;
 pub mod render;
+pub mod reading;
 pub mod scene;
+pub mod truth;
 
 pub use film::{Fiducial, FiducialShape, FilmCameraDef};
 pub use render::{render, RayCaster};

@@ -85,7 +85,7 @@ def oriented(tmp_path_factory):
             c = np.array([float(row[k]) for k in "xyz"])
             truth[pid] = (r, c)
             # nalgebra stores a matrix column by column.
-            photos[str(pid)] = {"id": pid, "name": row["photo"], "camera": 1, "oriented": True,
+            photos[str(pid)] = {"id": pid, "name": row["photo"], "camera": 1, "status": "oriented",
                                 "pose": {"rotation": r.T.reshape(9).tolist(), "center": (c - origin).tolist()}}
             images[str(pid)] = str(block_dir / epoch["images_dir"] / f"{row['photo']}.png")
     block = {"crs": m["crs"], "origin": origin.tolist(), "points": {},

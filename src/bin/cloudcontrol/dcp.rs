@@ -3,9 +3,10 @@
 //! (verification, import, merge).
 
 use clap::{Args, Subcommand};
-use cloudcontrol::control::archive::{
-    self, ControlPointSet, DcpExportOptions, OrientedBlock, LIDAR_CELL_M,
+use cloudcontrol::control::export::{
+    self, ControlPointSet, DcpExportOptions, OrientedBlock,
 };
+use cloudcontrol::lidar::LIDAR_CELL_M;
 use cloudcontrol::control::cloud::CloudOptions;
 use cloudcontrol::control::dcp::{Accuracy, DcpPackage, EpochInfo};
 use cloudcontrol::formats::write_bytes_atomically;
@@ -210,7 +211,7 @@ pub fn run(cmd: DcpCommand, json_out: bool) -> Result<(), String> {
                 opts.source = s;
             }
             let epoch = EpochInfo {
-                name: name.unwrap_or_else(|| archive::package_epoch_name(&out)),
+                name: name.unwrap_or_else(|| export::package_epoch_name(&out)),
                 date,
             };
             let p = b.export(epoch, &out, &opts).map_err(|e| e.to_string())?;

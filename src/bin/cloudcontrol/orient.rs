@@ -3,15 +3,15 @@
 //! output; the work is `control::archive::orient_epoch`.
 
 use clap::Args;
-use cloudcontrol::control::archive::{
-    self, ArchiveOptions, DcpExportOptions, EpochCamera, EpochInput, EpochResult, Navigation,
-    PhotoInput,
-};
+use cloudcontrol::control::archive::{self, EpochResult};
+use cloudcontrol::control::checkpoints;
 use cloudcontrol::control::cloud::CloudOptions;
 use cloudcontrol::control::dcp::{DcpPackage, EpochInfo};
-use cloudcontrol::formats::{self, write_bytes_atomically};
-use cloudcontrol::geometry::Camera;
-use cloudcontrol::matching::CameraDefinition;
+use cloudcontrol::control::epoch::{block_origin, EpochInput, EpochSpec, Navigation};
+use cloudcontrol::control::export::{self, DcpExportOptions};
+use cloudcontrol::formats::{self, control_points, write_bytes_atomically};
+use cloudcontrol::pipeline::project::Thresholds;
+use cloudcontrol::synth::reading::{perturbed_navigation, synth_truth_block};
 use serde_json::json;
 use std::path::{Path, PathBuf};
 use std::time::Instant;
@@ -46,10 +46,18 @@ pub struct OrientArgs {
     /// Folder of the photos (PNG/TIFF/JPEG); photo names are the file stems.
     #[arg(long)]
     images: Option<PathBuf>,
+    /// Epoch name (default: the photo folder's name).
+    #[arg(long)]
+    name: Option<String>,
+    /// Film scans: scan pixel size (µm); estimated from the format and the scan size if
+    /// not given.
+    #[arg(long)]
+    scan_pixel_um: Option<f64>,
     /// POS CSV: name,x,y,z,omega,phi,kappa[,sigma_xyz,sigma_angle] (degrees, world).
     #[arg(long, conflicts_with = "strips")]
     pos: Option<PathBuf>,
-    /// Strips CSV: strip,photo,x,y,z with the centres of each strip's first and last photo.
+    /// Strips CSV: strip,photo,x,y,z[,flight_axis] with the centres of each strip's first
+    /// and last photo (formats/pos/).
     #[arg(long)]
     strips: Option<PathBuf>,
     /// CRS of the navigation (default: the DEM's).
@@ -65,61 +73,35 @@ pub struct OrientArgs {
     reject_k: f64,
 }
 
-fn load_dem(
-    path: &Path,
-    origin: [f64; 3],
-) -> Result<(cloudcontrol::geometry::Dem, Option<String>), String> {
-    let (dem, crs) = formats::raster::read_dem(path).map_err(|e| e.to_string())?;
-    let local =
-        archive::dem_to_local(&dem, origin).map_err(|e| format!("{}: {e}", path.display()))?;
-    Ok((local, crs.map(|c| c.label())))
-}
-
+/// The epoch of the explicit options, through the one epoch builder; its origin is the
+/// one origin rule over the navigation's centres.
 fn explicit_input(a: &OrientArgs, dem_crs: Option<String>) -> Result<EpochInput, String> {
-    let (Some(cam_path), Some(images)) = (&a.camera, &a.images) else {
+    let (Some(camera), Some(images)) = (&a.camera, &a.images) else {
         return Err("give either --synth DIR --epoch NAME, or --camera and --images".into());
-    };
-    let text =
-        std::fs::read_to_string(cam_path).map_err(|e| format!("{}: {e}", cam_path.display()))?;
-    let camera = match serde_json::from_str::<Camera>(&text) {
-        Ok(Camera::Frame(f)) => EpochCamera::Frame(f),
-        _ => EpochCamera::Film(CameraDefinition::load(cam_path).map_err(|e| e.to_string())?),
-    };
-    let photos = PhotoInput::from_folder(images).map_err(|e| e.to_string())?;
-    let navigation = match (&a.pos, &a.strips) {
-        (Some(p), _) => Navigation::Pos(formats::pos::read_pos(p).map_err(|e| e.to_string())?),
-        (None, Some(s)) => Navigation::Strips(
-            formats::pos::read_strips(s, formats::pos::FlightAxis::default())
-                .map_err(|e| e.to_string())?,
-        ),
-        (None, None) => return Err("give --pos FILE or --strips FILE".into()),
     };
     let crs = a
         .crs
         .clone()
         .or(dem_crs)
         .ok_or("the CRS is unknown: give --crs (the DEM has none)")?;
-    // Block origin: the first navigation centre rounded to the kilometre, heights as given.
-    let c0 = match &navigation {
-        Navigation::Pos(r) => r[0].center,
-        Navigation::Strips(s) => s[0].first,
-    };
-    Ok(EpochInput {
-        name: images
-            .file_name()
-            .map(|n| n.to_string_lossy().into_owned())
-            .unwrap_or_else(|| "epoch".into()),
+    let spec = EpochSpec {
+        name: a.name.clone().unwrap_or_else(|| {
+            images
+                .file_name()
+                .map(|n| n.to_string_lossy().into_owned())
+                .unwrap_or_else(|| "epoch".into())
+        }),
         date: None,
-        crs,
-        origin: [
-            (c0[0] / 1000.0).round() * 1000.0,
-            (c0[1] / 1000.0).round() * 1000.0,
-            0.0,
-        ],
-        camera,
-        photos,
-        navigation,
-    })
+        photos: images.clone(),
+        camera: camera.clone(),
+        pos: a.pos.clone(),
+        strips: a.strips.clone(),
+        scan_pixel_um: a.scan_pixel_um,
+    };
+    let nav = Navigation::load(spec.pos.as_deref(), spec.strips.as_deref())
+        .map_err(|e| e.to_string())?;
+    let origin = block_origin(nav.centres().iter().map(|c| [c[0], c[1]]));
+    EpochInput::build(&spec, &crs, origin).map_err(|e| e.to_string())
 }
 
 fn write_outputs(out: &Path, r: &EpochResult) -> Result<serde_json::Value, String> {
@@ -127,9 +109,10 @@ fn write_outputs(out: &Path, r: &EpochResult) -> Result<serde_json::Value, Strin
     let block = serde_json::to_vec_pretty(&r.block).map_err(|e| e.to_string())?;
     write_bytes_atomically(&out.join("block.json"), &block).map_err(|e| e.to_string())?;
     let mut exports = serde_json::Map::new();
+    let oriented = r.block.oriented_only();
     let colmap = formats::colmap::write(
         &out.join("colmap"),
-        &r.block,
+        &oriented,
         &formats::colmap::WriteOptions {
             encoding: formats::colmap::Encoding::Text,
             layout: formats::colmap::Layout::Rigs,
@@ -142,7 +125,7 @@ fn write_outputs(out: &Path, r: &EpochResult) -> Result<serde_json::Value, Strin
             Err(e) => json!({"skipped": e.to_string()}),
         },
     );
-    let bx = formats::blocks_exchange::to_string(&r.block, &Default::default()).and_then(|s| {
+    let bx = formats::blocks_exchange::to_string(&oriented, &Default::default()).and_then(|s| {
         write_bytes_atomically(&out.join("blocks_exchange.xml"), s.as_bytes())
             .map_err(|e| e.to_string())
     });
@@ -181,11 +164,16 @@ pub fn run_orient(a: &OrientArgs, json_out: bool, quiet: bool) -> Result<(), Str
             explicit_input(a, crs.map(|c| c.label()))?
         }
     };
-    let (dem, _) = load_dem(&a.dem, input.origin)?;
-    let opts = ArchiveOptions {
+    let (dem, _) = formats::raster::read_dem(&a.dem).map_err(|e| e.to_string())?;
+    let dem = dem
+        .shifted(input.origin)
+        .map_err(|e| format!("{}: {e}", a.dem.display()))?;
+    // The same options as `cloudcontrol run` with default thresholds.
+    let opts = Thresholds {
         reject_k: a.reject_k,
-        ..ArchiveOptions::default()
-    };
+        ..Thresholds::default()
+    }
+    .archive_options();
     let r = archive::orient_epoch(&input, &packages, &dem, &opts).map_err(|e| e.to_string())?;
     let report = write_outputs(&a.out, &r)?;
     if json_out {
@@ -296,12 +284,11 @@ pub fn run_bench(a: &BenchArgs, json_out: bool) -> Result<(), String> {
         .filter(|p| p.extension().is_some_and(|e| e == "las" || e == "laz"))
         .collect();
     tiles.sort();
-    let surface = archive::lidar_surfaces(&tiles, synth::ORIGIN, 1.0).map_err(|e| e.to_string())?;
-    let (refb, refi) =
-        archive::synth_truth_block(&dir, "reference_2024").map_err(|e| e.to_string())?;
-    let pkg = archive::export_dcp(
+    let surface = cloudcontrol::lidar::lidar_surfaces(&tiles, synth::ORIGIN, 1.0)
+        .map_err(|e| e.to_string())?;
+    let refb = synth_truth_block(&dir, "reference_2024").map_err(|e| e.to_string())?;
+    let pkg = export::export_dcp(
         &refb,
-        &refi,
         &surface,
         EpochInfo {
             name: "reference_2024".into(),
@@ -342,16 +329,16 @@ pub fn run_bench(a: &BenchArgs, json_out: bool) -> Result<(), String> {
         let (mut plan, mut height, mut n_eval) = (0.0, 0.0, 0usize);
         let t = Instant::now();
         for epoch in epochs {
-            let (truth, _) = archive::synth_truth_block(&dir, epoch).map_err(|e| e.to_string())?;
+            let truth = synth_truth_block(&dir, epoch).map_err(|e| e.to_string())?;
             let base = EpochInput::from_synth_epoch(&dir, epoch).map_err(|e| e.to_string())?;
             for d in 0..a.draws {
                 let input = EpochInput {
-                    navigation: archive::perturbed_navigation(&truth, sc, sa, 1000 * a.seed + d),
+                    navigation: perturbed_navigation(&truth, sc, sa, 1000 * a.seed + d),
                     ..base.clone()
                 };
-                let mut opts = ArchiveOptions::default();
+                let mut opts = Thresholds::default().archive_options();
                 if !refine {
-                    opts.orient.max_iterations = 1;
+                    opts.photo.orient.max_iterations = 1;
                 }
                 let r = archive::orient_epoch(&input, &packages, &surface.ground, &opts)
                     .map_err(|e| e.to_string())?;
@@ -362,7 +349,7 @@ pub fn run_bench(a: &BenchArgs, json_out: bool) -> Result<(), String> {
                         failures.push(format!(
                             "{epoch}/{} (draw {d}): {}",
                             p.name,
-                            p.reason.as_deref().unwrap_or("")
+                            p.reason.as_ref().map(|r| r.to_string()).unwrap_or_default()
                         ));
                     }
                     if let (Some(f), Some(l)) = (p.iterations.first(), p.iterations.last()) {
@@ -371,14 +358,18 @@ pub fn run_bench(a: &BenchArgs, json_out: bool) -> Result<(), String> {
                         rounds.push(p.iterations.len() as f64);
                     }
                 }
-                let meas = archive::read_checkpoint_images(
+                let meas = control_points::read_checkpoint_measurements(
                     &dir.join("truth/checkpoint_images.csv"),
                     epoch,
                 )
                 .map_err(|e| e.to_string())?;
-                let surveyed = archive::read_checkpoints(&dir.join("checkpoints.csv"))
-                    .map_err(|e| e.to_string())?;
-                if let Ok(e) = archive::evaluate_checkpoints(&r.block, &meas, &surveyed, r.gsd_m) {
+                let surveyed: Vec<(String, [f64; 3])> =
+                    control_points::read_points(&dir.join("checkpoints.csv"))
+                        .map_err(|e| e.to_string())?
+                        .into_iter()
+                        .map(|p| (p.id, p.xyz))
+                        .collect();
+                if let Ok(e) = checkpoints::evaluate_checkpoints(&r.block, &meas, &surveyed, r.gsd_m) {
                     plan += e.rmse_plan_px.powi(2);
                     height += e.rmse_height_px.powi(2);
                     n_eval += 1;

@@ -1,0 +1,472 @@
+//! Control points with their chips, and how one is found in a photo.
+//!
+//! A [`ChipStore`] holds control points (block-local), each seen in one or more *views*: a
+//! chip of an oriented photo with that photo's camera and pose. The chips come from DCP
+//! packages (read on demand, checksums verified) or are cut from oriented photos of the
+//! same block (the epoch's own photos in the second pass, tie points among them). The
+//! [`ChipMatcher`] aligns a view's chip to the target photo through the point's ground
+//! plane, then runs NCC over the pyramid inside the search window, LSM at full resolution
+//! and the NCC/LSM cross-check (seed 001).
+
+use super::dcp::{ChipRef, DcpError, DcpPackage, PlanIndex};
+use super::orient::{ControlPatch, PatchMatch, PatchMatcher};
+use super::predict::{self, Plane, Prediction, View};
+use crate::geometry::{Camera, Pose};
+use crate::matching::{self, match_template, GreyImage, MatchOptions, Pyramid, Window};
+use nalgebra::{Matrix3, Vector2, Vector3};
+use serde::Serialize;
+use std::collections::HashMap;
+use std::sync::Arc;
+
+/// A DCP control point: package index and point index in its manifest.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, PartialOrd, Ord, Hash, Serialize)]
+pub struct PointKey {
+    pub package: usize,
+    pub point: usize,
+}
+
+/// Where a view's pixels are.
+#[derive(Debug, Clone)]
+enum ChipPixels {
+    /// A chip file of a package, read (and verified) when first needed.
+    Package { package: usize, chip: ChipRef },
+    /// A chip already cut from a photo in memory.
+    Memory(Arc<Pyramid>),
+}
+
+/// One view of a control point: its chip in an oriented photo.
+#[derive(Debug, Clone)]
+pub struct ChipView {
+    pub camera: Camera,
+    /// Block-local pose of the photo the chip was cut from.
+    pub pose: Pose,
+    /// The point's pixel in that photo.
+    pub pixel: [f64; 2],
+    /// Photo pixel of the chip's top-left corner and the chip size.
+    pub x0: u32,
+    pub y0: u32,
+    pub width: u32,
+    pub height: u32,
+    /// Index of the epoch photo the chip was cut from, for chips of the block itself.
+    pub photo: Option<usize>,
+    pixels: ChipPixels,
+}
+
+impl ChipView {
+    /// A view whose chip is cut from `image` (a photo of the block) around `pixel`, of
+    /// side `2·half + 1`; `None` when the chip would leave the photo.
+    pub fn cut(
+        camera: &Camera,
+        pose: &Pose,
+        image: &GreyImage,
+        pixel: [f64; 2],
+        half: usize,
+        photo: Option<usize>,
+    ) -> Option<Self> {
+        let size = 2 * half + 1;
+        let (x0, y0) = (
+            pixel[0].floor() as i64 - half as i64,
+            pixel[1].floor() as i64 - half as i64,
+        );
+        if x0 < 0 || y0 < 0 {
+            return None;
+        }
+        let crop = image.crop(x0 as usize, y0 as usize, size, size).ok()?;
+        Some(Self {
+            camera: camera.clone(),
+            pose: *pose,
+            pixel,
+            x0: x0 as u32,
+            y0: y0 as u32,
+            width: size as u32,
+            height: size as u32,
+            photo,
+            pixels: ChipPixels::Memory(Arc::new(Pyramid::new(&crop, 5, 8))),
+        })
+    }
+}
+
+/// A control point offered to the photos.
+#[derive(Debug, Clone)]
+pub struct ControlPoint {
+    /// The DCP point this is, when it comes from a package (also for chips re-cut from
+    /// the epoch's own photos); `None` for a tie point of the epoch.
+    pub key: Option<PointKey>,
+    /// `epoch:name` of a DCP point, for reports.
+    pub label: String,
+    /// Block-local object coordinates and their 1σ (m).
+    pub position: Vector3<f64>,
+    pub sigma: [f64; 3],
+    /// Unit normal of the supporting surface (the chip is aligned through this plane).
+    pub normal: Vector3<f64>,
+    pub views: Vec<ChipView>,
+}
+
+/// Control points with their views and a plan index over them.
+pub struct ChipStore<'a> {
+    packages: &'a [DcpPackage],
+    pub origin: Vector3<f64>,
+    pub points: Vec<ControlPoint>,
+    index: PlanIndex,
+}
+
+impl<'a> ChipStore<'a> {
+    /// Every point of the packages (their CRS checked by the caller), block-local.
+    pub fn from_packages(packages: &'a [DcpPackage], origin: Vector3<f64>) -> Self {
+        let mut points = Vec::new();
+        for (k, pkg) in packages.iter().enumerate() {
+            let m = &pkg.manifest;
+            for (i, p) in m.points.iter().enumerate() {
+                let views = p
+                    .measurements
+                    .iter()
+                    .filter_map(|ms| {
+                        let ph = m.photos.iter().find(|ph| ph.id == ms.photo)?;
+                        Some(ChipView {
+                            camera: ph.camera.clone(),
+                            pose: ph.pose(&origin),
+                            pixel: ms.pixel,
+                            x0: ms.chip.x0,
+                            y0: ms.chip.y0,
+                            width: ms.chip.width,
+                            height: ms.chip.height,
+                            photo: None,
+                            pixels: ChipPixels::Package {
+                                package: k,
+                                chip: ms.chip.clone(),
+                            },
+                        })
+                    })
+                    .collect();
+                points.push(ControlPoint {
+                    key: Some(PointKey {
+                        package: k,
+                        point: i,
+                    }),
+                    label: format!("{}:{}", m.epoch.name, p.name),
+                    position: Vector3::from(p.xyz) - origin,
+                    sigma: p.sigma,
+                    normal: p.normal.map(Vector3::from).unwrap_or_else(Vector3::z),
+                    views,
+                });
+            }
+        }
+        Self::new(packages, origin, points)
+    }
+
+    /// Points whose views are chips in memory (cut with [`ChipView::cut`]).
+    pub fn from_points(origin: Vector3<f64>, points: Vec<ControlPoint>) -> ChipStore<'static> {
+        ChipStore::new(&[], origin, points)
+    }
+
+    fn new(packages: &'a [DcpPackage], origin: Vector3<f64>, points: Vec<ControlPoint>) -> Self {
+        let index = PlanIndex::new(
+            points
+                .iter()
+                .map(|p| [p.position.x, p.position.y])
+                .collect(),
+        );
+        Self {
+            packages,
+            origin,
+            points,
+            index,
+        }
+    }
+
+    /// Indices of the points inside a block-local plan polygon, in a fixed order.
+    pub fn query_polygon(&self, polygon: &[[f64; 2]]) -> Vec<usize> {
+        self.index.query_polygon(polygon)
+    }
+
+    /// The patches of the points inside a polygon, as the orientation loop takes them.
+    pub fn patches_in(&self, polygon: &[[f64; 2]]) -> Vec<ControlPatch> {
+        self.query_polygon(polygon)
+            .into_iter()
+            .map(|i| {
+                let s = self.points[i].sigma;
+                ControlPatch {
+                    id: i,
+                    position: self.points[i].position,
+                    covariance: Matrix3::from_diagonal(&Vector3::new(
+                        s[0] * s[0],
+                        s[1] * s[1],
+                        s[2] * s[2],
+                    )),
+                }
+            })
+            .collect()
+    }
+
+    /// The chip pyramid of a view (a package chip is read, verified and decoded).
+    fn pyramid(&self, point: usize, view: usize) -> Result<Arc<Pyramid>, DcpError> {
+        match &self.points[point].views[view].pixels {
+            ChipPixels::Memory(p) => Ok(p.clone()),
+            ChipPixels::Package { package, chip } => {
+                let pkg = &self.packages[*package];
+                let img = pkg.chip(chip)?;
+                let g = img.to_luma32f();
+                let data: Vec<f32> = g.as_raw().iter().map(|v| v * 255.0).collect();
+                let grey = GreyImage::new(g.width() as usize, g.height() as usize, data).map_err(
+                    |e| DcpError::Chip {
+                        package: pkg.dir.clone(),
+                        file: chip.file.clone(),
+                        message: e.to_string(),
+                    },
+                )?;
+                Ok(Arc::new(Pyramid::new(&grey, 5, 8)))
+            }
+        }
+    }
+}
+
+/// Options of the chip matcher.
+#[derive(Debug, Clone)]
+pub struct ChipMatchOptions {
+    pub matching: MatchOptions,
+    /// Largest template half size in target pixels (template = 2·h + 1); smaller when the
+    /// chip does not hold it at the target's scale, but never below `min_template_half`.
+    pub template_half: usize,
+    pub min_template_half: usize,
+    /// Minimum grey-value standard deviation of an aligned chip (textureless chips are
+    /// not offered to NCC).
+    pub min_chip_std: f64,
+}
+
+impl Default for ChipMatchOptions {
+    fn default() -> Self {
+        Self {
+            matching: MatchOptions {
+                ncc_threshold: 0.6,
+                // Large first-round windows over fields and roads hold near-repeats of
+                // a patch; the best peak is still mostly right, and the resection's
+                // RANSAC removes the rest.
+                max_ambiguity: 0.97,
+                // The NCC peak of a rescaled template is good to a pixel or two; LSM is
+                // the precise one, the cross-check only has to catch its divergence.
+                agreement_px: 2.0,
+                ..MatchOptions::default()
+            },
+            template_half: 30,
+            min_template_half: 7,
+            min_chip_std: 2.0,
+        }
+    }
+}
+
+/// Why the matcher rejected patches, counted for the report.
+#[derive(Debug, Clone, Default, Serialize, PartialEq)]
+pub struct MatchStats {
+    pub offered: usize,
+    pub no_chip: usize,
+    pub textureless: usize,
+    pub rejected: usize,
+    pub accepted: usize,
+}
+
+/// The [`PatchMatcher`] of real photos: finds the points of a [`ChipStore`] in one photo.
+pub struct ChipMatcher<'a> {
+    camera: &'a Camera,
+    pyramid: &'a Pyramid,
+    store: &'a ChipStore<'a>,
+    opts: &'a ChipMatchOptions,
+    /// Chip pyramids read so far, by (point, view); None = unreadable.
+    chips: HashMap<(usize, usize), Option<Arc<Pyramid>>>,
+    pub stats: MatchStats,
+    /// First chip error met (a damaged package is an input error, not a mismatch).
+    pub chip_error: Option<DcpError>,
+}
+
+impl<'a> ChipMatcher<'a> {
+    pub fn new(
+        camera: &'a Camera,
+        pyramid: &'a Pyramid,
+        store: &'a ChipStore<'a>,
+        opts: &'a ChipMatchOptions,
+    ) -> Self {
+        Self {
+            camera,
+            pyramid,
+            store,
+            opts,
+            chips: HashMap::new(),
+            stats: MatchStats::default(),
+            chip_error: None,
+        }
+    }
+
+    fn chip(&mut self, point: usize, view: usize) -> Option<Arc<Pyramid>> {
+        if let Some(c) = self.chips.get(&(point, view)) {
+            return c.clone();
+        }
+        let c = match self.store.pyramid(point, view) {
+            Ok(p) => Some(p),
+            Err(e) => {
+                self.chip_error.get_or_insert(e);
+                None
+            }
+        };
+        self.chips.insert((point, view), c.clone());
+        c
+    }
+
+    /// Views of a point, best first: the photo whose viewing direction is closest to the
+    /// target's, then the one with the closest ground pixel.
+    fn ranked_views(&self, point: usize, target: &Pose) -> Vec<usize> {
+        let p = &self.store.points[point];
+        let x = &p.position;
+        let to_target = (target.center - x).normalize();
+        let target_gsd = (target.center - x).norm() / self.camera.focal_px();
+        let mut scored: Vec<(usize, f64, f64)> = p
+            .views
+            .iter()
+            .enumerate()
+            .map(|(j, v)| {
+                let d = (v.pose.center - x).normalize();
+                let gsd = (v.pose.center - x).norm() / v.camera.focal_px();
+                (j, d.dot(&to_target), (gsd / target_gsd).ln().abs())
+            })
+            .collect();
+        scored.sort_by(|a, b| {
+            // Directions within ~2.5° are equivalent; then prefer the closer scale.
+            let (qa, qb) = ((a.1 * 400.0).round(), (b.1 * 400.0).round());
+            qb.total_cmp(&qa).then(a.2.total_cmp(&b.2))
+        });
+        scored.into_iter().map(|s| s.0).collect()
+    }
+
+    /// The chip of view `view` aligned to the target at `pixel`, or None when the chip
+    /// does not hold the template.
+    fn template(
+        &mut self,
+        point: usize,
+        view: usize,
+        pose: &Pose,
+        pixel: Vector2<f64>,
+    ) -> Option<GreyImage> {
+        let store = self.store;
+        let p = &store.points[point];
+        let v = &p.views[view];
+        let plane = Plane::through(&p.position, &p.normal);
+        let a = predict::transfer_affine(
+            View {
+                camera: self.camera,
+                pose,
+            },
+            View {
+                camera: &v.camera,
+                pose: &v.pose,
+            },
+            &plane,
+            [pixel.x, pixel.y],
+        )
+        .ok()?;
+        let s = Vector2::new(v.pixel[0] - v.x0 as f64, v.pixel[1] - v.y0 as f64);
+        let l = a.fixed_view::<2, 2>(0, 0).into_owned();
+        // The largest template (up to the option) whose footprint stays inside the chip:
+        // a coarser target needs more chip pixels per template pixel.
+        let stretch = l.column(0).norm().max(l.column(1).norm()).max(1e-9);
+        let room = (v.width.min(v.height) as f64 / 2.0 - 3.0) / (stretch * 1.05);
+        let th = (self.opts.template_half as f64).min(room.floor() - 1.0);
+        if th < self.opts.min_template_half as f64 {
+            return None;
+        }
+        let t = 2.0 * th + 1.0;
+        let chip = self.chip(point, view)?;
+        let level = (predict::pyramid_level(&a) as usize).min(chip.levels.len() - 1);
+        let f = (1u64 << level) as f64;
+        let img = &chip.levels[level];
+        // Template pixel u (corner origin) ↦ offset u − t/2 from the point ↦ chip pixel
+        // L·offset + s ↦ level pixel /2^level: the chip rotated and rescaled into the
+        // target's geometry, centred on the control point's own chip position.
+        let c = s - l * Vector2::new(t / 2.0, t / 2.0);
+        let warp = matching::PatchWarp::Affine([
+            l[(0, 0)] / f,
+            l[(0, 1)] / f,
+            c.x / f,
+            l[(1, 0)] / f,
+            l[(1, 1)] / f,
+            c.y / f,
+        ]);
+        let (tpl, outside) = matching::warp_patch(
+            img,
+            &warp,
+            t as usize,
+            t as usize,
+            matching::Interpolation::Bicubic,
+        );
+        (outside == 0).then_some(tpl)
+    }
+}
+
+impl PatchMatcher for ChipMatcher<'_> {
+    fn find(
+        &mut self,
+        patch: &ControlPatch,
+        pose: &Pose,
+        prediction: &Prediction,
+        half_size: [f64; 2],
+    ) -> Option<PatchMatch> {
+        self.stats.offered += 1;
+        let mut tpl = None;
+        for view in self.ranked_views(patch.id, pose) {
+            if let Some(t) = self.template(patch.id, view, pose, prediction.pixel) {
+                tpl = Some(t);
+                break;
+            }
+        }
+        let Some(tpl) = tpl else {
+            self.stats.no_chip += 1;
+            return None;
+        };
+        if tpl.std_dev() < self.opts.min_chip_std {
+            self.stats.textureless += 1;
+            return None;
+        }
+        let img = &self.pyramid.levels[0];
+        let th = tpl.width as f64 / 2.0;
+        let window = Window::around(
+            img,
+            prediction.pixel.x,
+            prediction.pixel.y,
+            half_size[0] + th,
+            half_size[1] + th,
+        )?;
+        let rr = match_template(self.pyramid, &tpl, window, None, &self.opts.matching);
+        if let Ok(r) = &rr {
+            tracing::debug!(
+                patch = patch.id,
+                pred_x = prediction.pixel.x,
+                pred_y = prediction.pixel.y,
+                half = half_size[0],
+                x = r.x,
+                y = r.y,
+                ncc = r.ncc,
+                ambiguity = r.ambiguity,
+                reason = r.reason.as_deref().unwrap_or(""),
+                "control patch match"
+            );
+        }
+        let r = match rr {
+            Ok(r) if r.accepted => r,
+            _ => {
+                self.stats.rejected += 1;
+                return None;
+            }
+        };
+        // The match must lie in the window that was searched (LSM may drift out of it).
+        if (r.x - prediction.pixel.x).abs() > half_size[0] + 1.0
+            || (r.y - prediction.pixel.y).abs() > half_size[1] + 1.0
+        {
+            self.stats.rejected += 1;
+            return None;
+        }
+        self.stats.accepted += 1;
+        let sigma = (0.5 * (r.sigma_x.powi(2) + r.sigma_y.powi(2))).sqrt();
+        Some(PatchMatch {
+            pixel: Vector2::new(r.x, r.y),
+            sigma_px: if sigma.is_finite() { sigma } else { 1.0 },
+            ncc: r.ncc,
+        })
+    }
+}

@@ -1,0 +1,139 @@
+//! The files of an epoch stage (`epoch-<name>/`, formats/workflow/): `block.json` (the
+//! epoch's [`Block`], every photo with its status and image), `images.json` (photo id →
+//! image), `result.json` (per-photo results and the adjustment report), `epoch.json` (the
+//! report rows) and `checkpoints.json`; and the report rows made from an epoch's result.
+
+use super::report::{CheckpointError, EpochReport, IcpIteration, PhotoSummary};
+use crate::adjust::ObservationRef;
+use crate::block::{Block, PhotoId};
+use crate::control::archive::EpochResult;
+use crate::control::checkpoints::CheckpointEvaluation;
+use crate::control::export::read_oriented_block;
+use crate::control::photo::PhotoReport;
+use crate::formats::{write_bytes_atomically, FormatError};
+use serde::{Deserialize, Serialize};
+use std::collections::BTreeMap;
+use std::path::{Path, PathBuf};
+
+pub fn write_json<T: Serialize>(path: &Path, v: &T) -> Result<(), FormatError> {
+    let bytes =
+        serde_json::to_vec_pretty(v).map_err(|e| FormatError::invalid(path, e.to_string()))?;
+    write_bytes_atomically(path, &bytes)
+}
+
+pub fn read_json<T: for<'de> Deserialize<'de>>(path: &Path) -> Result<T, FormatError> {
+    let bytes = std::fs::read(path).map_err(|e| FormatError::io(path, e))?;
+    serde_json::from_slice(&bytes).map_err(|e| FormatError::invalid(path, e.to_string()))
+}
+
+/// Writes the files of an epoch stage into `dir`.
+pub fn save_epoch(
+    dir: &Path,
+    result: &EpochResult,
+    report: &EpochReport,
+    eval: &Option<CheckpointEvaluation>,
+) -> Result<(), FormatError> {
+    write_json(&dir.join("block.json"), &result.block)?;
+    let images: BTreeMap<PhotoId, &PathBuf> = result
+        .block
+        .photos
+        .values()
+        .filter_map(|p| Some((p.id, p.image.as_ref()?)))
+        .collect();
+    write_json(&dir.join("images.json"), &images)?;
+    write_json(&dir.join("result.json"), result)?;
+    write_json(&dir.join("epoch.json"), report)?;
+    if let Some(e) = eval {
+        write_json(&dir.join("checkpoints.json"), e)?;
+    }
+    Ok(())
+}
+
+/// The oriented block of an epoch stage, its photos' images set.
+pub fn load_block(dir: &Path) -> Result<Block, crate::control::EpochError> {
+    read_oriented_block(&dir.join("block.json"), &dir.join("images.json"))
+}
+
+/// The report rows of an oriented epoch.
+pub fn epoch_report(
+    result: &EpochResult,
+    date: &str,
+    eval: &Option<CheckpointEvaluation>,
+    surveyed: &[(String, [f64; 3])],
+    icp: Vec<IcpIteration>,
+) -> EpochReport {
+    let block = &result.block;
+    let origin = block.origin;
+    // Mean residual vector and matching counts per photo.
+    let mut res: BTreeMap<PhotoId, ([f64; 2], usize)> = BTreeMap::new();
+    if let Some(a) = &result.adjustment {
+        for r in &a.residuals {
+            if let (ObservationRef::Image { photo, .. }, [dx, dy, ..]) =
+                (&r.observation, r.residual.as_slice())
+            {
+                let e = res.entry(*photo).or_insert(([0.0; 2], 0));
+                e.0[0] += dx;
+                e.0[1] += dy;
+                e.1 += 1;
+            }
+        }
+    }
+    let by_name: BTreeMap<&str, &PhotoReport> =
+        result.photos.iter().map(|p| (p.name.as_str(), p)).collect();
+    let photos = block
+        .photos
+        .values()
+        .map(|p| {
+            let rep = by_name.get(p.name.as_str());
+            let (sum, n) = res.get(&p.id).copied().unwrap_or(([0.0; 2], 0));
+            let n = n.max(1) as f64;
+            PhotoSummary {
+                name: p.name.clone(),
+                x: p.pose.center.x + origin[0],
+                y: p.pose.center.y + origin[1],
+                oriented: p.is_oriented(),
+                mean_residual_px: [sum[0] / n, sum[1] / n],
+                rmse_px: rep.map_or(f64::NAN, |r| r.sigma_px),
+                patches_predicted: rep.map_or(0, |r| r.predicted),
+                patches_matched: rep.map_or(0, |r| r.control_matches),
+            }
+        })
+        .collect();
+    let checkpoints = eval
+        .as_ref()
+        .map(|e| {
+            e.points
+                .iter()
+                .filter_map(|p| {
+                    let (_, xyz) = surveyed.iter().find(|s| s.0 == p.id)?;
+                    Some(CheckpointError {
+                        id: p.id.clone(),
+                        x: xyz[0],
+                        y: xyz[1],
+                        dx: p.error[0],
+                        dy: p.error[1],
+                        dz: p.error[2],
+                    })
+                })
+                .collect()
+        })
+        .unwrap_or_default();
+    let mut rep = EpochReport {
+        name: result.epoch.clone(),
+        date: date.to_string(),
+        gsd_m: result.gsd_m,
+        photos_total: result.photos.len(),
+        photos_oriented: result.photos.iter().filter(|p| p.oriented).count(),
+        check_rmse_plan_m: f64::NAN,
+        check_rmse_height_m: f64::NAN,
+        check_max_m: f64::NAN,
+        sigma0: result.adjustment.as_ref().map_or(f64::NAN, |a| a.sigma0),
+        rmse_px: result.adjustment.as_ref().map_or(f64::NAN, |a| a.rmse_px),
+        time_s: result.time_s,
+        checkpoints,
+        photos,
+        icp,
+    };
+    rep.set_check_statistics();
+    rep
+}
