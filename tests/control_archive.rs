@@ -6,12 +6,12 @@
 use cloudcontrol::block::PointKind;
 use cloudcontrol::control::archive::{self, ArchiveOptions};
 use cloudcontrol::control::checkpoints::{self, CheckpointEvaluation};
+use cloudcontrol::control::cloud::{CloudOptions, GroundSurface};
+use cloudcontrol::control::dcp::{DcpPackage, EpochInfo};
 use cloudcontrol::control::epoch::{EpochInput, Navigation};
 use cloudcontrol::control::export::{export_dcp, DcpExportOptions};
 use cloudcontrol::formats::control_points;
 use cloudcontrol::synth::reading::synth_truth_block;
-use cloudcontrol::control::cloud::{CloudOptions, GroundSurface};
-use cloudcontrol::control::dcp::{DcpPackage, EpochInfo};
 use cloudcontrol::synth::{self, PosQuality, Preset, SynthConfig};
 use std::path::{Path, PathBuf};
 use std::sync::OnceLock;
@@ -65,7 +65,8 @@ fn setup(name: &str, preset: Preset, pos: PosQuality, seed: u64) -> Setup {
         &dir,
     )
     .unwrap();
-    let surface = cloudcontrol::lidar::lidar_surfaces(&lidar_tiles(&dir), synth::ORIGIN, 1.0).unwrap();
+    let surface =
+        cloudcontrol::lidar::lidar_surfaces(&lidar_tiles(&dir), synth::ORIGIN, 1.0).unwrap();
     let block = synth_truth_block(&dir, "reference_2024").unwrap();
     let reference = export_dcp(
         &block,
@@ -101,8 +102,11 @@ fn orient(s: &Setup, epoch: &str, dcp: &[DcpPackage], opts: &ArchiveOptions) -> 
     let t = Instant::now();
     let input = EpochInput::from_synth_epoch(&s.dir, epoch).unwrap();
     let result = archive::orient_epoch(&input, dcp, &s.surface.ground, opts).unwrap();
-    let meas =
-        control_points::read_checkpoint_measurements(&s.dir.join("truth/checkpoint_images.csv"), epoch).unwrap();
+    let meas = control_points::read_checkpoint_measurements(
+        &s.dir.join("truth/checkpoint_images.csv"),
+        epoch,
+    )
+    .unwrap();
     let surveyed = surveyed(&s.dir.join("checkpoints.csv"));
     println!(
         "{epoch}: {} DCP points",

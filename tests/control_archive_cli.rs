@@ -3,13 +3,13 @@
 //! with per-iteration records); a damaged package is refused before anything is written.
 
 use cloudcontrol::control::checkpoints;
-use cloudcontrol::control::export::{export_dcp, DcpExportOptions};
-use cloudcontrol::formats::control_points;
-use cloudcontrol::synth::reading::synth_truth_block;
 use cloudcontrol::control::cloud::CloudOptions;
 use cloudcontrol::control::dcp::EpochInfo;
+use cloudcontrol::control::export::{export_dcp, DcpExportOptions};
+use cloudcontrol::formats::control_points;
 use cloudcontrol::formats::crs::Crs;
 use cloudcontrol::formats::raster::{write_dem, GeoTiffOptions};
+use cloudcontrol::synth::reading::synth_truth_block;
 use cloudcontrol::synth::{self, PosQuality, Preset, SynthConfig};
 use std::path::{Path, PathBuf};
 use std::process::Command;
@@ -105,18 +105,23 @@ fn orient_cli_writes_the_oriented_epoch_and_refuses_a_damaged_package() {
     let block: cloudcontrol::block::Block =
         serde_json::from_slice(&std::fs::read(out.join("block.json")).unwrap()).unwrap();
     // The origin is the one rule's: a whole kilometre south-west of the photos.
-    assert!(block.origin.iter().all(|v| v % 1000.0 == 0.0), "{:?}", block.origin);
+    assert!(
+        block.origin.iter().all(|v| v % 1000.0 == 0.0),
+        "{:?}",
+        block.origin
+    );
     assert!(!block.photos.is_empty(), "no photo oriented:\n{stdout}");
     let meas = control_points::read_checkpoint_measurements(
         &dir.join("truth/checkpoint_images.csv"),
         "digital_2012",
     )
     .unwrap();
-    let surveyed: Vec<(String, [f64; 3])> = control_points::read_points(&dir.join("checkpoints.csv"))
-        .unwrap()
-        .into_iter()
-        .map(|p| (p.id, p.xyz))
-        .collect();
+    let surveyed: Vec<(String, [f64; 3])> =
+        control_points::read_points(&dir.join("checkpoints.csv"))
+            .unwrap()
+            .into_iter()
+            .map(|p| (p.id, p.xyz))
+            .collect();
     let gsd = report["gsd_m"].as_f64().unwrap();
     let e = checkpoints::evaluate_checkpoints(&block, &meas, &surveyed, gsd).unwrap();
     println!(

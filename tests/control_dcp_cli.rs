@@ -4,12 +4,12 @@
 //! against the truth (reprojection through the true orientation, LiDAR ground heights),
 //! `generate` against `export`, and import against damaged and foreign packages.
 
-use cloudcontrol::control::export::{ControlPointSet, DcpExportOptions, OrientedBlock};
-use cloudcontrol::lidar::LIDAR_CELL_M;
-use cloudcontrol::synth::reading::synth_truth_block;
 use cloudcontrol::control::cloud::CloudOptions;
 use cloudcontrol::control::dcp::{DcpPackage, EpochInfo};
+use cloudcontrol::control::export::{ControlPointSet, DcpExportOptions, OrientedBlock};
 use cloudcontrol::geometry;
+use cloudcontrol::lidar::LIDAR_CELL_M;
+use cloudcontrol::synth::reading::synth_truth_block;
 use cloudcontrol::synth::{self, PosQuality, Preset, SynthConfig};
 use nalgebra::Vector3;
 use std::path::{Path, PathBuf};

@@ -4,11 +4,11 @@
 //! pixel in plan and height, and projection centres close to the truth.
 
 use cloudcontrol::control::checkpoints::evaluate_checkpoints;
+use cloudcontrol::control::reference::{self, ReferenceOptions};
 use cloudcontrol::control::EpochInput;
 use cloudcontrol::formats::control_points;
-use cloudcontrol::synth::reading::synth_truth_block;
-use cloudcontrol::control::reference::{self, ReferenceOptions};
 use cloudcontrol::lidar::PlaneOptions;
+use cloudcontrol::synth::reading::synth_truth_block;
 use cloudcontrol::synth::{self, PosQuality, Preset, SynthConfig};
 use std::path::{Path, PathBuf};
 
@@ -79,11 +79,12 @@ fn reference_epoch_oriented_with_lidar_only_is_within_a_ground_pixel() {
         adj.datum
     );
 
-    let surveyed: Vec<(String, [f64; 3])> = control_points::read_points(&dir.join("checkpoints.csv"))
-        .unwrap()
-        .into_iter()
-        .map(|p| (p.id, p.xyz))
-        .collect();
+    let surveyed: Vec<(String, [f64; 3])> =
+        control_points::read_points(&dir.join("checkpoints.csv"))
+            .unwrap()
+            .into_iter()
+            .map(|p| (p.id, p.xyz))
+            .collect();
     let measured = control_points::read_checkpoint_measurements(
         &dir.join("truth/checkpoint_images.csv"),
         "reference_2024",

@@ -8,7 +8,9 @@
 
 use super::chips::{ChipStore, ChipView, ControlPoint, PointKey};
 use super::dcp::DcpPackage;
-use super::epoch::{approximate_orientations, EpochCamera, EpochError, EpochInput, NavigationSigma};
+use super::epoch::{
+    approximate_orientations, EpochCamera, EpochError, EpochInput, NavigationSigma,
+};
 use super::orient::ControlPatch;
 use super::photo::{orient_photo, PhotoOptions, PhotoOrientation, PhotoReport};
 use super::predict::Prediction;
@@ -163,7 +165,15 @@ pub fn orient_epoch(
         })
         .collect();
     if opts.epoch_second_pass {
-        second_pass(input, &store, &priors, dem, &photo_opts, &mut outcomes, &mut keyed);
+        second_pass(
+            input,
+            &store,
+            &priors,
+            dem,
+            &photo_opts,
+            &mut outcomes,
+            &mut keyed,
+        );
     }
 
     // The archive block: oriented photos, DCP control points with all their matches.
@@ -214,7 +224,11 @@ pub fn orient_epoch(
     }
     if opts.ties {
         let ties = epoch_ties(input, &outcomes, dem, opts);
-        tracing::info!(epoch = input.name, ties = ties.len(), "tie points among the epoch's photos");
+        tracing::info!(
+            epoch = input.name,
+            ties = ties.len(),
+            "tie points among the epoch's photos"
+        );
         for (x, obs) in ties {
             let id = block.next_point_id();
             block.points.insert(
@@ -248,12 +262,11 @@ pub fn orient_epoch(
             max_rounds: 20,
             ..AdjustOptions::default()
         };
-        let rep = adjust::adjust(&mut block, &[], None, &aopts).map_err(|source| {
-            EpochError::Adjust {
+        let rep =
+            adjust::adjust(&mut block, &[], None, &aopts).map_err(|source| EpochError::Adjust {
                 epoch: input.name.clone(),
                 source,
-            }
-        })?;
+            })?;
         for pr in &rep.photo_precision {
             if let Some(r) = photos.iter_mut().find(|r| r.name == pr.name) {
                 r.sigma_px = pr.rmse_px;
@@ -273,7 +286,10 @@ pub fn orient_epoch(
         }
         let pid = n as PhotoId + 1;
         let cam = match (&input.camera, &o.camera) {
-            (_, Some(c)) => Some((if matches!(c, Camera::Film(_)) { pid } else { 1 }, c.clone())),
+            (_, Some(c)) => Some((
+                if matches!(c, Camera::Film(_)) { pid } else { 1 },
+                c.clone(),
+            )),
             (EpochCamera::Frame(f), None) => Some((1, Camera::Frame(f.clone()))),
             // A scan without interior orientation has no camera to hold it.
             (EpochCamera::Film(_), None) => None,
@@ -339,7 +355,11 @@ fn add_photo(
     photo.provenance = format!(
         "resection from {} control patches{}{}",
         o.report.control_matches,
-        if o.report.relaxed { " (relaxed retry)" } else { "" },
+        if o.report.relaxed {
+            " (relaxed retry)"
+        } else {
+            ""
+        },
         if o.report.second_pass {
             " (second pass, chips of the epoch's own photos)"
         } else {
@@ -370,7 +390,11 @@ fn second_pass(
     // Same epoch, similar scale: the chip needs little more than the largest template.
     let half = opts.patch.template_half + 8;
     let mut seen: BTreeMap<PointKey, Vec<ChipView>> = BTreeMap::new();
-    for (n, o) in outcomes.iter().enumerate().filter(|(_, o)| o.report.oriented) {
+    for (n, o) in outcomes
+        .iter()
+        .enumerate()
+        .filter(|(_, o)| o.report.oriented)
+    {
         let (Some(cam), Ok(img)) = (&o.camera, GreyImage::load(&input.photos[n].image)) else {
             continue;
         };
@@ -384,10 +408,7 @@ fn second_pass(
         .into_iter()
         .filter_map(|(key, views)| {
             let p = store.points.iter().find(|p| p.key == Some(key))?;
-            Some(ControlPoint {
-                views,
-                ..p.clone()
-            })
+            Some(ControlPoint { views, ..p.clone() })
         })
         .collect();
     if points.is_empty() {
@@ -514,7 +535,10 @@ fn epoch_ties(
                     continue;
                 };
                 let px = px.pixel;
-                if px.x < margin || px.y < margin || px.x > w as f64 - margin || px.y > h as f64 - margin
+                if px.x < margin
+                    || px.y < margin
+                    || px.x > w as f64 - margin
+                    || px.y > h as f64 - margin
                 {
                     continue;
                 }

@@ -38,7 +38,9 @@ pub enum EvaluationError {
     #[error("ground pixel {0} must be positive")]
     Gsd(f64),
     /// A measurement names a photo the epoch does not have (a naming mistake).
-    #[error("checkpoint {point} is measured in photo {photo:?}, which is not a photo of the epoch")]
+    #[error(
+        "checkpoint {point} is measured in photo {photo:?}, which is not a photo of the epoch"
+    )]
     UnknownPhoto { point: String, photo: String },
     /// Too few oriented photos see a checkpoint (a result, not an input error).
     #[error("no checkpoint is measured in two or more oriented photos")]
@@ -125,4 +127,3 @@ pub fn evaluate_checkpoints(
         points,
     })
 }
-

@@ -207,13 +207,14 @@ impl<'a> ChipStore<'a> {
                 let img = pkg.chip(chip)?;
                 let g = img.to_luma32f();
                 let data: Vec<f32> = g.as_raw().iter().map(|v| v * 255.0).collect();
-                let grey = GreyImage::new(g.width() as usize, g.height() as usize, data).map_err(
-                    |e| DcpError::Chip {
-                        package: pkg.dir.clone(),
-                        file: chip.file.clone(),
-                        message: e.to_string(),
-                    },
-                )?;
+                let grey =
+                    GreyImage::new(g.width() as usize, g.height() as usize, data).map_err(|e| {
+                        DcpError::Chip {
+                            package: pkg.dir.clone(),
+                            file: chip.file.clone(),
+                            message: e.to_string(),
+                        }
+                    })?;
                 Ok(Arc::new(Pyramid::new(&grey, 5, 8)))
             }
         }

@@ -58,8 +58,8 @@ impl EpochCamera {
     /// fiducials, else a frame camera (`{"kind": "frame", …}`).
     pub fn load(path: &Path) -> Result<Self, EpochError> {
         let text = std::fs::read_to_string(path).map_err(|e| input_err(path, e.to_string()))?;
-        let json: serde_json::Value = serde_json::from_str(&text)
-            .map_err(|e| input_err(path, format!("not JSON: {e}")))?;
+        let json: serde_json::Value =
+            serde_json::from_str(&text).map_err(|e| input_err(path, format!("not JSON: {e}")))?;
         if json.get("fiducials").is_some() {
             return CameraDefinition::load(path)
                 .map(Self::Film)
@@ -203,8 +203,8 @@ impl EpochInput {
         let photos = PhotoInput::from_folder(&spec.photos)?;
         let camera = EpochCamera::load(&spec.camera)?;
         let nav_file = spec.pos.as_deref().or(spec.strips.as_deref());
-        let navigation = Navigation::load(spec.pos.as_deref(), spec.strips.as_deref())
-            .map_err(|e| match e {
+        let navigation =
+            Navigation::load(spec.pos.as_deref(), spec.strips.as_deref()).map_err(|e| match e {
                 EpochError::Block(m) => EpochError::Epoch {
                     epoch: spec.name.clone(),
                     message: m,
@@ -276,7 +276,11 @@ pub fn block_origin(points: impl IntoIterator<Item = [f64; 2]>) -> [f64; 3] {
     if !x.is_finite() {
         return [0.0; 3];
     }
-    [(x / 1000.0).floor() * 1000.0, (y / 1000.0).floor() * 1000.0, 0.0]
+    [
+        (x / 1000.0).floor() * 1000.0,
+        (y / 1000.0).floor() * 1000.0,
+        0.0,
+    ]
 }
 
 /// How the approximate orientations are stated when the navigation does not say.
@@ -317,8 +321,7 @@ pub fn approximate_orientations(
             for r in recs {
                 let (sc, sa) = sigma.pos_override.unwrap_or((
                     r.sigma_xyz.unwrap_or(sigma.pos_center_m),
-                    r.sigma_angle
-                        .unwrap_or(sigma.pos_attitude_deg.to_radians()),
+                    r.sigma_angle.unwrap_or(sigma.pos_attitude_deg.to_radians()),
                 ));
                 out.insert(
                     pos::photo_key(&r.name).to_string(),

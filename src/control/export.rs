@@ -272,8 +272,7 @@ impl OrientedBlock {
 
     /// The control points a package of this block would hold ([`select_control_points`]).
     pub fn select(&self, opts: &DcpExportOptions) -> Result<ControlPointSet, EpochError> {
-        select_control_points(&self.block, &self.surface, opts)
-            .map_err(|e| self.named(e))
+        select_control_points(&self.block, &self.surface, opts).map_err(|e| self.named(e))
     }
 
     /// Writes the DCP package of this block at `out` ([`export_dcp`]).
@@ -283,8 +282,7 @@ impl OrientedBlock {
         out: &Path,
         opts: &DcpExportOptions,
     ) -> Result<DcpPackage, EpochError> {
-        export_dcp(&self.block, &self.surface, epoch, out, opts)
-            .map_err(|e| self.named(e))
+        export_dcp(&self.block, &self.surface, epoch, out, opts).map_err(|e| self.named(e))
     }
 }
 
@@ -293,10 +291,7 @@ impl OrientedBlock {
 /// from the folder of `images.json` (a moved project). Every oriented photo needs an
 /// existing image, and every image a photo of the block. The images are set as the
 /// photos' `image`.
-pub fn read_oriented_block(
-    block_json: &Path,
-    images_json: &Path,
-) -> Result<Block, EpochError> {
+pub fn read_oriented_block(block_json: &Path, images_json: &Path) -> Result<Block, EpochError> {
     let mut block: Block = serde_json::from_value(read_json(block_json)?)
         .map_err(|e| input_err(block_json, e.to_string()))?;
     block
@@ -377,4 +372,3 @@ pub fn package_epoch_name(out: &Path) -> String {
         .filter(|s| !s.is_empty())
         .unwrap_or_else(|| "dcp".into())
 }
-

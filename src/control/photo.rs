@@ -312,7 +312,9 @@ pub fn orient_photo(
     let pyramid = Pyramid::new(&img, 6, 16);
     let mut best: Option<PhotoOrientation> = None;
     for (camera, io_rmse) in candidates {
-        let out = orient_with_camera(name, camera, io_rmse, &pose0, &cov0, store, dem, &pyramid, opts);
+        let out = orient_with_camera(
+            name, camera, io_rmse, &pose0, &cov0, store, dem, &pyramid, opts,
+        );
         if matches!(out.report.reason, Some(PhotoFailure::Chip { .. })) {
             return out;
         }
@@ -354,7 +356,9 @@ pub fn orient_photo(
         return best;
     };
     let io_rmse = best.report.io_rmse_um;
-    let retry = orient_with_camera(name, camera, io_rmse, &pose0, &cov0, store, dem, &pyramid, &relaxed);
+    let retry = orient_with_camera(
+        name, camera, io_rmse, &pose0, &cov0, store, dem, &pyramid, &relaxed,
+    );
     if retry.report.oriented {
         let mut r = retry;
         r.report.relaxed = true;

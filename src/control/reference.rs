@@ -164,15 +164,13 @@ fn pos_block(input: &EpochInput) -> Result<Block, EpochError> {
     );
     let by_name: BTreeMap<&str, _> = records.iter().map(|r| (photo_key(&r.name), r)).collect();
     for (k, ph) in input.photos.iter().enumerate() {
-        let r = by_name
-            .get(ph.name.as_str())
-            .ok_or_else(|| {
-                ep(format!(
-                    "photo {} ({}) has no POS record: the reference epoch needs one for every photo",
-                    ph.name,
-                    ph.image.display()
-                ))
-            })?;
+        let r = by_name.get(ph.name.as_str()).ok_or_else(|| {
+            ep(format!(
+                "photo {} ({}) has no POS record: the reference epoch needs one for every photo",
+                ph.name,
+                ph.image.display()
+            ))
+        })?;
         let c = Vector3::from(r.center) - origin;
         let rot = matrix_from_opk(r.opk[0], r.opk[1], r.opk[2]);
         let sc = r.sigma_xyz.unwrap_or(0.1);

@@ -5,10 +5,10 @@ use super::camera::{CcpCamera, CcpPose};
 use super::{
     finite, finite_rows, guard, handle, input, opt_str, output, CcpStatus, FfiError, FfiResult,
 };
-use crate::control::epoch::EpochError;
-use crate::control::export::{self, DcpExportOptions, OrientedBlock};
 use crate::control::cloud::CloudOptions;
 use crate::control::dcp::{Accuracy, DcpError, DcpIndex, DcpPackage, EpochInfo};
+use crate::control::epoch::EpochError;
+use crate::control::export::{self, DcpExportOptions, OrientedBlock};
 use crate::control::predict;
 use nalgebra::{Matrix3, SMatrix, Vector3};
 use std::ffi::{c_char, CStr, CString};
@@ -16,11 +16,11 @@ use std::path::{Path, PathBuf};
 
 /// Opaque handle of an opened (verified) DCP package with its spatial index.
 pub struct CcpDcp {
-    package: DcpPackage,
+    pub(crate) package: DcpPackage,
     index: DcpIndex,
 }
 
-fn path_arg<'a>(p: *const c_char, name: &str) -> Result<&'a str, FfiError> {
+pub(crate) fn path_arg<'a>(p: *const c_char, name: &str) -> Result<&'a str, FfiError> {
     if p.is_null() {
         return Err(FfiError::new(
             CcpStatus::NullPointer,

@@ -16,6 +16,7 @@ mod control;
 mod formats;
 mod lidar;
 mod matching;
+mod orient;
 mod pipeline;
 mod synth;
 
@@ -25,6 +26,7 @@ pub use control::*;
 pub use formats::*;
 pub use lidar::*;
 pub use matching::*;
+pub use orient::*;
 pub use synth::*;
 
 use std::cell::RefCell;
@@ -45,6 +47,9 @@ pub enum CcpStatus {
     Numeric = 6,
     NotFound = 7,
     BufferTooSmall = 8,
+    /// The photo could not be oriented (the last error says why: too few matches, no
+    /// control in view, failed interior orientation, …).
+    NotOriented = 9,
     Panic = 99,
 }
 

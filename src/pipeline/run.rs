@@ -28,7 +28,9 @@ use crate::control::export::{self, DcpExportOptions};
 use crate::control::reference::{self, ReferenceOptions};
 use crate::formats::control_points;
 use crate::formats::crs::{Crs, Transformer};
-use crate::lidar::{self, Catalogue, GroundSurface, PlaneIndex, PlaneOptions, ScanOptions, TileStore};
+use crate::lidar::{
+    self, Catalogue, GroundSurface, PlaneIndex, PlaneOptions, ScanOptions, TileStore,
+};
 use serde::{Deserialize, Serialize};
 use std::cell::OnceCell;
 use std::collections::BTreeMap;

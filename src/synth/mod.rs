@@ -15,8 +15,8 @@ pub mod film;
 pub mod flight;
 pub mod lidar;
 pub mod noise;
-pub mod render;
 pub mod reading;
+pub mod render;
 pub mod scene;
 pub mod truth;
 

@@ -4,7 +4,9 @@
 //! oriented block, and navigation perturbed from a known orientation.
 
 use crate::block::{Block, BlockCamera, Photo, PhotoId};
-use crate::control::epoch::{block_origin, input_err, EpochCamera, EpochError, EpochInput, Navigation};
+use crate::control::epoch::{
+    block_origin, input_err, EpochCamera, EpochError, EpochInput, Navigation,
+};
 use crate::control::EpochSpec;
 use crate::formats::pos::PosRecord;
 use crate::geometry::{self, Brown, Camera, FilmCamera, Pose};
@@ -18,7 +20,10 @@ fn read_json(path: &Path) -> Result<serde_json::Value, EpochError> {
 
 /// The specification of epoch `epoch` of a synthetic block, its CRS and its origin (the
 /// one origin rule over the scene's area). Nothing under `truth/` is read.
-pub fn synth_epoch_spec(dir: &Path, epoch: &str) -> Result<(EpochSpec, String, [f64; 3]), EpochError> {
+pub fn synth_epoch_spec(
+    dir: &Path,
+    epoch: &str,
+) -> Result<(EpochSpec, String, [f64; 3]), EpochError> {
     let mpath = dir.join("manifest.json");
     let m = read_json(&mpath)?;
     let crs = m["crs"]
@@ -98,10 +103,13 @@ pub fn synth_truth_block(dir: &Path, epoch: &str) -> Result<Block, EpochError> {
             (Some(f), _) => (1, f.clone()),
             (None, EpochCamera::Film(def)) => {
                 let io = affine.get(&name).ok_or_else(|| {
-                    input_err(&tdir.join("scan_affine.csv"), format!("no scan affine for {name}"))
+                    input_err(
+                        &tdir.join("scan_affine.csv"),
+                        format!("no scan affine for {name}"),
+                    )
                 })?;
-                let (w, h) = image::image_dimensions(image)
-                    .map_err(|e| input_err(image, e.to_string()))?;
+                let (w, h) =
+                    image::image_dimensions(image).map_err(|e| input_err(image, e.to_string()))?;
                 let d = &def.distortion;
                 (
                     pid,

@@ -113,10 +113,16 @@ mod tests {
         let v = read_truth_eo(&eo).unwrap();
         assert_eq!(v.len(), 1);
         assert_eq!(v[0].0, "film_s01_001");
-        assert_eq!(v[0].1, Matrix3::new(-1.0, 0.0, 0.0, 0.0, 1.0, 0.0, 0.0, 0.0, -1.0));
+        assert_eq!(
+            v[0].1,
+            Matrix3::new(-1.0, 0.0, 0.0, 0.0, 1.0, 0.0, 0.0, 0.0, -1.0)
+        );
         assert_eq!(v[0].2, [500010.5, 4400020.25, 3050.0]);
-        std::fs::write(&eo, "photo,x,y,z,r11,r12,r13,r21,r22,r23,r31,r32\na,1,2,3,1,0,0,0,1,0,0,0\n")
-            .unwrap();
+        std::fs::write(
+            &eo,
+            "photo,x,y,z,r11,r12,r13,r21,r22,r23,r31,r32\na,1,2,3,1,0,0,0,1,0,0,0\n",
+        )
+        .unwrap();
         assert!(read_truth_eo(&eo)
             .unwrap_err()
             .to_string()

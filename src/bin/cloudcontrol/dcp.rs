@@ -3,13 +3,11 @@
 //! (verification, import, merge).
 
 use clap::{Args, Subcommand};
-use cloudcontrol::control::export::{
-    self, ControlPointSet, DcpExportOptions, OrientedBlock,
-};
-use cloudcontrol::lidar::LIDAR_CELL_M;
 use cloudcontrol::control::cloud::CloudOptions;
 use cloudcontrol::control::dcp::{Accuracy, DcpPackage, EpochInfo};
+use cloudcontrol::control::export::{self, ControlPointSet, DcpExportOptions, OrientedBlock};
 use cloudcontrol::formats::write_bytes_atomically;
+use cloudcontrol::lidar::LIDAR_CELL_M;
 use serde_json::{json, Value};
 use std::path::{Path, PathBuf};
 

@@ -98,8 +98,8 @@ fn explicit_input(a: &OrientArgs, dem_crs: Option<String>) -> Result<EpochInput,
         strips: a.strips.clone(),
         scan_pixel_um: a.scan_pixel_um,
     };
-    let nav = Navigation::load(spec.pos.as_deref(), spec.strips.as_deref())
-        .map_err(|e| e.to_string())?;
+    let nav =
+        Navigation::load(spec.pos.as_deref(), spec.strips.as_deref()).map_err(|e| e.to_string())?;
     let origin = block_origin(nav.centres().iter().map(|c| [c[0], c[1]]));
     EpochInput::build(&spec, &crs, origin).map_err(|e| e.to_string())
 }
@@ -369,7 +369,9 @@ pub fn run_bench(a: &BenchArgs, json_out: bool) -> Result<(), String> {
                         .into_iter()
                         .map(|p| (p.id, p.xyz))
                         .collect();
-                if let Ok(e) = checkpoints::evaluate_checkpoints(&r.block, &meas, &surveyed, r.gsd_m) {
+                if let Ok(e) =
+                    checkpoints::evaluate_checkpoints(&r.block, &meas, &surveyed, r.gsd_m)
+                {
                     plan += e.rmse_plan_px.powi(2);
                     height += e.rmse_height_px.powi(2);
                     n_eval += 1;
