@@ -22,7 +22,7 @@ use super::strips;
 use crate::adjust::{self, AdjustError, AdjustOptions, AdjustReport, Loss, Rejection};
 use crate::block::{Block, BlockCamera, ObjectPoint, Observation, Photo, PhotoId, PointKind};
 use crate::formats::crs::Crs;
-use crate::formats::pos::{FlightAxis, PosRecord, StripEnds};
+use crate::formats::pos::{self as pos_csv, PosRecord, StripEnds};
 use crate::geometry::{
     self, matrix_from_opk, Brown, Camera, Dem, FilmCamera, FrameCamera, GeoTransform, Pose,
 };
@@ -194,98 +194,6 @@ impl Csv<'_> {
     }
 }
 
-/// Reads a synthetic block's `pos.csv` (`photo,x,y,z,omega_deg,phi_deg,kappa_deg,
-/// sigma_xyz_m,sigma_att_deg`, world coordinates).
-pub fn read_synth_pos(path: &Path) -> Result<Vec<PosRecord>, ArchiveError> {
-    let (header, rows) = csv_rows(path)?;
-    let c = Csv {
-        path,
-        header: &header,
-    };
-    let mut out = Vec::new();
-    for r in &rows {
-        out.push(PosRecord {
-            name: c.text(r, "photo")?.to_string(),
-            center: [c.num(r, "x")?, c.num(r, "y")?, c.num(r, "z")?],
-            opk: [
-                c.num(r, "omega_deg")?.to_radians(),
-                c.num(r, "phi_deg")?.to_radians(),
-                c.num(r, "kappa_deg")?.to_radians(),
-            ],
-            sigma_xyz: Some(c.num(r, "sigma_xyz_m")?),
-            sigma_angle: Some(c.num(r, "sigma_att_deg")?.to_radians()),
-        });
-    }
-    if out.is_empty() {
-        return Err(input_err(path, "no photo listed"));
-    }
-    Ok(out)
-}
-
-/// Reads a synthetic block's `strips.csv` (`strip,first_photo,last_photo,photos,x_first,…`);
-/// the photos of each strip are taken from `photos` (flight order) between its first and
-/// last photo.
-pub fn read_synth_strips(
-    path: &Path,
-    photos: &[String],
-    flight_axis: FlightAxis,
-) -> Result<Vec<StripEnds>, ArchiveError> {
-    let (header, rows) = csv_rows(path)?;
-    let c = Csv {
-        path,
-        header: &header,
-    };
-    let mut out = Vec::new();
-    for r in &rows {
-        let first = c.text(r, "first_photo")?;
-        let last = c.text(r, "last_photo")?;
-        let n = c.num(r, "photos")? as usize;
-        let pos = |name: &str| {
-            photos.iter().position(|p| p == name).ok_or_else(|| {
-                input_err(
-                    path,
-                    format!("line {}: photo {name:?} is not in the epoch", r.0),
-                )
-            })
-        };
-        let (a, b) = (pos(first)?, pos(last)?);
-        let list: Vec<String> = if a <= b {
-            photos[a..=b].to_vec()
-        } else {
-            photos[b..=a].iter().rev().cloned().collect()
-        };
-        if list.len() != n {
-            return Err(input_err(
-                path,
-                format!(
-                    "line {}: strip lists {n} photos, {} lie between {first} and {last}",
-                    r.0,
-                    list.len()
-                ),
-            ));
-        }
-        out.push(StripEnds {
-            name: c.text(r, "strip")?.to_string(),
-            photos: list,
-            first: [
-                c.num(r, "x_first")?,
-                c.num(r, "y_first")?,
-                c.num(r, "z_first")?,
-            ],
-            last: [
-                c.num(r, "x_last")?,
-                c.num(r, "y_last")?,
-                c.num(r, "z_last")?,
-            ],
-            flight_axis,
-        });
-    }
-    if out.is_empty() {
-        return Err(input_err(path, "no strip listed"));
-    }
-    Ok(out)
-}
-
 fn read_json(path: &Path) -> Result<serde_json::Value, ArchiveError> {
     let text = std::fs::read_to_string(path).map_err(|e| input_err(path, e.to_string()))?;
     serde_json::from_str(&text).map_err(|e| input_err(path, e.to_string()))
@@ -336,11 +244,16 @@ impl EpochInput {
                 }
             };
         let nav_path = dir.join(field("navigation")?);
-        // Synthetic strips are flown north–south with image up along the track.
+        let nav_err = |e: crate::formats::FormatError| input_err(&nav_path, e.detail());
+        // The navigation names image files; the epoch's photos are named by stem.
         let navigation = if nav_path.file_name().is_some_and(|n| n == "strips.csv") {
-            Navigation::Strips(read_synth_strips(&nav_path, &names, FlightAxis::ImageUp)?)
+            let mut strips = pos_csv::read_strips(&nav_path).map_err(nav_err)?;
+            pos_csv::resolve_photo_names(strips.iter_mut().flat_map(|s| &mut s.photos), &names);
+            Navigation::Strips(strips)
         } else {
-            Navigation::Pos(read_synth_pos(&nav_path)?)
+            let mut recs = pos_csv::read_pos(&nav_path).map_err(nav_err)?;
+            pos_csv::resolve_photo_names(recs.iter_mut().map(|r| &mut r.name), &names);
+            Navigation::Pos(recs)
         };
         let photos = names
             .iter()
@@ -837,6 +750,17 @@ pub fn approximate_orientations(
 ) -> Result<BTreeMap<String, (Pose, SMatrix<f64, 6, 6>)>, ArchiveError> {
     let origin = Vector3::from(input.origin);
     let mut out = BTreeMap::new();
+    // Navigation may name a photo by file name or stem: key the result by the photo's name.
+    let by_key: BTreeMap<&str, &str> = input
+        .photos
+        .iter()
+        .map(|p| (pos_csv::photo_key(&p.name), p.name.as_str()))
+        .collect();
+    let photo_name = |n: &str| {
+        by_key
+            .get(pos_csv::photo_key(n))
+            .map_or_else(|| n.to_string(), |p| p.to_string())
+    };
     match &input.navigation {
         Navigation::Pos(recs) => {
             for r in recs {
@@ -846,7 +770,7 @@ pub fn approximate_orientations(
                     r.sigma_xyz.unwrap_or(10.0),
                     r.sigma_angle.unwrap_or(3f64.to_radians()),
                 ));
-                out.insert(r.name.clone(), (pose, predict::pos_covariance(sc, sa)));
+                out.insert(photo_name(&r.name), (pose, predict::pos_covariance(sc, sa)));
             }
         }
         Navigation::Strips(ss) => {
@@ -872,7 +796,7 @@ pub fn approximate_orientations(
                     let sc = prior.center_sigma[0].max(opts.strip_end_sigma_m);
                     let mut cov = predict::pos_covariance(sc, att);
                     cov[(5, 5)] = (opts.strip_end_sigma_m.max(0.01 * h)).powi(2);
-                    out.insert(name.clone(), (pose, cov));
+                    out.insert(photo_name(name), (pose, cov));
                 }
             }
         }
@@ -1849,45 +1773,37 @@ pub struct CheckpointEvaluation {
     pub points: Vec<CheckpointError>,
 }
 
-/// Reads `id,x,y,z[,…]` surveyed checkpoints (world).
+/// Reads surveyed checkpoints (world), a control-point CSV `id,x,y,z,sigma_xy,sigma_z[,kind]`
+/// ([`crate::formats::control_points::read_points`]).
 pub fn read_checkpoints(path: &Path) -> Result<Vec<SurveyedPoint>, ArchiveError> {
-    let (header, rows) = csv_rows(path)?;
-    let c = Csv {
-        path,
-        header: &header,
-    };
-    rows.iter()
-        .map(|r| {
-            Ok(SurveyedPoint {
-                id: c.text(r, "id")?.to_string(),
-                xyz: [c.num(r, "x")?, c.num(r, "y")?, c.num(r, "z")?],
-            })
+    let points = crate::formats::control_points::read_points(path)
+        .map_err(|e| input_err(path, e.detail()))?;
+    Ok(points
+        .into_iter()
+        .map(|p| SurveyedPoint {
+            id: p.id,
+            xyz: p.xyz,
         })
-        .collect()
+        .collect())
 }
 
-/// Reads `epoch,photo,id,col,row` checkpoint image measurements of one epoch.
+/// Reads `epoch,photo,id,col,row` checkpoint image measurements of one epoch
+/// ([`crate::formats::control_points::read_checkpoint_measurements`]); photos are named by
+/// their key (stem), as the epoch's photos.
 pub fn read_checkpoint_images(
     path: &Path,
     epoch: &str,
 ) -> Result<Vec<CheckpointMeasurement>, ArchiveError> {
-    let (header, rows) = csv_rows(path)?;
-    let c = Csv {
-        path,
-        header: &header,
-    };
-    let mut out = Vec::new();
-    for r in &rows {
-        if c.text(r, "epoch")? != epoch {
-            continue;
-        }
-        out.push(CheckpointMeasurement {
-            photo: c.text(r, "photo")?.to_string(),
-            id: c.text(r, "id")?.to_string(),
-            pixel: [c.num(r, "col")?, c.num(r, "row")?],
-        });
-    }
-    Ok(out)
+    let meas = crate::formats::control_points::read_checkpoint_measurements(path, epoch)
+        .map_err(|e| input_err(path, e.detail()))?;
+    Ok(meas
+        .into_iter()
+        .map(|m| CheckpointMeasurement {
+            photo: pos_csv::photo_key(&m.photo).to_string(),
+            id: m.id,
+            pixel: m.pixel,
+        })
+        .collect())
 }
 
 /// Intersects every checkpoint measured in at least two oriented photos of `block` (least

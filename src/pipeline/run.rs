@@ -27,7 +27,6 @@ use crate::control::cloud::{CloudOptions, GroundSurface};
 use crate::control::dcp::{Accuracy, DcpPackage, EpochInfo};
 use crate::control::reference::{self, ReferenceOptions};
 use crate::formats::crs::Crs;
-use crate::formats::pos::FlightAxis;
 use crate::formats::{self, write_bytes_atomically};
 use crate::geometry::Camera;
 use crate::lidar::{self, Catalogue, PlaneIndex, PlaneOptions, ScanOptions, TileStore};
@@ -125,18 +124,8 @@ fn read_json<T: for<'de> Deserialize<'de>>(path: &Path) -> Result<T, String> {
     serde_json::from_slice(&bytes).map_err(|e| format!("{}: {e}", path.display()))
 }
 
-fn first_line(path: &Path) -> Result<String, String> {
-    let text = std::fs::read_to_string(path).map_err(|e| format!("{}: {e}", path.display()))?;
-    Ok(text
-        .lines()
-        .find(|l| !l.trim().is_empty() && !l.trim_start().starts_with('#'))
-        .unwrap_or("")
-        .to_ascii_lowercase())
-}
-
 /// The epoch as [`EpochInput`]: photos of its folder, its camera (a frame camera, or a film
-/// camera certificate with fiducials), and its POS or strip end points in either
-/// documented layout (formats/pos/, or the synthetic block's).
+/// camera certificate with fiducials), and its POS or strip end points (formats/pos/).
 pub fn epoch_input(e: &Epoch, crs: &str, origin: [f64; 3]) -> Result<EpochInput, String> {
     let photos = PhotoInput::from_folder(&e.photos).map_err(|x| x.to_string())?;
     let cam_text = std::fs::read_to_string(&e.camera)
@@ -162,22 +151,19 @@ pub fn epoch_input(e: &Epoch, crs: &str, origin: [f64; 3]) -> Result<EpochInput,
         }
     };
     let names: Vec<String> = photos.iter().map(|p| p.name.clone()).collect();
+    // The navigation may name photos by file name or stem; the epoch names them by stem.
     let navigation = match (&e.pos, &e.strips) {
         (Some(p), _) => {
-            let recs = if first_line(p)?.starts_with("photo,") {
-                archive::read_synth_pos(p).map_err(|x| x.to_string())?
-            } else {
-                formats::pos::read_pos(p).map_err(|x| x.to_string())?
-            };
+            let mut recs = formats::pos::read_pos(p).map_err(|x| x.to_string())?;
+            formats::pos::resolve_photo_names(recs.iter_mut().map(|r| &mut r.name), &names);
             Navigation::Pos(recs)
         }
         (None, Some(s)) => {
-            let strips = if first_line(s)?.starts_with("strip,first_photo") {
-                archive::read_synth_strips(s, &names, FlightAxis::ImageUp)
-                    .map_err(|x| x.to_string())?
-            } else {
-                formats::pos::read_strips(s, FlightAxis::ImageUp).map_err(|x| x.to_string())?
-            };
+            let mut strips = formats::pos::read_strips(s).map_err(|x| x.to_string())?;
+            formats::pos::resolve_photo_names(
+                strips.iter_mut().flat_map(|s| &mut s.photos),
+                &names,
+            );
             Navigation::Strips(strips)
         }
         (None, None) => return Err(format!("epoch {}: neither pos nor strips", e.name)),

@@ -17,6 +17,7 @@ pub mod lidar;
 pub mod noise;
 pub mod render;
 pub mod scene;
+pub mod truth;
 
 pub use film::{Fiducial, FiducialShape, FilmCameraDef};
 pub use render::{render, RayCaster};

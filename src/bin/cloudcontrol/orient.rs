@@ -49,7 +49,8 @@ pub struct OrientArgs {
     /// POS CSV: name,x,y,z,omega,phi,kappa[,sigma_xyz,sigma_angle] (degrees, world).
     #[arg(long, conflicts_with = "strips")]
     pos: Option<PathBuf>,
-    /// Strips CSV: strip,photo,x,y,z with the centres of each strip's first and last photo.
+    /// Strips CSV: strip,photo,x,y,z[,flight_axis] with the centres of each strip's first
+    /// and last photo (formats/pos/; flight axis +x when absent).
     #[arg(long)]
     strips: Option<PathBuf>,
     /// CRS of the navigation (default: the DEM's).
@@ -88,10 +89,9 @@ fn explicit_input(a: &OrientArgs, dem_crs: Option<String>) -> Result<EpochInput,
     let photos = PhotoInput::from_folder(images).map_err(|e| e.to_string())?;
     let navigation = match (&a.pos, &a.strips) {
         (Some(p), _) => Navigation::Pos(formats::pos::read_pos(p).map_err(|e| e.to_string())?),
-        (None, Some(s)) => Navigation::Strips(
-            formats::pos::read_strips(s, formats::pos::FlightAxis::default())
-                .map_err(|e| e.to_string())?,
-        ),
+        (None, Some(s)) => {
+            Navigation::Strips(formats::pos::read_strips(s).map_err(|e| e.to_string())?)
+        }
         (None, None) => return Err("give --pos FILE or --strips FILE".into()),
     };
     let crs = a

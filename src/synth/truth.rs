@@ -1,0 +1,152 @@
+//! Readers of a synthetic block's truth files (formats/synth/README.md, `truth/`), through
+//! the project's one CSV reader. Evaluation code only: a pipeline never reads `truth/`.
+
+use crate::formats::csv::{read_records, Extra, Layout};
+use crate::formats::{FormatError, Result};
+use crate::geometry::{InteriorOrientation, InteriorTransformKind};
+use nalgebra::Matrix3;
+use serde::Deserialize;
+use std::collections::BTreeMap;
+use std::path::Path;
+
+#[derive(Deserialize)]
+struct EoRow {
+    photo: String,
+    x: f64,
+    y: f64,
+    z: f64,
+    r11: f64,
+    r12: f64,
+    r13: f64,
+    r21: f64,
+    r22: f64,
+    r23: f64,
+    r31: f64,
+    r32: f64,
+    r33: f64,
+}
+
+/// A photo's true exterior orientation: name (stem), world-to-camera rotation, projection
+/// centre (world).
+pub type TrueOrientation = (String, Matrix3<f64>, [f64; 3]);
+
+/// `truth/epochs/<epoch>/eo.csv`: per photo (stem), the true world-to-camera rotation
+/// (from the row-major `r11..r33`) and projection centre (world), in file order. The
+/// `strip`, `index` and omega/phi/kappa columns are read over.
+pub fn read_truth_eo(path: &Path) -> Result<Vec<TrueOrientation>> {
+    let table = read_records::<EoRow>(
+        path,
+        &Layout {
+            required: &[
+                "photo", "x", "y", "z", "r11", "r12", "r13", "r21", "r22", "r23", "r31", "r32",
+                "r33",
+            ],
+            optional: &[],
+            extra: Extra::Ignore,
+        },
+    )?;
+    Ok(table
+        .rows
+        .into_iter()
+        .map(|(_, r)| {
+            let rotation = Matrix3::new(
+                r.r11, r.r12, r.r13, r.r21, r.r22, r.r23, r.r31, r.r32, r.r33,
+            );
+            (r.photo, rotation, [r.x, r.y, r.z])
+        })
+        .collect())
+}
+
+#[derive(Deserialize)]
+struct AffineRow {
+    photo: String,
+    a11: f64,
+    a12: f64,
+    a13: f64,
+    a21: f64,
+    a22: f64,
+    a23: f64,
+}
+
+/// `truth/epochs/<epoch>/scan_affine.csv`: the true interior orientation (scan pixel →
+/// fiducial mm affine) of every film scan, by photo (stem).
+pub fn read_scan_affine(path: &Path) -> Result<BTreeMap<String, InteriorOrientation>> {
+    let table = read_records::<AffineRow>(
+        path,
+        &Layout {
+            required: &["photo", "a11", "a12", "a13", "a21", "a22", "a23"],
+            optional: &[],
+            extra: Extra::Refuse,
+        },
+    )?;
+    let mut out = BTreeMap::new();
+    for (line, r) in table.rows {
+        let io = InteriorOrientation::new(
+            InteriorTransformKind::Affine,
+            Matrix3::new(r.a11, r.a12, r.a13, r.a21, r.a22, r.a23, 0.0, 0.0, 1.0),
+        )
+        .map_err(|e| FormatError::at(path, line, None, e.to_string()))?;
+        if out.insert(r.photo.clone(), io).is_some() {
+            return Err(FormatError::at(
+                path,
+                line,
+                Some("photo".into()),
+                format!("photo {} is listed twice", r.photo),
+            ));
+        }
+    }
+    Ok(out)
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use nalgebra::Vector2;
+
+    #[test]
+    fn truth_files_as_documented() {
+        let d = tempfile::tempdir().unwrap();
+        let eo = d.path().join("eo.csv");
+        // Written by hand from formats/synth/README.md (truth/epochs/<epoch>/eo.csv).
+        std::fs::write(
+            &eo,
+            "photo,strip,index,x,y,z,omega_deg,phi_deg,kappa_deg,r11,r12,r13,r21,r22,r23,r31,r32,r33\n\
+             film_s01_001,1,1,500010.5,4400020.25,3050,0,0,180,-1,0,0,0,1,0,0,0,-1\n",
+        )
+        .unwrap();
+        let v = read_truth_eo(&eo).unwrap();
+        assert_eq!(v.len(), 1);
+        assert_eq!(v[0].0, "film_s01_001");
+        assert_eq!(
+            v[0].1,
+            Matrix3::new(-1.0, 0.0, 0.0, 0.0, 1.0, 0.0, 0.0, 0.0, -1.0)
+        );
+        assert_eq!(v[0].2, [500010.5, 4400020.25, 3050.0]);
+        std::fs::write(
+            &eo,
+            "photo,x,y,z,r11,r12,r13,r21,r22,r23,r31,r32\na,1,2,3,1,0,0,0,1,0,0,0\n",
+        )
+        .unwrap();
+        assert!(read_truth_eo(&eo)
+            .unwrap_err()
+            .to_string()
+            .contains("line 1: no column \"r33\""));
+
+        let af = d.path().join("scan_affine.csv");
+        std::fs::write(
+            &af,
+            "# x_mm = a11·col + a12·row + a13, y_mm = a21·col + a22·row + a23\n\
+             photo,a11,a12,a13,a21,a22,a23\n\
+             film_s01_001,0.1,0.0,-120,0.0,-0.1,120\n",
+        )
+        .unwrap();
+        let m = read_scan_affine(&af).unwrap();
+        let mm = m["film_s01_001"].pixel_to_mm(Vector2::new(1200.0, 1200.0));
+        assert!(mm.norm() < 1e-12, "{mm:?}");
+        std::fs::write(&af, "photo,a11,a12,a13,a21,a22,a23\nf,0.1,0,x,0,-0.1,0\n").unwrap();
+        assert!(read_scan_affine(&af)
+            .unwrap_err()
+            .to_string()
+            .contains("line 2, column a13: \"x\" is not a number"));
+    }
+}
