@@ -229,7 +229,8 @@ fn exported_points_agree_with_the_truth_and_with_generate() {
     // Every chip is the photo's pixels around the measurement.
     let ms = &pkg.manifest.points[0].measurements[0];
     let chip = pkg.chip(&ms.chip).unwrap().to_luma8();
-    let photo = image::open(&b.images[&ms.photo]).unwrap().to_luma8();
+    let path = b.block.photos[&ms.photo].image.clone().unwrap();
+    let photo = image::open(path).unwrap().to_luma8();
     assert_eq!(
         chip.get_pixel(64, 64),
         photo.get_pixel(ms.chip.x0 + 64, ms.chip.y0 + 64)

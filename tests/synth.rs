@@ -314,3 +314,54 @@ fn unwritable_output_folder_is_reported_with_its_path() {
     let e = synth::generate(&config(1), &file).unwrap_err().to_string();
     assert!(e.contains("not_a_folder"), "{e}");
 }
+
+/// The navigation the generator writes is the documented POS CSV (formats/pos/): read by
+/// the project's reader, each record names its image file and lies within its stated σ of
+/// the truth (read by the truth readers, checked against this file's own CSV split).
+#[test]
+fn navigation_is_the_documented_pos_within_its_sigma_of_the_truth() {
+    use cloudcontrol::formats::pos::read_pos;
+    use cloudcontrol::synth::truth::{read_scan_affine, read_truth_eo};
+    let s = shared();
+    for e in &s.manifest.epochs {
+        let pos = read_pos(&s.path.join(&e.navigation)).unwrap();
+        let truth = read_truth_eo(&s.path.join(&e.truth_dir).join("eo.csv")).unwrap();
+        assert_eq!(pos.len(), e.photos.len());
+        assert_eq!(truth.len(), e.photos.len());
+        for ((r, (name, rot, centre)), photo) in pos.iter().zip(&truth).zip(&e.photos) {
+            assert_eq!(r.name, format!("{photo}.png"));
+            assert_eq!(name, photo);
+            assert!(s.path.join(&e.images_dir).join(&r.name).is_file());
+            let (sc, sa) = (r.sigma_xyz.unwrap(), r.sigma_angle.unwrap());
+            let d = (0..3)
+                .map(|i| (r.center[i] - centre[i]).powi(2))
+                .sum::<f64>()
+                .sqrt();
+            assert!(d < 5.0 * sc, "{}: centre {d:.3} m off, σ {sc}", r.name);
+            let q = cloudcontrol::geometry::matrix_from_opk(r.opk[0], r.opk[1], r.opk[2]);
+            let angle = ((q * rot.transpose()).trace() - 1.0).clamp(-2.0, 2.0) / 2.0;
+            let angle = angle.clamp(-1.0, 1.0).acos();
+            assert!(
+                angle < 5.0 * 3f64.sqrt() * sa,
+                "{}: attitude {angle} rad off, σ {sa}",
+                r.name
+            );
+        }
+        // The truth reader agrees with this file's independent split of eo.csv.
+        let rows = csv(&s.path.join(&e.truth_dir).join("eo.csv"));
+        for (row, (name, rot, centre)) in rows.iter().zip(&truth) {
+            assert_eq!(&row["photo"], name);
+            assert_eq!(row["x"].parse::<f64>().unwrap(), centre[0]);
+            assert_eq!(row["r23"].parse::<f64>().unwrap(), rot[(1, 2)]);
+        }
+        if e.kind == "film" {
+            let affine =
+                read_scan_affine(&s.path.join(&e.truth_dir).join("scan_affine.csv")).unwrap();
+            for r in csv(&s.path.join(&e.truth_dir).join("scan_affine.csv")) {
+                let m = &affine[&r["photo"]].pixel_to_mm;
+                assert_eq!(r["a12"].parse::<f64>().unwrap(), m[(0, 1)]);
+                assert_eq!(r["a23"].parse::<f64>().unwrap(), m[(1, 2)]);
+            }
+        }
+    }
+}

@@ -2,6 +2,7 @@
 //! measured as process CPU time / 2 so a busy machine does not fail it) and the accuracy of
 //! its rendered checkpoints in the reference epoch.
 
+use cloudcontrol::formats;
 use cloudcontrol::synth::{self, PosQuality, Preset, SynthConfig};
 
 fn cpu_seconds() -> f64 {
@@ -52,9 +53,32 @@ fn small_preset_meets_its_budget_and_sizes() {
     assert_eq!(reference.gsd_m, 0.1);
     assert_eq!(m.epochs[2].kind, "film");
     assert_eq!(m.epochs[2].gsd_m, 0.5);
-    // No POS: each archive epoch gets strip ends only.
-    let strips = std::fs::read_to_string(dir.path().join(&m.epochs[2].navigation)).unwrap();
-    assert!(strips.starts_with("strip,first_photo,last_photo,photos,"));
+    // No POS: each archive epoch gets strip ends only, in the documented strips CSV
+    // (formats/pos/): every photo by image file name, flown with image up along track.
+    let film = &m.epochs[2];
+    let strips = formats::pos::read_strips(&dir.path().join(&film.navigation)).unwrap();
+    let listed: Vec<String> = strips.iter().flat_map(|s| s.photos.clone()).collect();
+    let files: Vec<String> = film.photos.iter().map(|p| format!("{p}.png")).collect();
+    assert_eq!(listed, files);
+    assert!(strips
+        .iter()
+        .all(|s| s.flight_axis == formats::pos::FlightAxis::MinusY));
+    assert!(listed
+        .iter()
+        .all(|p| dir.path().join(&film.images_dir).join(p).is_file()));
+    // The reference epoch's POS names the same image files.
+    let reference_pos = formats::pos::read_pos(&dir.path().join(&reference.navigation)).unwrap();
+    assert_eq!(
+        reference_pos
+            .iter()
+            .map(|r| r.name.clone())
+            .collect::<Vec<_>>(),
+        reference
+            .photos
+            .iter()
+            .map(|p| format!("{p}.png"))
+            .collect::<Vec<_>>()
+    );
     assert!(dir.path().join("run.json").exists());
     // Truth is apart from the inputs.
     for e in &m.epochs {

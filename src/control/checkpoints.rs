@@ -39,9 +39,13 @@ pub enum EvaluationError {
     Gsd(f64),
     /// A measurement names a photo the epoch does not have (a naming mistake).
     #[error(
-        "checkpoint {point} is measured in photo {photo:?}, which is not a photo of the epoch"
+        "line {line}: checkpoint {point} is measured in photo {photo:?}, which is not a photo of the epoch"
     )]
-    UnknownPhoto { point: String, photo: String },
+    UnknownPhoto {
+        line: usize,
+        point: String,
+        photo: String,
+    },
     /// Too few oriented photos see a checkpoint (a result, not an input error).
     #[error("no checkpoint is measured in two or more oriented photos")]
     TooFewRays,
@@ -49,8 +53,8 @@ pub enum EvaluationError {
 
 /// Intersects every checkpoint measured in at least two oriented photos of `block` (least
 /// squares on the reprojection error with the full camera model) and compares it with its
-/// surveyed coordinates (world, the block's CRS); errors are also given in ground pixels of `gsd_m`. Measurements
-/// name photos by file name or stem; one naming a photo the block does not hold at all is
+/// surveyed coordinates (world, the block's CRS); errors are also given in ground pixels of
+/// `gsd_m`. Measurements name photos by file name or stem; one naming a photo the block does not hold at all is
 /// an error (a typo must not silently thin out the evaluation), one in a photo that is
 /// not oriented is left out.
 pub fn evaluate_checkpoints(
@@ -72,6 +76,7 @@ pub fn evaluate_checkpoints(
         .find(|m| !by_name.contains_key(photo_key(&m.photo)))
     {
         return Err(EvaluationError::UnknownPhoto {
+            line: m.line,
             point: m.id.clone(),
             photo: m.photo.clone(),
         });
@@ -126,4 +131,54 @@ pub fn evaluate_checkpoints(
         max_px: max / gsd_m,
         points,
     })
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::geometry::Pose;
+
+    #[test]
+    fn a_measurement_in_an_unknown_photo_is_named_with_its_line() {
+        let mut block = Block::new();
+        for (k, name) in ["ref_s01_003", "ref_s01_004.tif"].into_iter().enumerate() {
+            let id = k as u32;
+            block.photos.insert(
+                id,
+                Photo::new(
+                    id,
+                    name,
+                    0,
+                    Pose::new(nalgebra::Matrix3::identity(), Vector3::zeros()),
+                ),
+            );
+        }
+        let m = |line, photo: &str| CheckpointMeasurement {
+            line,
+            photo: photo.into(),
+            id: "CP002".into(),
+            pixel: [10.0, 20.0],
+        };
+        let known = [m(3, "ref_s01_003.tif"), m(5, "ref_s01_004")];
+        assert_eq!(
+            evaluate_checkpoints(&block, &known, &[], 0.1),
+            Err(EvaluationError::TooFewRays)
+        );
+        let e = evaluate_checkpoints(
+            &block,
+            &[known[0].clone(), m(6, "ref_s09_001.tif")],
+            &[],
+            0.1,
+        )
+        .unwrap_err();
+        assert_eq!(
+            e,
+            EvaluationError::UnknownPhoto {
+                line: 6,
+                point: "CP002".into(),
+                photo: "ref_s09_001.tif".into()
+            }
+        );
+        assert!(e.to_string().contains("line 6"), "{e}");
+    }
 }

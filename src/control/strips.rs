@@ -9,10 +9,15 @@ use crate::geometry::{matrix_from_opk, GeometryError, Pose};
 use nalgebra::Vector3;
 
 /// Kappa of a nadir photo whose `axis` points along the horizontal direction `d`.
+///
+/// With `R = diag(1,−1,−1)·R3(κ)` the camera x axis (row 0 of R) lies along (cos κ, sin κ)
+/// and the camera y axis (row 1) along (sin κ, −cos κ) on the ground.
 pub fn kappa_from_direction(d: [f64; 2], axis: FlightAxis) -> f64 {
     match axis {
-        FlightAxis::ImageX => d[1].atan2(d[0]),
-        FlightAxis::ImageUp => (-d[0]).atan2(d[1]),
+        FlightAxis::PlusX => d[1].atan2(d[0]),
+        FlightAxis::MinusX => (-d[1]).atan2(-d[0]),
+        FlightAxis::PlusY => d[0].atan2(-d[1]),
+        FlightAxis::MinusY => (-d[0]).atan2(d[1]),
     }
 }
 
@@ -79,24 +84,37 @@ mod tests {
 
     #[test]
     fn kappa_follows_the_flight_direction() {
-        // Flying east with image x along track: camera x (row 0 of R) points east.
-        let r = matrix_from_opk(
-            0.0,
-            0.0,
-            kappa_from_direction([1.0, 0.0], FlightAxis::ImageX),
-        );
-        assert!((r.row(0)[0] - 1.0).abs() < 1e-12);
-        // Flying east with image up along track: −(camera y) points east.
-        let r = matrix_from_opk(
-            0.0,
-            0.0,
-            kappa_from_direction([1.0, 0.0], FlightAxis::ImageUp),
-        );
-        assert!((-r.row(1)[0] - 1.0).abs() < 1e-12);
-        // Flying north-west.
-        let s = std::f64::consts::FRAC_1_SQRT_2;
-        let r = matrix_from_opk(0.0, 0.0, kappa_from_direction([-s, s], FlightAxis::ImageX));
-        assert!((r.row(0)[0] + s).abs() < 1e-12 && (r.row(0)[1] - s).abs() < 1e-12);
+        // For every axis and flight direction, the chosen camera axis (rows of R are the
+        // camera axes in world coordinates; pixel y runs down, as camera y) points along
+        // the flight.
+        for axis in [
+            FlightAxis::PlusX,
+            FlightAxis::MinusX,
+            FlightAxis::PlusY,
+            FlightAxis::MinusY,
+        ] {
+            for deg in [0.0, 30.0, 90.0, 135.0, 180.0, 250.0, 315.0] {
+                let a = f64::to_radians(deg);
+                let d = [a.cos(), a.sin()];
+                let r = matrix_from_opk(0.0, 0.0, kappa_from_direction(d, axis));
+                let forward = match axis {
+                    FlightAxis::PlusX => r.row(0).transpose(),
+                    FlightAxis::MinusX => -r.row(0).transpose(),
+                    FlightAxis::PlusY => r.row(1).transpose(),
+                    FlightAxis::MinusY => -r.row(1).transpose(),
+                };
+                assert!(
+                    (forward - Vector3::new(d[0], d[1], 0.0)).norm() < 1e-12,
+                    "{axis:?} flying {deg}°: forward axis {forward:?}"
+                );
+                // Nadir: camera z looks down.
+                assert!((r.row(2)[2] + 1.0).abs() < 1e-12);
+            }
+        }
+        // Flying east with image x along track: kappa 0 (image x east, image top north).
+        assert!(kappa_from_direction([1.0, 0.0], FlightAxis::PlusX).abs() < 1e-12);
+        // Flying north with image up along track: kappa 0 as well.
+        assert!(kappa_from_direction([0.0, 1.0], FlightAxis::MinusY).abs() < 1e-12);
     }
 
     #[test]
@@ -106,7 +124,7 @@ mod tests {
             photos: (0..5).map(|i| format!("p{i}")).collect(),
             first: [0.0, 0.0, 3000.0],
             last: [2000.0, 0.0, 3020.0],
-            flight_axis: FlightAxis::ImageX,
+            flight_axis: FlightAxis::PlusX,
         };
         let out = interpolate_strip(&strip, 0.1, 3f64.to_radians()).unwrap();
         assert_eq!(out.len(), 5);

@@ -1,21 +1,27 @@
-//! Control and check points as CSV (formats/control-points/README.md).
+//! Control and check points as CSV (formats/control-points/README.md), read with the
+//! project's one CSV reader ([`super::csv`]).
 //!
 //! Points: header `id,x,y,z,sigma_xy,sigma_z[,kind]`, kind `control` (default) or `check`,
 //! coordinates in any CRS PROJ knows (x = easting or longitude, y = northing or latitude:
 //! GIS order), σ in metres. They are converted to the block's CRS, which must be projected:
 //! bundle adjustment needs metric, conformal coordinates, so a geographic block CRS is
-//! refused with the UTM zone of the points as a suggestion.
+//! refused with the UTM zone of the points as a suggestion. Surveyed checkpoints of a
+//! project are such a file.
 //!
 //! Measurements: header `id,image_name,x,y[,sigma_px]`, pixels with the origin at the
 //! top-left corner of the top-left pixel (its centre is (0.5, 0.5)).
 //!
-//! Fields are comma-separated without quoting; `#` starts a comment line.
+//! Checkpoint measurements: header `epoch,photo,id,col,row`, the same pixel convention,
+//! one file for every epoch of a project.
 
 use super::crs::{Crs, Transformer};
+use super::csv::{read_records, Extra, Layout};
+use super::pos::photo_key;
 use super::{write_bytes_atomically, FormatError, Result};
 use crate::block::{Block, ObjectPoint, Observation, PointId, PointKind};
 use nalgebra::Vector3;
-use std::collections::HashMap;
+use serde::Deserialize;
+use std::collections::{BTreeMap, HashMap};
 use std::path::Path;
 
 /// One surveyed point as read from the CSV (coordinates still in the file's CRS).
@@ -37,161 +43,184 @@ pub struct Measurement {
     pub sigma_px: f64,
 }
 
-/// Data rows with their 1-based line numbers: header checked, comments and blanks skipped.
-fn rows(path: &Path, header: &[&str], optional: &[&str]) -> Result<Vec<(usize, Vec<String>)>> {
-    let text = std::fs::read_to_string(path).map_err(|e| FormatError::io(path, e))?;
-    let mut lines = text
-        .lines()
-        .enumerate()
-        .filter(|(_, l)| !l.trim().is_empty() && !l.trim_start().starts_with('#'));
-    let (hno, h) = lines
-        .next()
-        .ok_or_else(|| FormatError::invalid(path, "empty file: no header line"))?;
-    let cols: Vec<String> = h
-        .split(',')
-        .map(|s| s.trim().to_ascii_lowercase())
-        .collect();
-    let ok = cols.len() >= header.len()
-        && cols.len() <= header.len() + optional.len()
-        && cols
-            .iter()
-            .zip(header.iter().chain(optional))
-            .all(|(a, b)| a == b);
-    if !ok {
-        return Err(FormatError::invalid(
-            path,
-            format!(
-                "line {}: header must be {}[,{}], found {h:?}",
-                hno + 1,
-                header.join(","),
-                optional.join(",")
-            ),
-        ));
-    }
-    let n = cols.len();
-    let mut out = Vec::new();
-    for (i, l) in lines {
-        if l.contains('"') {
-            return Err(FormatError::invalid(
-                path,
-                format!("line {}: quoted fields are not supported", i + 1),
-            ));
-        }
-        let f: Vec<String> = l.split(',').map(|s| s.trim().to_string()).collect();
-        // Optional trailing columns may be left off row by row.
-        if f.len() < header.len() || f.len() > n {
-            return Err(FormatError::invalid(
-                path,
-                format!(
-                    "line {}: expected {} to {n} fields, found {}",
-                    i + 1,
-                    header.len(),
-                    f.len()
-                ),
-            ));
-        }
-        out.push((i + 1, f));
-    }
-    Ok(out)
+/// One checkpoint measured in one photo of an epoch.
+#[derive(Debug, Clone, PartialEq)]
+pub struct CheckpointMeasurement {
+    /// 1-based line of the file, to name the row when its photo or point is unknown.
+    pub line: usize,
+    /// The photo as written: its image file name or stem (match with [`photo_key`]).
+    pub photo: String,
+    pub id: String,
+    /// Column, row (px, top-left corner origin).
+    pub pixel: [f64; 2],
 }
 
-fn number(path: &Path, line: usize, field: &str, s: &str) -> Result<f64> {
-    s.parse::<f64>()
-        .ok()
-        .filter(|v| v.is_finite())
-        .ok_or_else(|| {
-            FormatError::invalid(
-                path,
-                format!("line {line}: {field} {s:?} is not a finite number"),
-            )
-        })
+fn require_text(path: &Path, line: usize, column: &str, v: &str) -> Result<()> {
+    if v.is_empty() {
+        return Err(FormatError::at(path, line, Some(column.into()), "empty"));
+    }
+    Ok(())
+}
+
+fn require_positive(path: &Path, line: usize, column: &str, v: f64) -> Result<f64> {
+    if v <= 0.0 {
+        return Err(FormatError::at(
+            path,
+            line,
+            Some(column.into()),
+            format!("σ must be positive, found {v}"),
+        ));
+    }
+    Ok(v)
+}
+
+#[derive(Deserialize)]
+struct PointRow {
+    id: String,
+    x: f64,
+    y: f64,
+    z: f64,
+    sigma_xy: f64,
+    sigma_z: f64,
+    kind: Option<String>,
 }
 
 /// Reads a control/check point CSV.
 pub fn read_points(path: &Path) -> Result<Vec<SurveyedPoint>> {
-    let mut seen = HashMap::new();
-    let mut out = Vec::new();
-    for (line, f) in rows(
+    let table = read_records::<PointRow>(
         path,
-        &["id", "x", "y", "z", "sigma_xy", "sigma_z"],
-        &["kind"],
-    )? {
-        let id = f[0].clone();
-        if id.is_empty() {
-            return Err(FormatError::invalid(
+        &Layout {
+            required: &["id", "x", "y", "z", "sigma_xy", "sigma_z"],
+            optional: &["kind"],
+            extra: Extra::Refuse,
+        },
+    )?;
+    let mut seen = HashMap::new();
+    let mut out = Vec::with_capacity(table.rows.len());
+    for (line, r) in table.rows {
+        require_text(path, line, "id", &r.id)?;
+        if let Some(prev) = seen.insert(r.id.clone(), line) {
+            return Err(FormatError::at(
                 path,
-                format!("line {line}: id is empty"),
+                line,
+                Some("id".into()),
+                format!("point {} already defined on line {prev}", r.id),
             ));
         }
-        if let Some(prev) = seen.insert(id.clone(), line) {
-            return Err(FormatError::invalid(
-                path,
-                format!("line {line}: point {id} already defined on line {prev}"),
-            ));
-        }
-        let v: Vec<f64> = (1..6)
-            .map(|i| {
-                number(
-                    path,
-                    line,
-                    ["x", "y", "z", "sigma_xy", "sigma_z"][i - 1],
-                    &f[i],
-                )
-            })
-            .collect::<Result<_>>()?;
-        if v[3] <= 0.0 || v[4] <= 0.0 {
-            return Err(FormatError::invalid(
-                path,
-                format!("line {line}: point {id}: σ must be positive"),
-            ));
-        }
-        let kind = match f.get(6).map(|s| s.to_ascii_lowercase()).as_deref() {
-            None | Some("") | Some("control") => PointKind::Control,
+        let kind = match r.kind.map(|k| k.to_ascii_lowercase()).as_deref() {
+            None | Some("control") => PointKind::Control,
             Some("check") => PointKind::Check,
             Some(k) => {
-                return Err(FormatError::invalid(
+                return Err(FormatError::at(
                     path,
-                    format!("line {line}: point {id}: kind {k:?} is neither control nor check"),
+                    line,
+                    Some("kind".into()),
+                    format!("point {}: {k:?} is neither control nor check", r.id),
                 ))
             }
         };
         out.push(SurveyedPoint {
-            id,
-            xyz: [v[0], v[1], v[2]],
-            sigma_xy: v[3],
-            sigma_z: v[4],
+            sigma_xy: require_positive(path, line, "sigma_xy", r.sigma_xy)?,
+            sigma_z: require_positive(path, line, "sigma_z", r.sigma_z)?,
+            id: r.id,
+            xyz: [r.x, r.y, r.z],
             kind,
         });
     }
     Ok(out)
 }
 
+#[derive(Deserialize)]
+struct MeasurementRow {
+    id: String,
+    image_name: String,
+    x: f64,
+    y: f64,
+    sigma_px: Option<f64>,
+}
+
 /// Reads an image measurement CSV.
 pub fn read_measurements(path: &Path) -> Result<Vec<Measurement>> {
-    rows(path, &["id", "image_name", "x", "y"], &["sigma_px"])?
+    let table = read_records::<MeasurementRow>(
+        path,
+        &Layout {
+            required: &["id", "image_name", "x", "y"],
+            optional: &["sigma_px"],
+            extra: Extra::Refuse,
+        },
+    )?;
+    table
+        .rows
         .into_iter()
-        .map(|(line, f)| {
-            let sigma_px = match f.get(4) {
-                Some(s) => number(path, line, "sigma_px", s)?,
-                None => 1.0,
-            };
-            if sigma_px <= 0.0 {
-                return Err(FormatError::invalid(
-                    path,
-                    format!("line {line}: sigma_px must be positive"),
-                ));
-            }
+        .map(|(line, r)| {
+            require_text(path, line, "id", &r.id)?;
+            require_text(path, line, "image_name", &r.image_name)?;
             Ok(Measurement {
-                id: f[0].clone(),
-                image_name: f[1].clone(),
-                pixel: [
-                    number(path, line, "x", &f[2])?,
-                    number(path, line, "y", &f[3])?,
-                ],
-                sigma_px,
+                sigma_px: require_positive(path, line, "sigma_px", r.sigma_px.unwrap_or(1.0))?,
+                id: r.id,
+                image_name: r.image_name,
+                pixel: [r.x, r.y],
             })
         })
         .collect()
+}
+
+#[derive(Deserialize)]
+struct CheckpointRow {
+    epoch: String,
+    photo: String,
+    id: String,
+    col: f64,
+    row: f64,
+}
+
+/// Reads the checkpoint measurements of `epoch` from an `epoch,photo,id,col,row` file
+/// (every row is checked, whatever its epoch). The photos are checked against the epoch
+/// where the block is known (`control::checkpoints::evaluate_checkpoints`).
+pub fn read_checkpoint_measurements(
+    path: &Path,
+    epoch: &str,
+) -> Result<Vec<CheckpointMeasurement>> {
+    let table = read_records::<CheckpointRow>(
+        path,
+        &Layout {
+            required: &["epoch", "photo", "id", "col", "row"],
+            optional: &[],
+            extra: Extra::Refuse,
+        },
+    )?;
+    let mut seen: BTreeMap<(String, String, String), usize> = BTreeMap::new();
+    let mut out = Vec::new();
+    for (line, r) in table.rows {
+        for (column, v) in [("epoch", &r.epoch), ("photo", &r.photo), ("id", &r.id)] {
+            require_text(path, line, column, v)?;
+        }
+        let key = (
+            r.epoch.clone(),
+            photo_key(&r.photo).to_string(),
+            r.id.clone(),
+        );
+        if let Some(first) = seen.insert(key, line) {
+            return Err(FormatError::at(
+                path,
+                line,
+                None,
+                format!(
+                    "checkpoint {} in photo {} of epoch {} is already measured on line {first}",
+                    r.id, r.photo, r.epoch
+                ),
+            ));
+        }
+        if r.epoch == epoch {
+            out.push(CheckpointMeasurement {
+                line,
+                photo: r.photo,
+                id: r.id,
+                pixel: [r.col, r.row],
+            });
+        }
+    }
+    Ok(out)
 }
 
 /// Converts surveyed points from `source` to the block's CRS and adds them to the block
@@ -273,6 +302,12 @@ pub fn add_measurements(
         .values()
         .map(|p| (p.name.as_str(), p.id))
         .collect();
+    // An image file name or stem designates the same photo (formats/pos/, photo names).
+    let by_key: HashMap<&str, u32> = block
+        .photos
+        .values()
+        .map(|p| (photo_key(&p.name), p.id))
+        .collect();
     let points: HashMap<String, PointId> = block
         .points
         .values()
@@ -281,15 +316,18 @@ pub fn add_measurements(
         .collect();
     let mut add = Vec::with_capacity(measurements.len());
     for m in measurements {
-        let photo = *photos.get(m.image_name.as_str()).ok_or_else(|| {
-            FormatError::invalid(
-                path,
-                format!(
-                    "point {}: image {:?} is not in the block",
-                    m.id, m.image_name
-                ),
-            )
-        })?;
+        let photo = *photos
+            .get(m.image_name.as_str())
+            .or_else(|| by_key.get(photo_key(&m.image_name)))
+            .ok_or_else(|| {
+                FormatError::invalid(
+                    path,
+                    format!(
+                        "point {}: image {:?} is not in the block",
+                        m.id, m.image_name
+                    ),
+                )
+            })?;
         let point = *points.get(&m.id).ok_or_else(|| {
             FormatError::invalid(path, format!("point {} is not in the block", m.id))
         })?;
@@ -336,19 +374,4 @@ pub fn write_points(path: &Path, block: &Block) -> Result<()> {
         ));
     }
     write_bytes_atomically(path, s.as_bytes())
-}
-
-// TEMPORARY (replaced by the h1 merge)
-#[derive(Debug, Clone, PartialEq)]
-pub struct CheckpointMeasurement {
-    pub line: usize,
-    pub photo: String,
-    pub id: String,
-    pub pixel: [f64; 2],
-}
-pub fn read_checkpoint_measurements(
-    _path: &Path,
-    _epoch: &str,
-) -> Result<Vec<CheckpointMeasurement>> {
-    unimplemented!()
 }

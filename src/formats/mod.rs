@@ -6,6 +6,7 @@ pub mod colmap;
 pub mod control_points;
 pub mod convert;
 pub mod crs;
+pub mod csv;
 pub mod ortho;
 pub mod pos;
 pub mod raster;
@@ -22,6 +23,14 @@ pub enum FormatError {
     },
     #[error("{path}: {message}")]
     Invalid { path: PathBuf, message: String },
+    /// A CSV row or header (formats/README.md, "CSV files"): 1-based line, column if known.
+    #[error("{path}: line {line}{}: {message}", .column.as_ref().map(|c| format!(", column {c}")).unwrap_or_default())]
+    Csv {
+        path: PathBuf,
+        line: usize,
+        column: Option<String>,
+        message: String,
+    },
     #[error("coordinate reference system {crs:?}: {message}")]
     Crs { crs: String, message: String },
     #[error("{path}: GDAL: {message}")]
@@ -37,6 +46,38 @@ impl FormatError {
         FormatError::Invalid {
             path: path.as_ref().to_path_buf(),
             message: message.into(),
+        }
+    }
+    /// An error at `line` (1-based) and, if given, `column` of a CSV file.
+    pub fn at(
+        path: impl AsRef<Path>,
+        line: usize,
+        column: Option<String>,
+        message: impl Into<String>,
+    ) -> Self {
+        FormatError::Csv {
+            path: path.as_ref().to_path_buf(),
+            line,
+            column,
+            message: message.into(),
+        }
+    }
+    /// The message without the file name in front, for callers whose own error names
+    /// the file.
+    pub fn detail(&self) -> String {
+        match self {
+            FormatError::Io { source, .. } => source.to_string(),
+            FormatError::Invalid { message, .. } => message.clone(),
+            FormatError::Csv {
+                line,
+                column,
+                message,
+                ..
+            } => match column {
+                Some(c) => format!("line {line}, column {c}: {message}"),
+                None => format!("line {line}: {message}"),
+            },
+            e => e.to_string(),
         }
     }
     pub fn io(path: impl AsRef<Path>, source: std::io::Error) -> Self {

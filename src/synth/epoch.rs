@@ -8,6 +8,7 @@ use super::flight::{self, FlightGeometry, PlannedPhoto};
 use super::render::{self, RayCaster};
 use super::{EpochInfo, PosQuality, PresetParams, Scene, SynthConfig, SynthError, ORIGIN};
 use crate::formats;
+use crate::formats::pos::{FlightAxis, PosRecord, StripEnds};
 use crate::geometry::{Brown, Camera, FrameCamera, Pose};
 use nalgebra::{Vector2, Vector3};
 use rand::Rng;
@@ -65,6 +66,11 @@ pub(crate) fn specs(config: &SynthConfig, p: &PresetParams) -> Vec<EpochSpec> {
             pos_sigma: archive_pos,
         },
     ]
+}
+
+/// The image file of a photo, as the navigation files name it (formats/pos/).
+fn image_file(photo: &str) -> String {
+    format!("{photo}.png")
 }
 
 fn png(path: &Path, data: &[u8], w: u32, h: u32) -> Result<(), SynthError> {
@@ -246,7 +252,7 @@ pub(crate) fn generate_epoch(
     let mut eo = String::from(
         "photo,strip,index,x,y,z,omega_deg,phi_deg,kappa_deg,r11,r12,r13,r21,r22,r23,r31,r32,r33\n",
     );
-    let mut nav = String::new();
+    let mut pos: Vec<PosRecord> = Vec::new();
     let mut affine = String::from("photo,a11,a12,a13,a21,a22,a23\n");
     let mut fids = String::from("photo,fiducial,col,row,x_mm,y_mm\n");
     let nav_name = if spec.pos_sigma.is_some() {
@@ -254,14 +260,6 @@ pub(crate) fn generate_epoch(
     } else {
         "strips.csv"
     };
-    match spec.pos_sigma {
-        Some(_) => {
-            nav.push_str("photo,x,y,z,omega_deg,phi_deg,kappa_deg,sigma_xyz_m,sigma_att_deg\n")
-        }
-        None => nav.push_str(
-            "strip,first_photo,last_photo,photos,x_first,y_first,z_first,x_last,y_last,z_last\n",
-        ),
-    }
     let photo_seed =
         config.seed ^ super::noise::mix(spec.name.len() as u64 * 7 + spec.gsd.to_bits());
     for (k, (ph, cam)) in photos.iter().zip(&cameras).enumerate() {
@@ -331,7 +329,7 @@ pub(crate) fn generate_epoch(
         };
         drop(radiance);
         png(
-            &edir.join("images").join(format!("{}.png", ph.name)),
+            &edir.join("images").join(image_file(&ph.name)),
             &bytes,
             w,
             h,
@@ -372,51 +370,53 @@ pub(crate) fn generate_epoch(
         }
         if let Some((s_xyz, s_att)) = spec.pos_sigma {
             let noisy = flight::noisy_pose(&ph.pose, s_xyz, s_att, rng);
-            let [o, pp, kk] = flight::opk_deg(&noisy);
+            let (o, pp, kk) = crate::geometry::opk_from_matrix(&noisy.rotation);
             let c = noisy.center;
-            let _ = writeln!(
-                nav,
-                "{},{:.3},{:.3},{:.3},{:.5},{:.5},{:.5},{:.3},{:.4}",
-                ph.name,
-                c.x + ORIGIN[0],
-                c.y + ORIGIN[1],
-                c.z + ORIGIN[2],
-                o,
-                pp,
-                kk,
-                s_xyz,
-                s_att.to_degrees()
-            );
+            pos.push(PosRecord {
+                name: image_file(&ph.name),
+                center: [c.x + ORIGIN[0], c.y + ORIGIN[1], c.z + ORIGIN[2]],
+                opk: [o, pp, kk],
+                sigma_xyz: Some(s_xyz),
+                sigma_angle: Some(s_att),
+            });
         }
         tracing::debug!(epoch = %spec.name, photo = %ph.name, "rendered");
     }
     if spec.pos_sigma.is_none() {
-        // Strip ends only, as read from a flight index map (≈ 5 m).
+        // Strip ends only, as read from a flight index map (≈ 5 m); the strips are flown
+        // with image up along the track.
         let strips: std::collections::BTreeMap<usize, Vec<&PlannedPhoto>> =
             photos.iter().fold(Default::default(), |mut m, ph| {
                 m.entry(ph.strip).or_insert_with(Vec::new).push(ph);
                 m
             });
         let n = rand_distr::Normal::new(0.0, 5.0).expect("sigma");
+        let mut ends = Vec::with_capacity(strips.len());
         for (s, list) in strips {
             let (a, b) = (list[0], list[list.len() - 1]);
             let mut q = |v: f64| v + rand_distr::Distribution::sample(&n, rng);
-            let _ = writeln!(
-                nav,
-                "{s},{},{},{},{:.2},{:.2},{:.2},{:.2},{:.2},{:.2}",
-                a.name,
-                b.name,
-                list.len(),
+            let first = [
                 q(a.pose.center.x + ORIGIN[0]),
                 q(a.pose.center.y + ORIGIN[1]),
                 q(a.pose.center.z + ORIGIN[2]),
+            ];
+            let last = [
                 q(b.pose.center.x + ORIGIN[0]),
                 q(b.pose.center.y + ORIGIN[1]),
-                q(b.pose.center.z + ORIGIN[2])
-            );
+                q(b.pose.center.z + ORIGIN[2]),
+            ];
+            ends.push(StripEnds {
+                name: s.to_string(),
+                photos: list.iter().map(|ph| image_file(&ph.name)).collect(),
+                first,
+                last,
+                flight_axis: FlightAxis::MinusY,
+            });
         }
+        formats::pos::write_strips(&edir.join(nav_name), &ends)?;
+    } else {
+        formats::pos::write_pos(&edir.join(nav_name), &pos)?;
     }
-    formats::write_bytes_atomically(&edir.join(nav_name), nav.as_bytes())?;
     formats::write_bytes_atomically(&tdir.join("eo.csv"), eo.as_bytes())?;
     let camera_file = match spec.kind {
         Kind::Frame => {

@@ -26,10 +26,14 @@ struct EoRow {
     r33: f64,
 }
 
+/// A photo's true exterior orientation: name (stem), world-to-camera rotation, projection
+/// centre (world).
+pub type TrueOrientation = (String, Matrix3<f64>, [f64; 3]);
+
 /// `truth/epochs/<epoch>/eo.csv`: per photo (stem), the true world-to-camera rotation
 /// (from the row-major `r11..r33`) and projection centre (world), in file order. The
 /// `strip`, `index` and omega/phi/kappa columns are read over.
-pub fn read_truth_eo(path: &Path) -> Result<Vec<(String, Matrix3<f64>, [f64; 3])>> {
+pub fn read_truth_eo(path: &Path) -> Result<Vec<TrueOrientation>> {
     let table = read_records::<EoRow>(
         path,
         &Layout {

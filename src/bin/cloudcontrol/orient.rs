@@ -57,7 +57,7 @@ pub struct OrientArgs {
     #[arg(long, conflicts_with = "strips")]
     pos: Option<PathBuf>,
     /// Strips CSV: strip,photo,x,y,z[,flight_axis] with the centres of each strip's first
-    /// and last photo (formats/pos/).
+    /// and last photo (formats/pos/; flight axis +x when absent).
     #[arg(long)]
     strips: Option<PathBuf>,
     /// CRS of the navigation (default: the DEM's).
