@@ -65,9 +65,9 @@ fn setup(name: &str, preset: Preset, pos: PosQuality, seed: u64) -> Setup {
         &dir,
     )
     .unwrap();
-    let surface =
-        cloudcontrol::lidar::lidar_surfaces(&lidar_tiles(&dir), synth::ORIGIN, 1.0).unwrap();
     let block = synth_truth_block(&dir, "reference_2024").unwrap();
+    let surface =
+        cloudcontrol::lidar::lidar_surfaces(&lidar_tiles(&dir), block.origin, 1.0).unwrap();
     let reference = export_dcp(
         &block,
         &surface,

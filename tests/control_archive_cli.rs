@@ -32,9 +32,10 @@ fn prepare(root: &Path) -> (PathBuf, PathBuf, PathBuf) {
     )
     .unwrap();
     let tiles = cloudcontrol::lidar::catalogue::expand_inputs(&[dir.join("lidar")]).unwrap();
-    let surface = cloudcontrol::lidar::lidar_surfaces(&tiles, synth::ORIGIN, 1.0).unwrap();
+    let block = synth_truth_block(&dir, "reference_2024").unwrap();
+    let surface = cloudcontrol::lidar::lidar_surfaces(&tiles, block.origin, 1.0).unwrap();
     // The DEM as a user has it: world coordinates in a GeoTIFF.
-    let o = synth::ORIGIN;
+    let o = block.origin;
     let world = surface.ground.shifted([-o[0], -o[1], -o[2]]).unwrap();
     let dem = root.join("dem.tif");
     write_dem(
@@ -44,7 +45,6 @@ fn prepare(root: &Path) -> (PathBuf, PathBuf, PathBuf) {
         &GeoTiffOptions::default(),
     )
     .unwrap();
-    let block = synth_truth_block(&dir, "reference_2024").unwrap();
     let pkg = export_dcp(
         &block,
         &surface,

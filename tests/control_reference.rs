@@ -33,11 +33,11 @@ fn reference_epoch_oriented_with_lidar_only_is_within_a_ground_pixel() {
     )
     .unwrap();
     let tiles = lidar_tiles(&dir);
-    let surface = cloudcontrol::lidar::lidar_surfaces(&tiles, synth::ORIGIN, 1.0).unwrap();
-    let index =
-        reference::lidar_plane_index(&tiles, synth::ORIGIN, &[2, 6], PlaneOptions::default())
-            .unwrap();
     let input = EpochInput::from_synth_epoch(&dir, "reference_2024").unwrap();
+    let surface = cloudcontrol::lidar::lidar_surfaces(&tiles, input.origin, 1.0).unwrap();
+    let index =
+        reference::lidar_plane_index(&tiles, input.origin, &[2, 6], PlaneOptions::default())
+            .unwrap();
     let t = std::time::Instant::now();
     let (result, rep) = reference::orient_reference(
         &input,
