@@ -96,6 +96,10 @@ fn mistakes_fail_naming_the_key() {
             "crs",
         ),
         (
+            text.replace("crs = \"EPSG:4547\"", "crs = \"EPSG:2994\""),
+            "key `crs`: coordinate reference system \"NAD83(HARN) / Oregon GIC Lambert (ft)\": has horizontal unit foot",
+        ),
+        (
             text.replace("control_interval_px = 250", "control_interval_px = 2500"),
             "control_interval_px",
         ),

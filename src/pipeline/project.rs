@@ -190,7 +190,7 @@ impl Project {
         };
         let crs = crate::formats::crs::Crs::parse(&self.crs)
             .map_err(|e| key_err("crs", e.to_string()))?;
-        crs.require_projected(None)
+        crs.require_metric_projected(None)
             .map_err(|e| key_err("crs", e.to_string()))?;
         if self.control.lidar.is_empty() {
             return Err(key_err("control.lidar", "no LiDAR source given".into()));

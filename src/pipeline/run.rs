@@ -525,17 +525,12 @@ pub fn run_project(
     }
     let sources = stage!("sources".to_string(), src_inputs, |dir: &Path| {
         let e = err("LiDAR sources");
-        let cat = Catalogue::scan(&project.control.lidar, &ScanOptions::default())
-            .map_err(|x| e(x.to_string()))?;
-        let crs = Crs::parse(&project.crs).map_err(|x| e(x.to_string()))?;
-        let lcrs = cat.crs().map_err(|x| e(x.to_string()))?;
-        if lcrs.spatial_ref() != crs.spatial_ref() {
-            return Err(e(format!(
-                "the LiDAR is in {} but the project in {}; reproject the LiDAR (e.g. with PDAL) or set crs",
-                lcrs.label(),
-                crs.label()
-            )));
-        }
+        // Tiles without a CRS are in the project's (a warning in the catalogue says so);
+        // tiles with one must match it horizontally (the scan refuses them otherwise).
+        let scan = ScanOptions {
+            assume_crs: Some(project.crs.clone()),
+        };
+        let cat = Catalogue::scan(&project.control.lidar, &scan).map_err(|x| e(x.to_string()))?;
         cat.save(&dir.join("catalogue.json"))
             .map_err(|x| e(x.to_string()))?;
         // Only the tiles under the photos are cleaned and used: the rest of a national
@@ -565,9 +560,8 @@ pub fn run_project(
         if let Some(cp) = &project.control.checkpoints {
             let pts = archive::read_checkpoints(cp).map_err(|x| x.to_string())?;
             let list: Vec<(String, [f64; 3])> = pts.iter().map(|p| (p.id.clone(), p.xyz)).collect();
-            let cleaned =
-                Catalogue::scan(std::slice::from_ref(&lidar_dir), &ScanOptions::default())
-                    .map_err(|x| e(x.to_string()))?;
+            let cleaned = Catalogue::scan(std::slice::from_ref(&lidar_dir), &scan)
+                .map_err(|x| e(x.to_string()))?;
             let mut store = TileStore::new(cleaned, 50_000_000);
             let rep = lidar::eval::evaluate_checkpoints_store(
                 &mut store,
