@@ -269,6 +269,16 @@ fn metric_rule_compound_parts_and_unit_overrides() {
     assert!(!compound.same_horizontal(&c("EPSG:32612")).unwrap());
     assert!(compound.require_metric_projected(None).is_ok());
     assert_eq!(c("EPSG:32611").vertical().unwrap().map(|v| v.label()), None);
+    // A WKT1 `TOWGS84` datum-shift hint (as many LAS writers add it) does not make
+    // another horizontal CRS.
+    let bound = c("EPSG:2180").to_wkt().unwrap().replacen(
+        "AUTHORITY[\"EPSG\",\"7019\"]],",
+        "AUTHORITY[\"EPSG\",\"7019\"]],TOWGS84[0,0,0,0,0,0,0],",
+        1,
+    );
+    assert!(bound.contains("TOWGS84"), "{bound}");
+    assert!(c(&bound).same_horizontal(&c("EPSG:2180")).unwrap());
+    assert_eq!(c(&bound).horizontal().unwrap().label(), "EPSG:2180");
     // Feet are refused naming the unit, horizontal or vertical.
     for (def, words) in [
         ("EPSG:2994", "has horizontal unit foot (0.3048 m)"),
