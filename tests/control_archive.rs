@@ -181,7 +181,10 @@ fn film_epoch_with_rough_pos_is_oriented_to_a_ground_pixel() {
         // Refinement: the first round resected, the next ones matched more patches.
         assert!(p.iterations.len() >= 2 && p.iterations[0].resected, "{p:?}");
         assert!(p.iterations[1].matched > p.iterations[0].matched, "{p:?}");
-        assert!(p.io_rmse_um.is_some_and(|r| r < 20.0), "{p:?}");
+        assert!(p.io.as_ref().is_some_and(|io| io.rmse_um < 20.0), "{p:?}");
+        // Without a given scan pixel size, the estimate is reported with its source.
+        let io = p.io.as_ref().unwrap();
+        assert!(io.pixel_um > 3.0 && io.pixel_source.contains("estimated"), "{io:?}");
         assert!(p.control_matches >= 6, "{p:?}");
     }
     // The block holds DCP control with observations in the oriented photos only.

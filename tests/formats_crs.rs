@@ -5,7 +5,7 @@
 //! 1395 (1987), eqs. (3-21), (8-9) and (8-10): the published formulas, independent of PROJ.
 //! Truncation error of the series within 2° of the central meridian is far below 1 mm.
 
-use cloudcontrol::formats::crs::{Crs, Transformer};
+use cloudcontrol::formats::crs::{Crs, LinearUnit, Transformer};
 use cloudcontrol::formats::raster::{read_dem, write_dem, GeoTiffOptions};
 use cloudcontrol::geometry::{Dem, GeoTransform};
 
@@ -254,4 +254,68 @@ fn failed_raster_write_leaves_nothing_behind() {
         "{e}"
     );
     let _ = GeoTransform::north_up(0.0, 0.0, 1.0);
+}
+
+#[test]
+fn metric_rule_compound_parts_and_unit_overrides() {
+    let c = |d: &str| Crs::parse(d).unwrap();
+    // Compound CRSs: projected + vertical, compared by their horizontal part.
+    let compound = c("EPSG:32611+5703");
+    assert!(compound.is_compound());
+    assert_eq!(compound.horizontal().unwrap().label(), "EPSG:32611");
+    assert_eq!(compound.vertical().unwrap().unwrap().label(), "EPSG:5703");
+    assert!(compound.same_horizontal(&c("EPSG:32611")).unwrap());
+    assert!(c("EPSG:32611").same_horizontal(&compound).unwrap());
+    assert!(!compound.same_horizontal(&c("EPSG:32612")).unwrap());
+    assert!(compound.require_metric_projected(None).is_ok());
+    assert_eq!(c("EPSG:32611").vertical().unwrap().map(|v| v.label()), None);
+    // A WKT1 `TOWGS84` datum-shift hint (as many LAS writers add it) does not make
+    // another horizontal CRS.
+    let bound = c("EPSG:2180").to_wkt().unwrap().replacen(
+        "AUTHORITY[\"EPSG\",\"7019\"]],",
+        "AUTHORITY[\"EPSG\",\"7019\"]],TOWGS84[0,0,0,0,0,0,0],",
+        1,
+    );
+    assert!(bound.contains("TOWGS84"), "{bound}");
+    assert!(c(&bound).same_horizontal(&c("EPSG:2180")).unwrap());
+    assert_eq!(c(&bound).horizontal().unwrap().label(), "EPSG:2180");
+    // Feet are refused naming the unit, horizontal or vertical.
+    for (def, words) in [
+        ("EPSG:2994", "has horizontal unit foot (0.3048 m)"),
+        ("EPSG:2903", "has horizontal unit US survey foot"),
+        ("EPSG:32611+6360", "has vertical unit US survey foot"),
+    ] {
+        let e = c(def)
+            .require_metric_projected(None)
+            .unwrap_err()
+            .to_string();
+        assert!(e.contains(words) && e.contains("metres"), "{def}: {e}");
+    }
+    let ft = c("EPSG:2994").horizontal_unit().unwrap();
+    assert_eq!(ft.name, "foot");
+    assert!((ft.metres - 0.3048).abs() < 1e-12);
+    // A geocentric CRS is not projected.
+    let e = c("EPSG:4978")
+        .require_metric_projected(None)
+        .unwrap_err()
+        .to_string();
+    assert!(e.contains("geocentric"), "{e}");
+    // GeoTIFF unit keys: EPSG:26995 is in metres; with its axes in US survey feet the
+    // same coordinates mean 0.3048 of the distance: false easting 700 000 m is
+    // 2 296 583.33 ftUS (NAD83 / Mississippi West's definition).
+    let usft = LinearUnit::from_epsg(9003).unwrap();
+    let ms_ft = c("EPSG:26995").with_units(Some(&usft), None).unwrap();
+    let same =
+        |a: &LinearUnit, b: &LinearUnit| a.name == b.name && (a.metres - b.metres).abs() < 1e-12;
+    assert!(same(&ms_ft.horizontal_unit().unwrap(), &usft));
+    assert_eq!(ms_ft.epsg(), None, "no longer the registered CRS");
+    let t = Transformer::new(&ms_ft, &c("EPSG:26995")).unwrap();
+    let p = t.transform_point([2_296_583.333, 1_000.0, 0.0]).unwrap();
+    assert!((p[0] - 700_000.0).abs() < 1e-3, "{p:?}");
+    assert!((p[1] - 304.8006).abs() < 1e-3, "{p:?}");
+    // A vertical unit without a vertical CRS adds one of unknown datum.
+    let with_v = c("EPSG:32611").with_units(None, Some(&usft)).unwrap();
+    assert!(with_v.is_compound());
+    assert!(same(&with_v.vertical_unit().unwrap().unwrap(), &usft));
+    assert!(with_v.same_horizontal(&c("EPSG:32611")).unwrap());
 }

@@ -5,7 +5,8 @@
 
 use cloudcontrol::geometry::InteriorTransformKind;
 use cloudcontrol::matching::fiducial::{
-    interior_orientation, CameraDefinition, IoOptions, ScanOrientation, ShapeKind,
+    interior_orientation, scan_pixel_um_from_dpi, CameraDefinition, IoOptions, ScanOrientation,
+    ShapeKind,
 };
 use cloudcontrol::matching::ncc::Window;
 use cloudcontrol::matching::resample::{warp_patch, Interpolation, PatchWarp};
@@ -179,6 +180,65 @@ fn fiducial_io_handles_rotated_and_mirrored_scans() {
         let w = check(&cam, o, false, &[]);
         assert!(w <= 0.2, "{o:?}: worst mark error {w} px");
     }
+}
+
+#[test]
+fn scan_pixel_size_given_or_estimated_and_reported_with_its_source() {
+    let cam = camera("wild_rc10.json");
+    let o = ScanOrientation {
+        rotation_deg: 0,
+        mirrored: false,
+    };
+    let (scan, _) = render_scan(&cam, o, &[], 13);
+    // The scan's true mean pixel: √|det| of the true pixel → mm affine.
+    let (lin, _) = truth(o);
+    let true_um = lin.determinant().abs().sqrt() * 1000.0;
+    // Given: used and reported as given.
+    let opts = IoOptions {
+        pixel_mm: Some(PIXEL_MM),
+        orientation: Some(o),
+        ..IoOptions::default()
+    };
+    let io = interior_orientation(&cam, &scan, "scan", &opts).unwrap();
+    assert_eq!(io.pixel_source, "given");
+    assert_eq!(io.pixel_um, PIXEL_MM * 1000.0);
+    assert!((io.pixel_mm * 1000.0 / true_um - 1.0).abs() < 1e-3);
+    let j = io.to_json();
+    assert_eq!(j["pixel_source"], "given");
+    assert_eq!(j["pixel_um"].as_f64(), Some(100.0));
+    // Not given: the search starts from format / scan size (230 mm / 2400 px = 95.8 µm,
+    // 4 % off, as the scan has margins); the marks measure the pixel within 1 %.
+    let io = interior_orientation(&cam, &scan, "scan", &IoOptions::default()).unwrap();
+    assert!(
+        io.pixel_source
+            .starts_with("estimated from the fiducial marks"),
+        "{}",
+        io.pixel_source
+    );
+    assert!(io.pixel_source.contains("95.83 µm"), "{}", io.pixel_source);
+    let rel = io.pixel_um / true_um - 1.0;
+    eprintln!(
+        "estimated scan pixel {:.4} µm (truth {true_um:.4} µm, {:+.4} %)",
+        io.pixel_um,
+        100.0 * rel
+    );
+    assert!(rel.abs() < 0.01, "estimate {} µm", io.pixel_um);
+    // A pixel size outside 3–200 µm (here mm taken for µm) is refused naming the scan.
+    for bad in [0.0001, 0.5, f64::NAN, -0.02] {
+        let opts = IoOptions {
+            pixel_mm: Some(bad),
+            ..IoOptions::default()
+        };
+        let e = interior_orientation(&cam, &scan, "scan_03.tif", &opts)
+            .unwrap_err()
+            .to_string();
+        assert!(
+            e.contains("scan_03.tif") && e.contains("not a plausible film scan pixel"),
+            "{e}"
+        );
+    }
+    // dpi: 1270 dpi is 20 µm.
+    assert!((scan_pixel_um_from_dpi(1270.0) - 20.0).abs() < 1e-12);
 }
 
 #[test]

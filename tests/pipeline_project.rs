@@ -48,6 +48,16 @@ fn documented_example_loads_with_paths_resolved() {
     );
     assert_eq!(p.output, dir.path().join("out"));
     assert_eq!(p.thresholds.reject_k, 2.5);
+    // Film scan pixel size: given in µm, or in dpi (converted), or absent.
+    assert_eq!(p.archive[1].scan_pixel_um, Some(21.0));
+    assert_eq!(p.archive[1].scan_pixel_mm(), Some(0.021));
+    assert_eq!(p.archive[0].scan_pixel_mm(), None);
+    let dpi = load(
+        dir.path(),
+        &text.replace("scan_pixel_um = 21.0", "scan_dpi = 1270"),
+    )
+    .unwrap();
+    assert!((dpi.archive[1].scan_pixel_mm().unwrap() - 0.02).abs() < 1e-15);
     assert_eq!(
         p.control.checkpoint_images.as_deref(),
         Some(dir.path().join("checkpoint_images.csv").as_path())
@@ -94,6 +104,26 @@ fn mistakes_fail_naming_the_key() {
         (
             text.replace("crs = \"EPSG:4547\"", "crs = \"EPSG:4326\""),
             "crs",
+        ),
+        (
+            text.replace("crs = \"EPSG:4547\"", "crs = \"EPSG:2994\""),
+            "key `crs`: coordinate reference system \"NAD83(HARN) / Oregon GIC Lambert (ft)\": has horizontal unit foot",
+        ),
+        (
+            text.replace("scan_pixel_um = 21.0", "scan_pixel_um = 0.021"),
+            "key `archive[1].scan_pixel_um`: scan pixel size 0.021 µm is not a plausible",
+        ),
+        (
+            text.replace("scan_pixel_um = 21.0", "scan_pixel_um = nan"),
+            "archive[1].scan_pixel_um",
+        ),
+        (
+            text.replace("scan_pixel_um = 21.0", "scan_dpi = 12"),
+            "key `archive[1].scan_dpi`: 12 dpi: scan pixel size 2116.6",
+        ),
+        (
+            text.replace("scan_pixel_um = 21.0", "scan_pixel_um = 21.0\nscan_dpi = 1200"),
+            "either scan_pixel_um or scan_dpi",
         ),
         (
             text.replace("control_interval_px = 250", "control_interval_px = 2500"),

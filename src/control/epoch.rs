@@ -228,12 +228,12 @@ impl EpochInput {
             ));
         }
         if let Some(px) = spec.scan_pixel_um {
-            if !(px.is_finite() && (1.0..=500.0).contains(&px)) {
-                return Err(EpochError::Epoch {
+            crate::matching::fiducial::check_scan_pixel_um(px).map_err(|message| {
+                EpochError::Epoch {
                     epoch: spec.name.clone(),
-                    message: format!("scan pixel size {px} µm is outside [1, 500] µm"),
-                });
-            }
+                    message,
+                }
+            })?;
         }
         Ok(Self {
             name: spec.name.clone(),

@@ -69,8 +69,8 @@ pub struct PhotoReport {
     pub control_matches: usize,
     /// Final σ (px): RMS image residual after the block adjustment, else the resection's.
     pub sigma_px: f64,
-    /// Film: RMS of the fiducial interior orientation (µm).
-    pub io_rmse_um: Option<f64>,
+    /// Film: the fiducial interior orientation of the scan.
+    pub io: Option<ScanIo>,
     /// Control points predicted inside the photo in the first round.
     pub predicted: usize,
     pub matching: MatchStats,
@@ -78,6 +78,17 @@ pub struct PhotoReport {
     pub relaxed: bool,
     /// Oriented in the second pass, from the epoch's own oriented photos.
     pub second_pass: bool,
+}
+
+/// A film scan's fiducial interior orientation, as reported.
+#[derive(Debug, Clone, Serialize)]
+pub struct ScanIo {
+    /// RMS of the fiducial marks after the affine fit (µm).
+    pub rmse_um: f64,
+    /// Scan pixel size used (µm).
+    pub pixel_um: f64,
+    /// Where it came from: given in the epoch, or estimated (and from what).
+    pub pixel_source: String,
 }
 
 /// The orientation of one photo: the resected pose with its covariance and the matches
@@ -105,7 +116,7 @@ impl PhotoOrientation {
                 iterations: Vec::new(),
                 control_matches: 0,
                 sigma_px: f64::NAN,
-                io_rmse_um: None,
+                io: None,
                 predicted: 0,
                 matching: MatchStats::default(),
                 relaxed: false,
@@ -195,9 +206,9 @@ pub fn film_cameras(
     img: &GreyImage,
     name: &str,
     io: &IoOptions,
-) -> Result<Vec<(FilmCamera, f64)>, String> {
+) -> Result<Vec<(FilmCamera, ScanIo)>, String> {
     let r = matching::interior_orientation(def, img, name, io).map_err(|e| e.to_string())?;
-    let mut out = vec![(film_from_io(def, img, &r), r.rmse_um)];
+    let mut out = vec![(film_from_io(def, img, &r), scan_io(&r))];
     if r.orientation_ambiguous && io.orientation.is_none() {
         for o in matching::ScanOrientation::all() {
             if o == r.orientation {
@@ -209,12 +220,20 @@ pub fn film_cameras(
             };
             if let Ok(r2) = matching::interior_orientation(def, img, name, &forced) {
                 if r2.rmse_um <= 2.0 * r.rmse_um + 10.0 {
-                    out.push((film_from_io(def, img, &r2), r2.rmse_um));
+                    out.push((film_from_io(def, img, &r2), scan_io(&r2)));
                 }
             }
         }
     }
     Ok(out)
+}
+
+fn scan_io(r: &matching::IoResult) -> ScanIo {
+    ScanIo {
+        rmse_um: r.rmse_um,
+        pixel_um: r.pixel_um,
+        pixel_source: r.pixel_source.clone(),
+    }
 }
 
 fn film_from_io(def: &CameraDefinition, img: &GreyImage, r: &matching::IoResult) -> FilmCamera {
@@ -278,7 +297,7 @@ pub fn orient_photo(
     // orientation, plus the other scan orientations that fit the marks equally well when
     // the fiducial layout is symmetric (corner crosses and side dots of many metric
     // cameras): the control patches then decide which one is right.
-    let candidates: Vec<(Camera, Option<f64>)> = match camera {
+    let candidates: Vec<(Camera, Option<ScanIo>)> = match camera {
         EpochCamera::Frame(f) => {
             if (f.width as usize, f.height as usize) != (img.width, img.height) {
                 return PhotoOrientation::failed(
@@ -311,9 +330,9 @@ pub fn orient_photo(
     };
     let pyramid = Pyramid::new(&img, 6, 16);
     let mut best: Option<PhotoOrientation> = None;
-    for (camera, io_rmse) in candidates {
+    for (camera, io) in candidates {
         let out = orient_with_camera(
-            name, camera, io_rmse, &pose0, &cov0, store, dem, &pyramid, opts,
+            name, camera, io, &pose0, &cov0, store, dem, &pyramid, opts,
         );
         if matches!(out.report.reason, Some(PhotoFailure::Chip { .. })) {
             return out;
@@ -355,9 +374,9 @@ pub fn orient_photo(
     let Some(camera) = best.camera.clone() else {
         return best;
     };
-    let io_rmse = best.report.io_rmse_um;
+    let io = best.report.io.clone();
     let retry = orient_with_camera(
-        name, camera, io_rmse, &pose0, &cov0, store, dem, &pyramid, &relaxed,
+        name, camera, io, &pose0, &cov0, store, dem, &pyramid, &relaxed,
     );
     if retry.report.oriented {
         let mut r = retry;
@@ -372,7 +391,7 @@ pub fn orient_photo(
 fn orient_with_camera(
     name: &str,
     camera: Camera,
-    io_rmse: Option<f64>,
+    io: Option<ScanIo>,
     pose0: &Pose,
     cov0: &SMatrix<f64, 6, 6>,
     store: &ChipStore,
@@ -432,7 +451,7 @@ fn orient_with_camera(
             iterations: o.iterations.clone(),
             control_matches: o.matches.len(),
             sigma_px: resector.last_rmse_px,
-            io_rmse_um: io_rmse,
+            io,
             predicted,
             matching: matcher.stats.clone(),
             relaxed: false,

@@ -405,7 +405,7 @@ pub fn orient_reference(
             iterations: Vec::new(),
             control_matches: 0,
             sigma_px: precision.get(&ph.id).copied().unwrap_or(f64::NAN),
-            io_rmse_um: None,
+            io: None,
             predicted: 0,
             matching: MatchStats::default(),
             relaxed: false,

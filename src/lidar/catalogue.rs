@@ -42,8 +42,28 @@ pub struct TileEntry {
     pub acquisition_dates: Option<[String; 2]>,
     /// File creation date from the header.
     pub creation_date: Option<String>,
-    /// `EPSG:n` or the CRS name.
+    /// `EPSG:n` or the CRS name (of the file's CRS, compound ones included, or of the
+    /// CRS assumed for a file without one).
     pub crs: String,
+    /// Where the tile's CRS comes from: the file, or assumed (the file has none).
+    #[serde(default)]
+    pub crs_source: CrsSource,
+    /// The vertical part of a compound CRS in the file (information: heights are used as
+    /// they are).
+    #[serde(default)]
+    pub vertical_crs: Option<String>,
+}
+
+/// Where a tile's CRS comes from.
+#[derive(Debug, Clone, Copy, Default, PartialEq, Eq, Serialize, Deserialize)]
+#[serde(rename_all = "lowercase")]
+pub enum CrsSource {
+    /// The file's WKT or GeoTIFF keys VLR.
+    #[default]
+    File,
+    /// The file has no CRS (no CRS VLR, or an empty one): the CRS given for such files
+    /// (`--crs`, or the project CRS in `cloudcontrol run`).
+    Assumed,
 }
 
 impl TileEntry {
@@ -61,10 +81,14 @@ impl TileEntry {
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 pub struct Catalogue {
     pub schema: u32,
-    /// `EPSG:n` or the CRS name.
+    /// `EPSG:n` or the CRS name: the horizontal CRS every tile shares.
     pub crs: String,
     /// Full definition of the CRS.
     pub crs_wkt: String,
+    /// What a user should know about the scan (tiles whose CRS was assumed, vertical
+    /// CRSs that differ between tiles).
+    #[serde(default)]
+    pub warnings: Vec<String>,
     pub point_count: u64,
     /// [min_x, min_y, min_z, max_x, max_y, max_z] over all tiles.
     pub bounds: [f64; 6],
@@ -74,7 +98,8 @@ pub struct Catalogue {
 /// Options of a catalogue scan.
 #[derive(Debug, Clone, Default)]
 pub struct ScanOptions {
-    /// CRS for files that carry none (`EPSG:n`, WKT, ...). Files with a CRS must match it.
+    /// CRS for files that carry none (`EPSG:n`, WKT, ...). Files with a CRS must match
+    /// its horizontal part.
     pub assume_crs: Option<String>,
 }
 
@@ -153,6 +178,19 @@ impl BlockStats {
             s.t1 = s.t1.max(t);
         }
         s
+    }
+}
+
+/// A CRS error of a file (or of the assumed CRS), without repeating "coordinate
+/// reference system" twice in the message.
+fn crs_error(path: &Path, e: crate::formats::FormatError) -> LidarError {
+    let message = match e {
+        crate::formats::FormatError::Crs { crs, message } => format!("{crs:?} {message}"),
+        other => other.to_string(),
+    };
+    LidarError::Crs {
+        path: path.to_path_buf(),
+        message,
     }
 }
 
@@ -253,6 +291,8 @@ fn scan_file(path: &Path) -> Result<Scanned> {
         acquisition_dates: dates,
         creation_date: info.creation_date.clone(),
         crs: info.crs_label.clone().unwrap_or_default(),
+        crs_source: CrsSource::File,
+        vertical_crs: None,
     };
     Ok(Scanned {
         entry,
@@ -263,35 +303,69 @@ fn scan_file(path: &Path) -> Result<Scanned> {
 impl Catalogue {
     /// Scans files and folders (every point is read: counts, bounds and histograms are
     /// measured, and a header that disagrees with the records is an error naming the file).
-    /// All tiles must share one CRS.
+    /// All tiles must share one horizontal CRS, projected and in metres (a compound CRS
+    /// matches by its horizontal part); files without a CRS take `opts.assume_crs`, with
+    /// a warning.
     pub fn scan(inputs: &[PathBuf], opts: &ScanOptions) -> Result<Self> {
         let files = expand_inputs(inputs)?;
+        let assumed_path =
+            PathBuf::from("the CRS given for tiles without one (--crs, or the project's crs)");
         let assumed = match &opts.assume_crs {
-            Some(d) => Some(Crs::parse(d).map_err(|e| LidarError::Crs {
-                path: PathBuf::from("--crs"),
-                message: e.to_string(),
-            })?),
+            Some(d) => {
+                let c = Crs::parse(d).map_err(|e| crs_error(&assumed_path, e))?;
+                c.require_metric_projected(None)
+                    .map_err(|e| crs_error(&assumed_path, e))?;
+                Some(c)
+            }
             None => None,
         };
         // Files in parallel; results are taken in input order, so the first error in
         // file order is reported and the catalogue is deterministic.
         let scanned: Vec<Result<Scanned>> = files.par_iter().map(|f| scan_file(f)).collect();
         let mut tiles = Vec::with_capacity(files.len());
-        let mut reference: Option<(Crs, PathBuf)> = assumed.map(|c| (c, PathBuf::from("--crs")));
+        // The horizontal CRS all tiles share, and where it came from.
+        let mut reference: Option<(Crs, PathBuf)> = match &assumed {
+            Some(c) => Some((
+                c.horizontal().map_err(|e| crs_error(&assumed_path, e))?,
+                assumed_path.clone(),
+            )),
+            None => None,
+        };
+        // A national dataset repeats one WKT in every tile: check each distinct one once.
+        let mut checked: BTreeMap<String, (Crs, Option<String>)> = BTreeMap::new();
+        let mut assumed_files: Vec<PathBuf> = Vec::new();
         for s in scanned {
             let mut s = s?;
             let path = s.entry.file.clone();
             let crs = match s.crs_wkt.take() {
-                Some(w) => Crs::parse(&w).map_err(|e| LidarError::Crs {
-                    path: path.clone(),
-                    message: e.to_string(),
-                })?,
-                None => match &reference {
-                    Some((c, _)) if opts.assume_crs.is_some() => {
-                        s.entry.crs = c.label();
-                        c.clone()
+                Some(w) => {
+                    if !checked.contains_key(&w) {
+                        let crs = Crs::parse(&w).map_err(|e| crs_error(&path, e))?;
+                        crs.require_metric_projected(None)
+                            .map_err(|e| crs_error(&path, e))?;
+                        let vertical = crs
+                            .vertical()
+                            .map_err(|e| crs_error(&path, e))?
+                            .map(|v| v.label());
+                        let h = crs.horizontal().map_err(|e| crs_error(&path, e))?;
+                        checked.insert(w.clone(), (h, vertical));
                     }
-                    _ => return Err(LidarError::MissingCrs { path }),
+                    let (h, vertical) = &checked[&w];
+                    s.entry.vertical_crs = vertical.clone();
+                    h.clone()
+                }
+                None => match &assumed {
+                    Some(c) => {
+                        s.entry.crs = c.label();
+                        s.entry.crs_source = CrsSource::Assumed;
+                        assumed_files.push(path.clone());
+                        reference
+                            .as_ref()
+                            .expect("set from the assumed CRS")
+                            .0
+                            .clone()
+                    }
+                    None => return Err(LidarError::MissingCrs { path }),
                 },
             };
             match &reference {
@@ -300,7 +374,7 @@ impl Catalogue {
                     if r.spatial_ref() != crs.spatial_ref() {
                         return Err(LidarError::CrsMismatch {
                             path,
-                            found: crs.label(),
+                            found: s.entry.crs.clone(),
                             expected: r.label(),
                             reference: rp.clone(),
                         });
@@ -310,6 +384,30 @@ impl Catalogue {
             tiles.push(s.entry);
         }
         let (crs, _) = reference.expect("at least one tile was scanned");
+        let mut warnings = Vec::new();
+        if let Some(first) = assumed_files.first() {
+            let w = format!(
+                "{} of {} tiles carry no CRS (first: {}); assumed {}",
+                assumed_files.len(),
+                tiles.len(),
+                first.display(),
+                crs.label()
+            );
+            tracing::warn!("{w}");
+            warnings.push(w);
+        }
+        let verticals: std::collections::BTreeSet<&str> = tiles
+            .iter()
+            .filter_map(|t| t.vertical_crs.as_deref())
+            .collect();
+        if verticals.len() > 1 {
+            let w = format!(
+                "tiles give different vertical CRSs ({}); heights are used as they are",
+                verticals.into_iter().collect::<Vec<_>>().join(", ")
+            );
+            tracing::warn!("{w}");
+            warnings.push(w);
+        }
         let mut bounds = [
             f64::INFINITY,
             f64::INFINITY,
@@ -328,6 +426,7 @@ impl Catalogue {
             schema: CATALOGUE_SCHEMA,
             crs: crs.label(),
             crs_wkt: crs.to_wkt()?,
+            warnings,
             point_count: tiles.iter().map(|t| t.point_count).sum(),
             bounds,
             tiles,

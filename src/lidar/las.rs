@@ -8,7 +8,7 @@
 //! record. LAZ goes through `las::Reader` (laz-rs).
 
 use super::{LidarError, Result};
-use crate::formats::crs::Crs;
+use crate::formats::crs::{Crs, LinearUnit};
 use rayon::prelude::*;
 use serde::{Deserialize, Serialize};
 use std::fs::File;
@@ -159,7 +159,12 @@ fn las_err(path: &Path, e: las::Error) -> LidarError {
     }
 }
 
-/// Extracts the CRS of a header: the WKT VLR first, else the EPSG code of the GeoTIFF keys.
+/// Extracts the CRS of a header: the WKT VLR first (an empty or quoted-empty one counts as
+/// absent), else
+/// the GeoTIFF keys: the EPSG code of the projected or geodetic CRS, with the vertical CRS
+/// key as a compound CRS, and the unit keys (`ProjLinearUnitsGeoKey`,
+/// `VerticalUnitsGeoKey`) applied where they differ from the code's own units, so that a
+/// file in feet is described in feet (and then refused by the catalogue, not misread).
 fn header_crs(path: &Path, header: &las::Header) -> Result<Option<Crs>> {
     let crs_err = |message: String| LidarError::Crs {
         path: path.to_path_buf(),
@@ -168,7 +173,12 @@ fn header_crs(path: &Path, header: &las::Header) -> Result<Option<Crs>> {
     if let Some(bytes) = header.get_wkt_crs_bytes() {
         let wkt = String::from_utf8_lossy(bytes);
         let wkt = wkt.trim_matches(char::from(0)).trim();
-        if !wkt.is_empty() {
+        // Some writers store an empty string as a quoted one (`''`, PDAL's
+        // warsaw_small.las): no CRS either.
+        if !wkt
+            .trim_matches(|c: char| c == '\'' || c == '"' || c.is_whitespace())
+            .is_empty()
+        {
             return Crs::parse(wkt)
                 .map(Some)
                 .map_err(|e| crs_err(format!("WKT VLR: {e}")));
@@ -183,15 +193,69 @@ fn header_crs(path: &Path, header: &las::Header) -> Result<Option<Crs>> {
     let code = keys
         .get_projected_crs_geo_key_value()
         .or_else(|| keys.get_geodetic_crs_geo_key_value());
-    match code {
-        Some(c) if c > 0 && c < 32767 => Crs::from_epsg(c as u32)
-            .map(Some)
-            .map_err(|e| crs_err(format!("GeoTIFF keys VLR: EPSG:{c}: {e}"))),
-        Some(c) => Err(crs_err(format!(
-            "GeoTIFF keys VLR holds a user-defined CRS (key value {c}); add a WKT VLR"
-        ))),
-        None => Ok(None),
-    }
+    let epsg = |c: u16| (1024..32767).contains(&c);
+    let crs = match code {
+        Some(c) if epsg(c) => Crs::from_epsg(c as u32)
+            .map_err(|e| crs_err(format!("GeoTIFF keys VLR: EPSG:{c}: {e}")))?,
+        Some(c) if c > 0 => {
+            return Err(crs_err(format!(
+                "GeoTIFF keys VLR holds a user-defined CRS (key value {c}); add a WKT VLR"
+            )))
+        }
+        _ => return Ok(None),
+    };
+    let crs = match keys.get_vertical_crs_geo_key_value().filter(|&v| epsg(v)) {
+        Some(v) => match Crs::parse(&format!("{}+{v}", crs.label())) {
+            Ok(c) => c,
+            Err(e) => {
+                tracing::warn!(file = %path.display(), "GeoTIFF vertical CRS key EPSG:{v} ignored: {e}");
+                crs
+            }
+        },
+        None => crs,
+    };
+    let unit_key = |id: u16| -> Result<Option<LinearUnit>> {
+        let value = keys.entries.iter().find_map(|k| match k.data {
+            las::crs::GeoTiffData::U16(v) if k.id == id => Some(v),
+            _ => None,
+        });
+        match value {
+            None => Ok(None),
+            Some(v) => LinearUnit::from_epsg(v).map(Some).ok_or_else(|| {
+                crs_err(format!(
+                    "GeoTIFF keys VLR: unit key {id} holds unit code {v}, which this build \
+                     does not know; add a WKT VLR"
+                ))
+            }),
+        }
+    };
+    let differs = |a: &LinearUnit, b: &LinearUnit| (a.metres - b.metres).abs() > 1e-9 * b.metres;
+    let to_las = |e: crate::formats::FormatError| crs_err(format!("GeoTIFF keys VLR: {e}"));
+    let horizontal = match unit_key(3076)? {
+        Some(u)
+            if crs.horizontal().map_err(to_las)?.is_projected()
+                && differs(&u, &crs.horizontal_unit().map_err(to_las)?) =>
+        {
+            Some(u)
+        }
+        _ => None,
+    };
+    let vertical = match unit_key(4099)? {
+        Some(u)
+            if differs(
+                &u,
+                &crs.vertical_unit()
+                    .map_err(to_las)?
+                    .unwrap_or_else(LinearUnit::metre),
+            ) =>
+        {
+            Some(u)
+        }
+        _ => None,
+    };
+    crs.with_units(horizontal.as_ref(), vertical.as_ref())
+        .map(Some)
+        .map_err(to_las)
 }
 
 impl LasStream {

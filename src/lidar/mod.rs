@@ -18,7 +18,7 @@ pub mod points_io;
 pub mod store;
 pub mod surfaces;
 
-pub use catalogue::{Catalogue, ScanOptions, TileEntry};
+pub use catalogue::{Catalogue, CrsSource, ScanOptions, TileEntry};
 pub use clean::{
     apply_strip_offsets, clean_tiles, estimate_strip_offsets, statistical_outlier_filter,
     CleanOptions, CleanReport, OutlierOptions, OutlierReport, StripOffsetOptions,
@@ -75,7 +75,7 @@ pub enum LidarError {
         declared: u64,
         found: u64,
     },
-    #[error("{path}: no coordinate reference system (neither a WKT nor a GeoTIFF keys VLR); pass the CRS explicitly (e.g. --crs EPSG:32650)")]
+    #[error("{path}: no coordinate reference system (no WKT or GeoTIFF keys VLR, or an empty one); pass the CRS explicitly (e.g. --crs EPSG:32650)")]
     MissingCrs { path: PathBuf },
     #[error("{path}: coordinate reference system: {message}")]
     Crs { path: PathBuf, message: String },

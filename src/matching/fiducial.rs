@@ -193,9 +193,38 @@ impl ScanOrientation {
     }
 }
 
+/// Scan pixel sizes (µm) taken as physically plausible for a film scan: photogrammetric
+/// scanners work at 4–25 µm, office scanners down to 127 dpi (200 µm). A value outside is
+/// a unit mistake (mm or dpi given as µm).
+pub const SCAN_PIXEL_UM: std::ops::RangeInclusive<f64> = 3.0..=200.0;
+
+/// Checks a given scan pixel size (µm): finite, positive and within [`SCAN_PIXEL_UM`].
+pub fn check_scan_pixel_um(um: f64) -> std::result::Result<(), String> {
+    if um.is_finite() && SCAN_PIXEL_UM.contains(&um) {
+        Ok(())
+    } else {
+        Err(format!(
+            "scan pixel size {um} µm is not a plausible film scan pixel ({}–{} µm, i.e. \
+             {:.0}–{:.0} dpi)",
+            SCAN_PIXEL_UM.start(),
+            SCAN_PIXEL_UM.end(),
+            scan_pixel_um_from_dpi(*SCAN_PIXEL_UM.end()),
+            scan_pixel_um_from_dpi(*SCAN_PIXEL_UM.start()),
+        ))
+    }
+}
+
+/// Pixel size (µm) of a scan at `dpi` dots per inch (25 400 µm to the inch); the same
+/// formula turns a pixel size in µm back into dpi.
+pub fn scan_pixel_um_from_dpi(dpi: f64) -> f64 {
+    25_400.0 / dpi
+}
+
 #[derive(Debug, Clone)]
 pub struct IoOptions {
-    /// Scan pixel size (mm); None estimates it from the format and the scan size.
+    /// Scan pixel size (mm), when the scan's is known (e.g. an epoch's `scan_pixel_um` or
+    /// `scan_dpi`); None estimates it from the fiducial marks, starting the search from
+    /// the film format over the scan size.
     pub pixel_mm: Option<f64>,
     /// None: try all eight orientations and keep the best fitting one.
     pub orientation: Option<ScanOrientation>,
@@ -257,7 +286,12 @@ pub struct IoResult {
     /// Another orientation fitted equally well (a symmetric fiducial layout without an
     /// orientation hint); the transform is then right up to that symmetry.
     pub orientation_ambiguous: bool,
+    /// Mean pixel size of the fitted pixel → mm transform (what the fiducials measure).
     pub pixel_mm: f64,
+    /// Scan pixel size (µm): the given one, else the estimate from the fiducial marks.
+    pub pixel_um: f64,
+    /// `"given"`, or `"estimated from …"` saying how.
+    pub pixel_source: String,
     pub transform: InteriorOrientation,
     pub marks: Vec<MarkResult>,
     pub rmse_um: f64,
@@ -317,9 +351,13 @@ pub fn interior_orientation(
         scan: name.to_string(),
         message: m,
     };
+    // The search needs a scale: the given pixel size, else the film format over the scan
+    // size (a scan with margins is larger: the search tolerates 0.8–1.25 of it).
     let s = match opts.pixel_mm {
-        Some(s) if s > 0.0 && s.is_finite() => s,
-        Some(s) => return Err(orr(format!("pixel size {s} mm is not positive"))),
+        Some(s) => {
+            check_scan_pixel_um(s * 1000.0).map_err(orr)?;
+            s
+        }
         None => cam.format_mm[0].max(cam.format_mm[1]) / img.width.min(img.height) as f64,
     };
     let pyr = Pyramid::new(img, 8, 16);
@@ -531,11 +569,37 @@ pub fn interior_orientation(
         // RMSE of the residuals themselves (what operators compare with the 0.2 px goal).
         let rmse_plain = (ss / (2 * res.len()) as f64).sqrt();
         tracing::debug!(scan = name, rmse_um = rmse, "interior orientation");
+        let measured_um = io.mean_pixel_size_mm() * 1000.0;
+        let (pixel_um, pixel_source) = match opts.pixel_mm {
+            Some(given) => {
+                let given_um = given * 1000.0;
+                // Film and scanner scale stay well within 1 %; more is a wrong value.
+                if (measured_um / given_um - 1.0).abs() > 0.02 {
+                    tracing::warn!(
+                        scan = name,
+                        "given scan pixel size {given_um:.3} µm, but the fiducial marks measure \
+                         {measured_um:.3} µm"
+                    );
+                }
+                (given_um, "given".to_string())
+            }
+            None => (
+                measured_um,
+                format!(
+                    "estimated from the fiducial marks (mean scale of the {:?} pixel → mm \
+                     transform; the search started from format / scan size = {:.2} µm)",
+                    opts.kind,
+                    s * 1000.0
+                ),
+            ),
+        };
         return Ok(IoResult {
             camera: cam.name.clone(),
             orientation,
             orientation_ambiguous: ambiguous,
             pixel_mm: io.mean_pixel_size_mm(),
+            pixel_um,
+            pixel_source,
             transform: io,
             marks,
             rmse_um: rmse_plain,
@@ -566,6 +630,8 @@ impl IoResult {
             "orientation": self.orientation,
             "orientation_ambiguous": self.orientation_ambiguous,
             "pixel_mm": self.pixel_mm,
+            "pixel_um": self.pixel_um,
+            "pixel_source": self.pixel_source,
             "rmse_um": self.rmse_um,
             "transform": {
                 "type": self.transform.kind,

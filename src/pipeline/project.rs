@@ -2,6 +2,7 @@
 //! reference epoch, archive epochs, thresholds and wanted outputs. It is validated
 //! completely before any work starts, and every error names the key.
 
+use crate::matching::fiducial::{check_scan_pixel_um, scan_pixel_um_from_dpi};
 use serde::{Deserialize, Serialize};
 use std::path::{Path, PathBuf};
 
@@ -58,6 +59,26 @@ pub struct Epoch {
     /// Strip end points (CSV: strip,photo,x,y,z for each strip's first and last photo).
     #[serde(default)]
     pub strips: Option<PathBuf>,
+    /// Pixel size of film scans (µm); without it (and without `scan_dpi`) the fiducial
+    /// interior orientation estimates it and reports the estimate.
+    #[serde(default)]
+    pub scan_pixel_um: Option<f64>,
+    /// The same as a scan resolution (dots per inch; µm = 25 400 / dpi), exclusive with
+    /// `scan_pixel_um`.
+    #[serde(default)]
+    pub scan_dpi: Option<f64>,
+}
+
+impl Epoch {
+    /// Scan pixel size (mm) for the fiducial interior orientation
+    /// (`matching::IoOptions::pixel_mm`), from `scan_pixel_um` or `scan_dpi`.
+    pub fn scan_pixel_mm(&self) -> Option<f64> {
+        match (self.scan_pixel_um, self.scan_dpi) {
+            (Some(um), _) => Some(um / 1000.0),
+            (None, Some(dpi)) => Some(scan_pixel_um_from_dpi(dpi) / 1000.0),
+            (None, None) => None,
+        }
+    }
 }
 
 /// Thresholds of the method (seed 000, 001).
@@ -140,7 +161,7 @@ impl Epoch {
             camera: self.camera.clone(),
             pos: self.pos.clone(),
             strips: self.strips.clone(),
-            scan_pixel_um: None,
+            scan_pixel_um: self.scan_pixel_mm().map(|mm| mm * 1000.0),
         }
     }
 }
@@ -225,7 +246,7 @@ impl Project {
         };
         let crs = crate::formats::crs::Crs::parse(&self.crs)
             .map_err(|e| key_err("crs", e.to_string()))?;
-        crs.require_projected(None)
+        crs.require_metric_projected(None)
             .map_err(|e| key_err("crs", e.to_string()))?;
         if self.control.lidar.is_empty() {
             return Err(key_err("control.lidar", "no LiDAR source given".into()));
@@ -284,6 +305,19 @@ impl Project {
                 }
             }
             prev_date = Some(e.date.clone());
+            match (e.scan_pixel_um, e.scan_dpi) {
+                (Some(_), Some(_)) => {
+                    return Err(key_err(
+                        &format!("{key}.scan_dpi"),
+                        "give either scan_pixel_um or scan_dpi, not both".into(),
+                    ))
+                }
+                (Some(um), None) => check_scan_pixel_um(um)
+                    .map_err(|m| key_err(&format!("{key}.scan_pixel_um"), m))?,
+                (None, Some(dpi)) => check_scan_pixel_um(scan_pixel_um_from_dpi(dpi))
+                    .map_err(|m| key_err(&format!("{key}.scan_dpi"), format!("{dpi} dpi: {m}")))?,
+                (None, None) => {}
+            }
             exists(&format!("{key}.photos"), &e.photos)?;
             exists(&format!("{key}.camera"), &e.camera)?;
             match (&e.pos, &e.strips) {

@@ -339,16 +339,12 @@ pub fn run_project(
         source,
     })?;
     let sources = stage!("sources".to_string(), src_inputs, |dir: &Path| {
-        let cat = Catalogue::scan(&project.control.lidar, &ScanOptions::default())?;
-        let crs = Crs::parse(&project.crs)?;
-        let lcrs = cat.crs()?;
-        if lcrs.spatial_ref() != crs.spatial_ref() {
-            return Err(WorkError::Inconsistent(format!(
-                "the LiDAR is in {} but the project in {}; reproject the LiDAR (e.g. with PDAL) or set crs",
-                lcrs.label(),
-                crs.label()
-            )));
-        }
+        // Tiles without a CRS are in the project's (a warning in the catalogue says so);
+        // tiles with one must match it horizontally (the scan refuses them otherwise).
+        let scan = ScanOptions {
+            assume_crs: Some(project.crs.clone()),
+        };
+        let cat = Catalogue::scan(&project.control.lidar, &scan)?;
         cat.save(&dir.join("catalogue.json"))?;
         // Only the tiles under the photos are cleaned and used: the rest of a national
         // dataset never enters memory.
@@ -375,8 +371,7 @@ pub fn run_project(
             lidar::clean::clean_tiles(&cat, &lidar_dir, &lidar::clean::CleanOptions::default())?;
         write_json(&dir.join("clean.json"), &clean)?;
         if let Some(cps) = &checkpoints {
-            let cleaned =
-                Catalogue::scan(std::slice::from_ref(&lidar_dir), &ScanOptions::default())?;
+            let cleaned = Catalogue::scan(std::slice::from_ref(&lidar_dir), &scan)?;
             let mut store = TileStore::new(cleaned, 50_000_000);
             let rep = lidar::eval::evaluate_checkpoints_store(
                 &mut store,
