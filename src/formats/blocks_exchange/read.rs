@@ -196,7 +196,11 @@ pub fn read_str(text: &str, path: &Path) -> Result<Block> {
         Ok(Vector3::from(q))
     };
 
-    let mut next_id = 1u64;
+    // Control points first, then tie points, numbered from 1 in file order.
+    let mut points: Vec<ObjectPoint> = Vec::new();
+    let observations = |ms: &[XMeasurement], what: &str| -> Result<Vec<Observation>> {
+        ms.iter().map(|m| measurement(m, what)).collect()
+    };
     if let Some(cps) = &xb.control_points {
         for (i, cp) in cps.points.iter().enumerate() {
             let name = cp.name.clone().unwrap_or_else(|| format!("#{}", i + 1));
@@ -261,28 +265,19 @@ pub fn read_str(text: &str, path: &Path) -> Result<Block> {
             if category == "Horizontal" {
                 local.z = 0.0;
             }
-            let observations = cp
-                .measurements
-                .iter()
-                .map(|m| measurement(m, &what))
-                .collect::<Result<Vec<_>>>()?;
-            block.points.insert(
-                next_id,
-                ObjectPoint {
-                    id: next_id,
-                    name,
-                    kind: if cp.check_point == Some(true) {
-                        PointKind::Check
-                    } else {
-                        PointKind::Control
-                    },
-                    position: local,
-                    sigma: Some(sigma),
-                    color: [0; 3],
-                    observations,
+            points.push(ObjectPoint {
+                id: 0,
+                name,
+                kind: if cp.check_point == Some(true) {
+                    PointKind::Check
+                } else {
+                    PointKind::Control
                 },
-            );
-            next_id += 1;
+                position: local,
+                sigma: Some(sigma),
+                color: [0; 3],
+                observations: observations(&cp.measurements, &what)?,
+            });
         }
     }
     if let Some(tps) = &xb.tie_points {
@@ -315,25 +310,20 @@ pub fn read_str(text: &str, path: &Path) -> Result<Block> {
                     [c.red, c.green, c.blue].map(|v| (v.clamp(0.0, 1.0) * 255.0).round() as u8)
                 })
                 .unwrap_or([0; 3]);
-            let observations = tp
-                .measurements
-                .iter()
-                .map(|m| measurement(m, &what))
-                .collect::<Result<Vec<_>>>()?;
-            block.points.insert(
-                next_id,
-                ObjectPoint {
-                    id: next_id,
-                    name,
-                    kind: PointKind::Tie,
-                    position: p - origin,
-                    sigma: None,
-                    color,
-                    observations,
-                },
-            );
-            next_id += 1;
+            points.push(ObjectPoint {
+                id: 0,
+                name,
+                kind: PointKind::Tie,
+                position: p - origin,
+                sigma: None,
+                color,
+                observations: observations(&tp.measurements, &what)?,
+            });
         }
+    }
+    for (k, mut p) in points.into_iter().enumerate() {
+        p.id = k as u64 + 1;
+        block.points.insert(p.id, p);
     }
     block
         .validate()

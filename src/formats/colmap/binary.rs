@@ -6,10 +6,12 @@ use super::camera_models::{
     camera_from_colmap, camera_to_colmap, model_name, num_params, unsupported,
 };
 use super::open;
-use super::records::{pose_from_qt, qt_from_pose, FrameRecord, Image, PointSink, RigSensors};
-use crate::block::{Block, CameraId, ObjectPoint, PhotoId};
+use super::records::{
+    pose_from_qt, qt_from_pose, Cameras, FrameRecord, Image, PointSink, Points2d, PointsTable,
+    RigSensors,
+};
+use crate::block::{Block, PhotoId};
 use crate::formats::{FormatError, Result};
-use crate::geometry::FrameCamera;
 use std::collections::{BTreeMap, HashMap};
 use std::fs::File;
 use std::io::{BufRead, BufReader, Read, Write};
@@ -125,7 +127,7 @@ impl Bin {
     }
 }
 
-pub(super) fn read_cameras(path: &Path) -> Result<BTreeMap<CameraId, FrameCamera>> {
+pub(super) fn read_cameras(path: &Path) -> Result<Cameras> {
     let mut b = Bin::open(path)?;
     let n = b.count(24, &|| "the camera count".into())?;
     let mut out = BTreeMap::new();
@@ -306,10 +308,7 @@ fn put<const N: usize>(w: &mut impl Write, bytes: [u8; N]) -> std::io::Result<()
     w.write_all(&bytes)
 }
 
-pub(super) fn write_cameras(
-    w: &mut impl Write,
-    cams: &BTreeMap<CameraId, FrameCamera>,
-) -> std::io::Result<()> {
+pub(super) fn write_cameras(w: &mut impl Write, cams: &Cameras) -> std::io::Result<()> {
     put(w, (cams.len() as u64).to_le_bytes())?;
     for (&id, c) in cams {
         let (model, _, params) = camera_to_colmap(c);
@@ -324,11 +323,10 @@ pub(super) fn write_cameras(
     Ok(())
 }
 
-/// `points2d`: per photo, (pixel, point id) in POINTS2D order.
 pub(super) fn write_images(
     w: &mut impl Write,
     block: &Block,
-    points2d: &BTreeMap<PhotoId, Vec<([f64; 2], u64)>>,
+    points2d: &BTreeMap<PhotoId, Points2d>,
 ) -> std::io::Result<()> {
     put(w, (block.photos.len() as u64).to_le_bytes())?;
     for (id, ph) in &block.photos {
@@ -353,18 +351,12 @@ pub(super) fn write_images(
     Ok(())
 }
 
-/// `errors`: COLMAP's ERROR per point; `idx`: the POINT2D_IDX of every observation, flat
-/// in point order.
-pub(super) fn write_points(
-    w: &mut impl Write,
-    points: &[&ObjectPoint],
-    errors: &[f64],
-    idx: &[u32],
-) -> std::io::Result<()> {
+pub(super) fn write_points(w: &mut impl Write, table: &PointsTable) -> std::io::Result<()> {
+    let (points, idx) = (&table.points, table.idx);
     put(w, (points.len() as u64).to_le_bytes())?;
     let mut k = 0usize;
     let mut rec: Vec<u8> = Vec::with_capacity(256);
-    for (p, err) in points.iter().zip(errors) {
+    for (p, err) in points.iter().zip(&table.errors) {
         let x = &p.position;
         rec.clear();
         rec.extend_from_slice(&p.id.to_le_bytes());
@@ -384,11 +376,7 @@ pub(super) fn write_points(
     Ok(())
 }
 
-/// One trivial rig per camera: the camera is its only (reference) sensor.
-pub(super) fn write_rigs(
-    w: &mut impl Write,
-    cams: &BTreeMap<CameraId, FrameCamera>,
-) -> std::io::Result<()> {
+pub(super) fn write_rigs(w: &mut impl Write, cams: &Cameras) -> std::io::Result<()> {
     put(w, (cams.len() as u64).to_le_bytes())?;
     for &id in cams.keys() {
         put(w, id.to_le_bytes())?;
@@ -399,7 +387,6 @@ pub(super) fn write_rigs(
     Ok(())
 }
 
-/// One frame per photo, in its camera's rig: `rig_from_world = cam_from_world`.
 pub(super) fn write_frames(w: &mut impl Write, block: &Block) -> std::io::Result<()> {
     put(w, (block.photos.len() as u64).to_le_bytes())?;
     for (id, ph) in &block.photos {

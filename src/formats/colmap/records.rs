@@ -2,10 +2,27 @@
 //! block, and the conversion of COLMAP's `cam_from_world` (quaternion, translation) to
 //! our [`Pose`].
 
-use crate::block::{CameraId, PhotoId};
-use crate::geometry::{matrix_from_quaternion_wxyz, quaternion_wxyz_from_matrix, Pose};
+use crate::block::{CameraId, ObjectPoint, PhotoId};
+use crate::geometry::{
+    matrix_from_quaternion_wxyz, quaternion_wxyz_from_matrix, FrameCamera, Pose,
+};
 use nalgebra::{Matrix3, Vector3};
-use std::collections::HashMap;
+use std::collections::{BTreeMap, HashMap};
+
+/// Frame cameras by id: the `cameras` file (and, one trivial rig each, `rigs`).
+pub(super) type Cameras = BTreeMap<CameraId, FrameCamera>;
+
+/// One image's POINTS2D in order: (pixel, point id or `INVALID_POINT3D`).
+pub(super) type Points2d = Vec<([f64; 2], u64)>;
+
+/// What `points3D` holds beyond the block's points.
+pub(super) struct PointsTable<'a> {
+    pub points: Vec<&'a ObjectPoint>,
+    /// COLMAP's ERROR column: mean reprojection error per point (px).
+    pub errors: Vec<f64>,
+    /// POINT2D_IDX of every observation, flat over the points in order.
+    pub idx: &'a [u32],
+}
 
 /// A parsed image record before its 2-D points are attached to object points.
 pub(super) struct Image {
@@ -13,8 +30,7 @@ pub(super) struct Image {
     pub pose: Pose,
     pub camera: CameraId,
     pub name: String,
-    /// (pixel, point id or `INVALID_POINT3D`) in POINTS2D order.
-    pub points2d: Vec<([f64; 2], u64)>,
+    pub points2d: Points2d,
 }
 
 /// Sensor poses of one rig: camera id → `sensor_from_rig` (None for the reference sensor).

@@ -2,11 +2,13 @@
 //! image), whitespace-separated, `#` comments. Errors name the file, line and field.
 
 use super::camera_models::{camera_from_colmap, camera_to_colmap, model_by_name, unsupported};
-use super::records::{pose_from_qt, qt_from_pose, FrameRecord, Image, PointSink, RigSensors};
+use super::records::{
+    pose_from_qt, qt_from_pose, Cameras, FrameRecord, Image, PointSink, Points2d, PointsTable,
+    RigSensors,
+};
 use super::{open, INVALID_POINT3D};
-use crate::block::{Block, CameraId, ObjectPoint, PhotoId};
+use crate::block::{Block, PhotoId};
 use crate::formats::{FormatError, Result};
-use crate::geometry::FrameCamera;
 use std::collections::{BTreeMap, HashMap};
 use std::io::{BufRead, Write};
 use std::path::Path;
@@ -76,7 +78,7 @@ fn text_lines(
     }))
 }
 
-pub(super) fn read_cameras(path: &Path) -> Result<BTreeMap<CameraId, FrameCamera>> {
+pub(super) fn read_cameras(path: &Path) -> Result<Cameras> {
     let mut out = BTreeMap::new();
     for line in text_lines(path, false)? {
         let (no, l) = line?;
@@ -244,10 +246,7 @@ pub(super) fn read_frames(path: &Path) -> Result<Vec<FrameRecord>> {
 // Writing (headers as COLMAP writes them)
 // ---------------------------------------------------------------------------------------
 
-pub(super) fn write_cameras(
-    w: &mut impl Write,
-    cams: &BTreeMap<CameraId, FrameCamera>,
-) -> std::io::Result<()> {
+pub(super) fn write_cameras(w: &mut impl Write, cams: &Cameras) -> std::io::Result<()> {
     write!(w, "# Camera list with one line of data per camera:\n#   CAMERA_ID, MODEL, WIDTH, HEIGHT, PARAMS[]\n# Number of cameras: {}\n", cams.len())?;
     for (&id, c) in cams {
         let (_, name, params) = camera_to_colmap(c);
@@ -260,12 +259,11 @@ pub(super) fn write_cameras(
     Ok(())
 }
 
-/// `points2d`: per photo, (pixel, point id) in POINTS2D order. Names were checked to hold
-/// no whitespace.
+/// Names were checked to hold no whitespace.
 pub(super) fn write_images(
     w: &mut impl Write,
     block: &Block,
-    points2d: &BTreeMap<PhotoId, Vec<([f64; 2], u64)>>,
+    points2d: &BTreeMap<PhotoId, Points2d>,
 ) -> std::io::Result<()> {
     write!(w, "# Image list with two lines of data per image:\n#   IMAGE_ID, QW, QX, QY, QZ, TX, TY, TZ, CAMERA_ID, NAME\n#   POINTS2D[] as (X, Y, POINT3D_ID)\n# Number of images: {}\n", block.photos.len())?;
     for (id, ph) in &block.photos {
@@ -288,17 +286,11 @@ pub(super) fn write_images(
     Ok(())
 }
 
-/// `errors`: COLMAP's ERROR per point; `idx`: the POINT2D_IDX of every observation, flat
-/// in point order.
-pub(super) fn write_points(
-    w: &mut impl Write,
-    points: &[&ObjectPoint],
-    errors: &[f64],
-    idx: &[u32],
-) -> std::io::Result<()> {
+pub(super) fn write_points(w: &mut impl Write, table: &PointsTable) -> std::io::Result<()> {
+    let (points, idx) = (&table.points, table.idx);
     write!(w, "# 3D point list with one line of data per point:\n#   POINT3D_ID, X, Y, Z, R, G, B, ERROR, TRACK[] as (IMAGE_ID, POINT2D_IDX)\n# Number of points: {}\n", points.len())?;
     let mut k = 0usize;
-    for (p, err) in points.iter().zip(errors) {
+    for (p, err) in points.iter().zip(&table.errors) {
         let (id, x) = (p.id, &p.position);
         write!(
             w,
@@ -314,11 +306,7 @@ pub(super) fn write_points(
     Ok(())
 }
 
-/// One trivial rig per camera: the camera is its only (reference) sensor.
-pub(super) fn write_rigs(
-    w: &mut impl Write,
-    cams: &BTreeMap<CameraId, FrameCamera>,
-) -> std::io::Result<()> {
+pub(super) fn write_rigs(w: &mut impl Write, cams: &Cameras) -> std::io::Result<()> {
     write!(w, "# Rig calib list with one line of data per calib:\n#   RIG_ID, NUM_SENSORS, REF_SENSOR_TYPE, REF_SENSOR_ID, SENSORS[] as (SENSOR_TYPE, SENSOR_ID, HAS_POSE, [QW, QX, QY, QZ, TX, TY, TZ])\n# Number of rigs: {}\n", cams.len())?;
     for &id in cams.keys() {
         writeln!(w, "{id} 1 CAMERA {id}")?;
@@ -326,7 +314,6 @@ pub(super) fn write_rigs(
     Ok(())
 }
 
-/// One frame per photo, in its camera's rig: `rig_from_world = cam_from_world`.
 pub(super) fn write_frames(w: &mut impl Write, block: &Block) -> std::io::Result<()> {
     write!(w, "# Frame list with one line of data per frame:\n#   FRAME_ID, RIG_ID, RIG_FROM_WORLD[QW, QX, QY, QZ, TX, TY, TZ], NUM_DATA_IDS, DATA_IDS[] as (SENSOR_TYPE, SENSOR_ID, DATA_ID)\n# Number of frames: {}\n", block.photos.len())?;
     for (id, ph) in &block.photos {

@@ -2,10 +2,11 @@
 //! cameras, COLMAP's ERROR column, each model file in the chosen encoding, and the side
 //! file.
 
+use super::records::{Cameras, Points2d, PointsTable};
 use super::{binary, side_file, text, Encoding, Layout, WriteOptions, INVALID_POINT3D};
 use crate::block::{Block, CameraId, ObjectPoint, PhotoId};
 use crate::formats::{frame_equivalent, write_atomically, FormatError, Result};
-use crate::geometry::{Camera, FrameCamera};
+use crate::geometry::Camera;
 use std::collections::BTreeMap;
 use std::fs::File;
 use std::io::BufWriter;
@@ -14,13 +15,13 @@ use std::path::Path;
 /// Where each observation sits in its image's POINTS2D list, in point iteration order.
 struct Layout2d {
     /// Per photo: (pixel, point id) in POINTS2D order (observations, then free keypoints).
-    per_photo: BTreeMap<PhotoId, Vec<([f64; 2], u64)>>,
+    per_photo: BTreeMap<PhotoId, Points2d>,
     /// Flat over all observations of all points in `block.points` order: the POINT2D_IDX.
     idx: Vec<u32>,
 }
 
 fn layout_2d(block: &Block) -> Result<Layout2d> {
-    let mut per_photo: BTreeMap<PhotoId, Vec<([f64; 2], u64)>> =
+    let mut per_photo: BTreeMap<PhotoId, Points2d> =
         block.photos.keys().map(|&k| (k, Vec::new())).collect();
     let mut idx = Vec::with_capacity(block.num_observations());
     for p in block.points.values() {
@@ -50,7 +51,7 @@ fn layout_2d(block: &Block) -> Result<Layout2d> {
 }
 
 /// Frame cameras of the block (film cameras converted when their scan is an exact scale).
-fn colmap_cameras(block: &Block) -> Result<BTreeMap<CameraId, FrameCamera>> {
+fn colmap_cameras(block: &Block) -> Result<Cameras> {
     block
         .cameras
         .values()
@@ -150,16 +151,22 @@ pub fn write(dir: &Path, block: &Block, opts: &WriteOptions) -> Result<()> {
     })?;
     // COLMAP's ERROR column: recomputed from the block, in parallel (deterministic: one
     // value per point, collected in order).
-    let all: Vec<&ObjectPoint> = block.points.values().collect();
+    let points: Vec<&ObjectPoint> = block.points.values().collect();
     let errors: Vec<f64> = {
         use rayon::prelude::*;
-        all.par_iter()
+        points
+            .par_iter()
             .map(|p| mean_error(p, block, &models))
             .collect()
     };
+    let table = PointsTable {
+        points,
+        errors,
+        idx: &l2d.idx,
+    };
     write_file(&file("points3D"), |w| match opts.encoding {
-        Encoding::Text => text::write_points(w, &all, &errors, &l2d.idx),
-        Encoding::Binary => binary::write_points(w, &all, &errors, &l2d.idx),
+        Encoding::Text => text::write_points(w, &table),
+        Encoding::Binary => binary::write_points(w, &table),
     })?;
 
     let stale = |stem: &str| {
@@ -181,6 +188,8 @@ pub fn write(dir: &Path, block: &Block, opts: &WriteOptions) -> Result<()> {
             std::fs::remove_file(&other).map_err(|e| FormatError::io(&other, e))?;
         }
     }
+    // One trivial rig per camera (the camera its only, reference sensor) and one frame per
+    // photo in its camera's rig: rig_from_world = cam_from_world.
     if opts.layout == Layout::Rigs {
         write_file(&file("rigs"), |w| match opts.encoding {
             Encoding::Text => text::write_rigs(w, &cams),

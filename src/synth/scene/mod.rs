@@ -220,10 +220,7 @@ impl Scene {
         let mut tries = 0;
         while scene.ponds.len() < n_ponds && tries < 200 {
             tries += 1;
-            let c = [
-                rng.gen_range(extent[0] + 0.15 * w..extent[2] - 0.15 * w),
-                rng.gen_range(extent[1] + 0.15 * h..extent[3] - 0.15 * h),
-            ];
+            let c = random_point(&mut rng, extent, [0.15 * w, 0.15 * h]);
             let radius = rng.gen_range(8.0..18.0f64.min(0.12 * w.min(h)).max(8.5));
             if scene.road_distance(c[0], c[1]) < radius + 8.0
                 || scene.ponds.iter().any(|p| {
@@ -244,10 +241,7 @@ impl Scene {
         tries = 0;
         while scene.targets.len() < n_targets && tries < n_targets * 400 {
             tries += 1;
-            let c = [
-                rng.gen_range(extent[0] + 12.0..extent[2] - 12.0),
-                rng.gen_range(extent[1] + 12.0..extent[3] - 12.0),
-            ];
+            let c = random_point(&mut rng, extent, [12.0; 2]);
             if scene.road_distance(c[0], c[1]) < 6.0 || !scene.is_free(c, 6.0) {
                 continue;
             }
@@ -283,10 +277,7 @@ impl Scene {
         while scene.trees.len() < n_trees && tries < n_trees * 20 {
             tries += 1;
             // Trees cluster along roads and in groves: half near a road.
-            let c = [
-                rng.gen_range(extent[0] + 5.0..extent[2] - 5.0),
-                rng.gen_range(extent[1] + 5.0..extent[3] - 5.0),
-            ];
+            let c = random_point(&mut rng, extent, [5.0; 2]);
             let radius = rng.gen_range(1.5..4.0);
             let rd = scene.road_distance(c[0], c[1]);
             let near_road = rd < 12.0;
@@ -309,11 +300,7 @@ impl Scene {
     }
 
     fn random_building(&self, rng: &mut ChaCha8Rng, id: u32) -> Option<Building> {
-        let e = self.extent;
-        let c = [
-            rng.gen_range(e[0] + 15.0..e[2] - 15.0),
-            rng.gen_range(e[1] + 15.0..e[3] - 15.0),
-        ];
+        let c = random_point(rng, self.extent, [15.0; 2]);
         let half: [f64; 2] = [rng.gen_range(5.0..14.0), rng.gen_range(4.0..7.5)];
         let r = half[0].hypot(half[1]);
         let rd = self.road_distance(c[0], c[1]);
@@ -436,6 +423,14 @@ impl Scene {
         s.rebuild_grid();
         s
     }
+}
+
+/// A uniform random position in `extent` kept `margin` (x, y) inside its edges.
+fn random_point(rng: &mut ChaCha8Rng, extent: [f64; 4], margin: [f64; 2]) -> [f64; 2] {
+    [
+        rng.gen_range(extent[0] + margin[0]..extent[2] - margin[0]),
+        rng.gen_range(extent[1] + margin[1]..extent[3] - margin[1]),
+    ]
 }
 
 #[cfg(test)]

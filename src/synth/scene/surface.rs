@@ -71,43 +71,15 @@ impl Scene {
             class: Class::Field,
             object: 0,
         };
-        let e = self.extent;
-        if x >= e[0] && y >= e[1] && x <= e[2] && y <= e[3] {
-            let i = ((x - e[0]) / CELL) as usize;
-            let j = ((y - e[1]) / CELL) as usize;
-            if i < self.grid_dims.0 && j < self.grid_dims.1 {
-                for &tag in &self.grid[j * self.grid_dims.0 + i] {
-                    if tag & TREE_BIT != 0 {
-                        let k = tag & !TREE_BIT;
-                        let t = &self.trees[k as usize];
-                        let d2 = ((x - t.center[0]).powi(2) + (y - t.center[1]).powi(2))
-                            / (t.radius * t.radius);
-                        if d2 < 1.0 {
-                            let z = t.base + t.height * (1.0 - d2).sqrt();
-                            if z > sp.height {
-                                sp.height = z;
-                                sp.class = Class::Vegetation;
-                                sp.object = k;
-                            }
-                        }
-                    } else {
-                        let b = &self.buildings[tag as usize];
-                        let (u, v) = b.local(x, y);
-                        if u.abs() <= b.half[0] && v.abs() <= b.half[1] {
-                            let z = b.base
-                                + b.eave
-                                + match b.roof {
-                                    Roof::Flat => 0.0,
-                                    Roof::Gable { rise } => rise * (1.0 - v.abs() / b.half[1]),
-                                };
-                            if z > sp.height {
-                                sp.height = z;
-                                sp.class = Class::Building;
-                                sp.object = tag;
-                            }
-                        }
-                    }
-                }
+        for &tag in self.objects_at(x, y) {
+            let z = self.object_height(tag, x, y);
+            if z > sp.height {
+                sp.height = z;
+                (sp.class, sp.object) = if tag & TREE_BIT != 0 {
+                    (Class::Vegetation, tag & !TREE_BIT)
+                } else {
+                    (Class::Building, tag)
+                };
             }
         }
         if sp.class == Class::Field {
@@ -138,17 +110,24 @@ impl Scene {
     /// than [`Scene::sample`] because it skips the ground classes).
     pub fn height_at(&self, x: f64, y: f64) -> f64 {
         let mut h = self.ground(x, y);
+        for &tag in self.objects_at(x, y) {
+            h = h.max(self.object_height(tag, x, y));
+        }
+        h
+    }
+
+    /// Buildings and trees (grid tags) whose footprint may cover (x, y).
+    #[inline]
+    fn objects_at(&self, x: f64, y: f64) -> &[u32] {
         let e = self.extent;
         if x >= e[0] && y >= e[1] && x <= e[2] && y <= e[3] {
             let i = ((x - e[0]) / CELL) as usize;
             let j = ((y - e[1]) / CELL) as usize;
             if i < self.grid_dims.0 && j < self.grid_dims.1 {
-                for &tag in &self.grid[j * self.grid_dims.0 + i] {
-                    h = h.max(self.object_height(tag, x, y));
-                }
+                return &self.grid[j * self.grid_dims.0 + i];
             }
         }
-        h
+        &[]
     }
 
     /// Height of a building or tree at (x, y), −∞ outside its footprint.
