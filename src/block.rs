@@ -32,7 +32,9 @@ pub struct PosPrior {
     pub center: Vector3<f64>,
     /// Standard deviations of the centre (m): x, y, z.
     pub center_sigma: [f64; 3],
-    /// Measured attitude as a world→camera rotation, if the POS has an IMU.
+    /// Measured attitude as a world→camera rotation, if the POS has an IMU; JSON: three
+    /// rows, or null.
+    #[serde(default, with = "crate::geometry::serde_matrix::option_row_major")]
     pub rotation: Option<nalgebra::Matrix3<f64>>,
     /// Standard deviation of each attitude angle (rad).
     pub rotation_sigma_rad: f64,

@@ -20,7 +20,8 @@ pub enum InteriorTransformKind {
 #[serde(from = "InteriorOrientationRepr", into = "InteriorOrientationRepr")]
 pub struct InteriorOrientation {
     pub kind: InteriorTransformKind,
-    /// Row-major 3×3 homogeneous matrix mapping (col, row, 1) in pixels to (x, y, w) in mm.
+    /// 3×3 homogeneous matrix mapping (col, row, 1) in pixels to (x, y, w) in mm; JSON:
+    /// three rows.
     pub pixel_to_mm: Matrix3<f64>,
     mm_to_pixel: Option<Matrix3<f64>>,
 }
@@ -29,6 +30,7 @@ pub struct InteriorOrientation {
 #[derive(Serialize, Deserialize)]
 struct InteriorOrientationRepr {
     kind: InteriorTransformKind,
+    #[serde(with = "super::serde_matrix::row_major")]
     pixel_to_mm: Matrix3<f64>,
 }
 

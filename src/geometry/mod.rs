@@ -11,6 +11,7 @@ mod collinearity;
 mod dem;
 mod interior;
 mod rotation;
+pub mod serde_matrix;
 mod similarity;
 
 pub use camera::{Brown, Camera, FilmCamera, FrameCamera};
@@ -50,7 +51,9 @@ pub type Result<T> = std::result::Result<T, GeometryError>;
 /// Exterior orientation of a photo: `X_cam = rotation · (X − center)`.
 #[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
 pub struct Pose {
-    /// World→camera rotation (rows are the camera axes in world coordinates).
+    /// World→camera rotation (rows are the camera axes in world coordinates); JSON: three
+    /// rows.
+    #[serde(with = "serde_matrix::row_major")]
     pub rotation: Matrix3<f64>,
     /// Projection centre in world (block-local) coordinates.
     pub center: Vector3<f64>,

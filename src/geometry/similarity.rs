@@ -9,6 +9,8 @@ use serde::{Deserialize, Serialize};
 #[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
 pub struct Similarity {
     pub scale: f64,
+    /// JSON: three rows.
+    #[serde(with = "super::serde_matrix::row_major")]
     pub rotation: Matrix3<f64>,
     pub translation: Vector3<f64>,
 }

@@ -84,9 +84,9 @@ def oriented(tmp_path_factory):
             r = np.array([float(row[f"r{i}{j}"]) for i in (1, 2, 3) for j in (1, 2, 3)]).reshape(3, 3)
             c = np.array([float(row[k]) for k in "xyz"])
             truth[pid] = (r, c)
-            # nalgebra stores a matrix column by column.
+            # block.json writes a rotation as three rows (formats/cameras/README.md).
             photos[str(pid)] = {"id": pid, "name": row["photo"], "camera": 1, "status": "oriented",
-                                "pose": {"rotation": r.T.reshape(9).tolist(), "center": (c - origin).tolist()}}
+                                "pose": {"rotation": r.tolist(), "center": (c - origin).tolist()}}
             images[str(pid)] = str(block_dir / epoch["images_dir"] / f"{row['photo']}.png")
     block = {"crs": m["crs"], "origin": origin.tolist(), "points": {},
              "cameras": {"1": {"id": 1, "name": "reference", "model": camera}}, "photos": photos}
