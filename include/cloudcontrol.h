@@ -19,6 +19,9 @@ typedef enum CcpStatus {
   CCP_STATUS_NUMERIC = 6,
   CCP_STATUS_NOT_FOUND = 7,
   CCP_STATUS_BUFFER_TOO_SMALL = 8,
+  // The photo could not be oriented (the last error says why: too few matches, no
+  // control in view, failed interior orientation, …).
+  CCP_STATUS_NOT_ORIENTED = 9,
   CCP_STATUS_PANIC = 99,
 } CcpStatus;
 
@@ -34,6 +37,9 @@ typedef struct CcpDcp CcpDcp;
 // Opaque LiDAR source: the points of a region with their plane index. Create with
 // `ccp_lidar_source_open`, release with `ccp_lidar_source_free`.
 typedef struct CcpLidarSource CcpLidarSource;
+
+// Opaque handle of an oriented photo (world coordinates of the packages' CRS).
+typedef struct CcpPhotoOrientation CcpPhotoOrientation;
 
 // Exterior orientation: `rotation` is the row-major world→camera matrix R and `center`
 // the projection centre C, so that X_cam = R·(X − C) (x right, y down, z forward).
@@ -566,6 +572,55 @@ enum CcpStatus ccp_lsm(const float *image,
                        double x,
                        double y,
                        struct CcpMatchResult *out);
+
+// Orients one photo from the control points of `n_dcps` packages (all in one CRS).
+// `camera_path` is a camera file (formats/cameras/: a frame camera, or a film
+// certificate with fiducials, whose interior orientation is found in the scan);
+// `scan_pixel_um` is the film scan's pixel size (0: estimated). `dem_path` is a ground
+// DEM GeoTIFF in the packages' CRS (the footprint of the approximate orientation).
+// `approximate` holds x, y, z (world, m) and omega, phi, kappa (degrees,
+// formats/pos/); `sigma` the 1σ of the centre (m) and of each angle (degrees).
+// On success `*out` is a new handle (free it with `ccp_photo_orientation_free`); a
+// photo that cannot be oriented returns `CCP_STATUS_NOT_ORIENTED` with the reason as
+// the last error.
+enum CcpStatus ccp_orient_photo(const struct CcpDcp *const *dcps,
+                                size_t n_dcps,
+                                const char *camera_path,
+                                double scan_pixel_um,
+                                const char *image_path,
+                                const char *dem_path,
+                                const double *approximate,
+                                const double *sigma,
+                                struct CcpPhotoOrientation **out);
+
+// The pose: world→camera rotation (9, row-major) and projection centre (3, world).
+enum CcpStatus ccp_photo_orientation_pose(const struct CcpPhotoOrientation *orientation,
+                                          double *rotation_out,
+                                          double *center_out);
+
+// The 6×6 covariance of the pose (row-major; rotation vector in rad, then centre in m).
+enum CcpStatus ccp_photo_orientation_covariance(const struct CcpPhotoOrientation *orientation,
+                                                double *covariance_out);
+
+// Number of control patches that support the pose.
+enum CcpStatus ccp_photo_orientation_match_count(const struct CcpPhotoOrientation *orientation,
+                                                 size_t *count_out);
+
+// The matches: world object coordinates (3 per match), pixel (2 per match) and σ (px),
+// into caller-owned buffers of `len` matches (at least the match count).
+enum CcpStatus ccp_photo_orientation_matches(const struct CcpPhotoOrientation *orientation,
+                                             double *xyz_out,
+                                             double *pixel_out,
+                                             double *sigma_out,
+                                             size_t len);
+
+// The per-photo report (iterations, matching statistics, interior orientation RMSE) as
+// a JSON string owned by the library: release it with `ccp_string_free`.
+enum CcpStatus ccp_photo_orientation_report_json(const struct CcpPhotoOrientation *orientation,
+                                                 char **json_out);
+
+// Releases a handle from `ccp_orient_photo` (NULL is ignored).
+void ccp_photo_orientation_free(struct CcpPhotoOrientation *orientation);
 
 // Runs the project file `project_path` (TOML, formats/project/) — restartable: finished
 // stages whose inputs did not change are skipped — and returns in `*out_json` a

@@ -184,7 +184,10 @@ fn film_epoch_with_rough_pos_is_oriented_to_a_ground_pixel() {
         assert!(p.io.as_ref().is_some_and(|io| io.rmse_um < 20.0), "{p:?}");
         // Without a given scan pixel size, the estimate is reported with its source.
         let io = p.io.as_ref().unwrap();
-        assert!(io.pixel_um > 3.0 && io.pixel_source.contains("estimated"), "{io:?}");
+        assert!(
+            io.pixel_um > 3.0 && io.pixel_source.contains("estimated"),
+            "{io:?}"
+        );
         assert!(p.control_matches >= 6, "{p:?}");
     }
     // The block holds DCP control with observations in the oriented photos only.

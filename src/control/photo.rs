@@ -331,9 +331,7 @@ pub fn orient_photo(
     let pyramid = Pyramid::new(&img, 6, 16);
     let mut best: Option<PhotoOrientation> = None;
     for (camera, io) in candidates {
-        let out = orient_with_camera(
-            name, camera, io, &pose0, &cov0, store, dem, &pyramid, opts,
-        );
+        let out = orient_with_camera(name, camera, io, &pose0, &cov0, store, dem, &pyramid, opts);
         if matches!(out.report.reason, Some(PhotoFailure::Chip { .. })) {
             return out;
         }

@@ -385,7 +385,8 @@ pub fn run_project(
                 .map_err(|x| crate::formats::FormatError::io(&txt, x))?;
         }
         // The block origin: the one rule, over the LiDAR under the photos.
-        let origin = block_origin([[cat.bounds[0], cat.bounds[1]]]);
+        // (the selected tiles' own bounds: the catalogue's are those of every tile given)
+        let origin = block_origin(cat.tiles.iter().map(|t| [t.bounds[0], t.bounds[1]]));
         Ok(write_json(&dir.join("origin.json"), &Origin { origin })?)
     });
     let origin = read_json::<Origin>(&sources.join("origin.json"))
