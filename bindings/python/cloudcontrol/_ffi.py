@@ -14,7 +14,7 @@ import numpy as np
 
 _STATUS_NAMES = {
     0: "OK", 1: "NULL_POINTER", 2: "INVALID_ARGUMENT", 3: "NOT_FINITE", 4: "IO",
-    5: "FORMAT", 6: "NUMERIC", 7: "NOT_FOUND", 8: "BUFFER_TOO_SMALL", 99: "PANIC",
+    5: "FORMAT", 6: "NUMERIC", 7: "NOT_FOUND", 8: "BUFFER_TOO_SMALL", 9: "NOT_ORIENTED", 99: "PANIC",
 }
 
 
