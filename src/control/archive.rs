@@ -277,7 +277,6 @@ pub fn orient_epoch(
         }
         Some(rep)
     };
-    let gsd_m = mean_gsd(&block, dem);
     // The photos that were not oriented join the block with their approximate pose and
     // their reason, after the adjustment that must not see them.
     for (n, (o, ph)) in outcomes.iter().zip(&input.photos).enumerate() {
@@ -314,6 +313,7 @@ pub fn orient_epoch(
         photo.provenance = "approximate (navigation)".into();
         block.photos.insert(pid, photo);
     }
+    let gsd_m = mean_gsd(&block, dem);
     Ok(EpochResult {
         epoch: input.name.clone(),
         block,
@@ -518,8 +518,8 @@ fn epoch_ties(
         ..opts.photo.patch.clone()
     };
     let sigma_floor = opts.photo.sigma_floor_px;
-    // Every oriented photo looks for the points of all the others: (point, photo, pixel, σ).
-    let found: Vec<Vec<(usize, usize, Vector2<f64>, f64)>> = oriented
+    // Every oriented photo looks for the points of all the others.
+    let found: Vec<Vec<TieFind>> = oriented
         .par_iter()
         .filter_map(|&b| {
             let pyr = pyramids.get(&b)?;
@@ -583,14 +583,20 @@ fn epoch_ties(
     tracks.into_values().collect()
 }
 
+/// A tie point found in a photo: (store point, photo, pixel, σ px).
+type TieFind = (usize, usize, Vector2<f64>, f64);
+
 /// Mean ground pixel (m) of a block's oriented photos over a DEM: flying height above the
 /// ground under the projection centre over the focal length in pixels.
 pub fn mean_gsd(block: &Block, dem: &Dem) -> f64 {
     let (z0, z1) = dem.z_range();
+    // The oriented photos' poses, or the approximate ones when none could be oriented
+    // (the ground pixel is the flight's, known to a few percent from its navigation).
+    let any_oriented = block.photos.values().any(|p| p.is_oriented());
     let v: Vec<f64> = block
         .photos
         .values()
-        .filter(|p| p.is_oriented())
+        .filter(|p| p.is_oriented() || !any_oriented)
         .filter_map(|p| {
             let cam = &block.cameras.get(&p.camera)?.model;
             let g = dem

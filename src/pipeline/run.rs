@@ -336,7 +336,7 @@ pub fn run_project(
     }
     let checkpoints = read_checkpoints(project).map_err(|source| StageError::Failed {
         stage: "sources".into(),
-        source,
+        source: Box::new(source),
     })?;
     let sources = stage!("sources".to_string(), src_inputs, |dir: &Path| {
         // Tiles without a CRS are in the project's (a warning in the catalogue says so);
@@ -392,7 +392,7 @@ pub fn run_project(
     let origin = read_json::<Origin>(&sources.join("origin.json"))
         .map_err(|e| StageError::Failed {
             stage: "sources".into(),
-            source: e.into(),
+            source: Box::new(e.into()),
         })?
         .origin;
     let lidar = LidarControl {
@@ -475,7 +475,7 @@ pub fn run_project(
         let rep: EpochReport =
             read_json(&edir.join("epoch.json")).map_err(|x| StageError::Failed {
                 stage: format!("epoch-{}", e.name),
-                source: x.into(),
+                source: Box::new(x.into()),
             })?;
         if k == 0 {
             reference_gsd = rep.gsd_m;
@@ -493,6 +493,23 @@ pub fn run_project(
                 .param("thresholds", &project.thresholds),
             |dir: &Path| {
                 let block = load_block(&edir)?;
+                // A control point is measured in two oriented photos at least: an epoch
+                // with fewer gives no package, and the older epochs take the DCPs of the
+                // other newer ones (one epoch does not stop the walk back in time).
+                let oriented = block.photos.values().filter(|p| p.is_oriented()).count();
+                if oriented < 2 {
+                    tracing::warn!(
+                        epoch = e.name,
+                        oriented,
+                        "no DCP package: fewer than two oriented photos"
+                    );
+                    return Ok(write_json(
+                        &dir.join("skipped.json"),
+                        &serde_json::json!({
+                            "reason": format!("{oriented} oriented photo(s); a control point needs two")
+                        }),
+                    )?);
+                }
                 let mut opts = dcp_options(project, reference_gsd, rep.gsd_m, &e.name);
                 // The package's stated accuracy: what the checkpoints showed, never
                 // better than half a ground pixel.
@@ -522,11 +539,13 @@ pub fn run_project(
                 Ok(())
             }
         );
-        products
-            .entry(e.name.clone())
-            .or_default()
-            .push(ddir.join("package"));
-        dcp_dirs.push(ddir);
+        if ddir.join("package").is_dir() {
+            products
+                .entry(e.name.clone())
+                .or_default()
+                .push(ddir.join("package"));
+            dcp_dirs.push(ddir);
+        }
     }
 
     // 5. Products per epoch.
@@ -592,7 +611,7 @@ pub fn run_project(
     let mut report: report::Report =
         read_json(&rdir.join("report.json")).map_err(|x| StageError::Failed {
             stage: "report".into(),
-            source: x.into(),
+            source: Box::new(x.into()),
         })?;
     report.ortho = ortho_preview;
     Ok(RunSummary {

@@ -15,8 +15,9 @@ pub enum StageError {
     #[error("stage {stage}: {source}")]
     Failed {
         stage: String,
+        // Boxed: the error travels through every stage's Result.
         #[source]
-        source: WorkError,
+        source: Box<WorkError>,
     },
     #[error(transparent)]
     Format(#[from] FormatError),
@@ -178,7 +179,7 @@ impl Runner {
             let _ = std::fs::remove_dir_all(&tmp);
             return Err(StageError::Failed {
                 stage: name.into(),
-                source,
+                source: Box::new(source),
             });
         }
         if dir.exists() {

@@ -1,0 +1,59 @@
+//! The samples of formats/workflow/ (written by hand from its README) are read by the
+//! library's own types: the document and the code say the same thing.
+
+use cloudcontrol::block::{Block, PhotoFailure, PhotoId, PhotoStatus};
+use std::collections::BTreeMap;
+use std::path::{Path, PathBuf};
+
+fn sample(name: &str) -> Vec<u8> {
+    std::fs::read(
+        Path::new(env!("CARGO_MANIFEST_DIR"))
+            .join("formats/workflow")
+            .join(name),
+    )
+    .unwrap()
+}
+
+#[test]
+fn workflow_samples_are_read_by_the_library() {
+    let block: Block = serde_json::from_slice(&sample("block.json")).unwrap();
+    block.validate().unwrap();
+    assert_eq!(block.photos.len(), 2);
+    let oriented: Vec<_> = block.photos.values().filter(|p| p.is_oriented()).collect();
+    assert_eq!(oriented.len(), 1);
+    // Rotations are written as rows: a world→camera rotation stays orthonormal, det +1.
+    for p in block.photos.values() {
+        let r = p.pose.rotation;
+        assert!((r * r.transpose() - nalgebra::Matrix3::identity()).norm() < 1e-6);
+        assert!((r.determinant() - 1.0).abs() < 1e-6);
+    }
+    let images: BTreeMap<PhotoId, PathBuf> =
+        serde_json::from_slice(&sample("images.json")).unwrap();
+    assert_eq!(
+        images.keys().collect::<Vec<_>>(),
+        block.photos.keys().collect::<Vec<_>>()
+    );
+    // result.json: the failed photo's reason is the block's status.
+    let result: serde_json::Value = serde_json::from_slice(&sample("result.json")).unwrap();
+    let failed = block
+        .photos
+        .values()
+        .find_map(|p| match &p.status {
+            PhotoStatus::Failed(f) => Some((p.name.clone(), f.clone())),
+            _ => None,
+        })
+        .unwrap();
+    let row = result["photos"]
+        .as_array()
+        .unwrap()
+        .iter()
+        .find(|r| r["name"] == failed.0)
+        .unwrap();
+    let reason: PhotoFailure = serde_json::from_value(row["reason"].clone()).unwrap();
+    assert_eq!(reason, failed.1);
+    let _: Option<cloudcontrol::adjust::AdjustReport> =
+        serde_json::from_value(result["adjustment"].clone()).unwrap();
+    let epoch: cloudcontrol::pipeline::report::EpochReport =
+        serde_json::from_slice(&sample("epoch.json")).unwrap();
+    assert_eq!(epoch.photos_total, 2);
+}
