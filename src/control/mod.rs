@@ -20,6 +20,7 @@ pub mod epoch;
 pub mod export;
 pub mod orient;
 pub mod photo;
+pub mod plan_index;
 pub mod predict;
 pub mod reference;
 pub mod strips;
