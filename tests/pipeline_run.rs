@@ -7,32 +7,8 @@ use std::path::{Path, PathBuf};
 use std::process::{Command, Stdio};
 use std::time::{Duration, Instant};
 
-fn exe() -> &'static str {
-    env!("CARGO_BIN_EXE_cloudcontrol")
-}
-
-fn json_of(out: &std::process::Output) -> Value {
-    assert!(
-        out.status.success(),
-        "exit {:?}: {}",
-        out.status,
-        String::from_utf8_lossy(&out.stderr)
-    );
-    serde_json::from_slice(&out.stdout).expect("JSON on stdout")
-}
-
-fn epoch<'a>(report: &'a Value, name: &str) -> &'a Value {
-    report["epochs"]
-        .as_array()
-        .unwrap()
-        .iter()
-        .find(|e| e["name"] == name)
-        .unwrap_or_else(|| panic!("no epoch {name}"))
-}
-
-fn px(e: &Value, key: &str) -> f64 {
-    e[key].as_f64().unwrap_or(f64::NAN) / e["gsd_m"].as_f64().unwrap()
-}
+mod common;
+use common::{epoch, exe, json_of, px};
 
 fn files_below(d: &Path) -> Vec<PathBuf> {
     let mut out = Vec::new();

@@ -16,19 +16,8 @@ use std::fmt::Write as _;
 use std::path::{Path, PathBuf};
 use std::process::Command;
 
-fn exe() -> &'static str {
-    env!("CARGO_BIN_EXE_cloudcontrol")
-}
-
-fn ok(out: std::process::Output) -> Value {
-    assert!(
-        out.status.success(),
-        "exit {:?}: {}",
-        out.status,
-        String::from_utf8_lossy(&out.stderr)
-    );
-    serde_json::from_slice(&out.stdout).expect("JSON on stdout")
-}
+mod common;
+use common::{epoch, exe, json_of, px};
 
 /// Rows of a synth truth or input CSV as header → value maps.
 fn rows(path: &Path) -> Vec<std::collections::BTreeMap<String, String>> {
@@ -215,19 +204,6 @@ html_report = false
     }
 }
 
-fn epoch<'a>(report: &'a Value, name: &str) -> &'a Value {
-    report["epochs"]
-        .as_array()
-        .unwrap()
-        .iter()
-        .find(|e| e["name"] == name)
-        .unwrap_or_else(|| panic!("no epoch {name}"))
-}
-
-fn px(e: &Value, key: &str) -> f64 {
-    e[key].as_f64().unwrap_or(f64::NAN) / e["gsd_m"].as_f64().unwrap()
-}
-
 fn block_of(path: &Path) -> cloudcontrol::block::Block {
     serde_json::from_slice(&std::fs::read(path).unwrap()).unwrap()
 }
@@ -237,11 +213,13 @@ fn hand_written_project_runs_end_to_end_and_every_entry_orients_alike() {
     let tmp = Path::new(env!("CARGO_TARGET_TMPDIR")).join("project_hand_written");
     let _ = std::fs::remove_dir_all(&tmp);
     let pr = write_project(&tmp);
-    let v = ok(Command::new(exe())
-        .args(["--json", "run"])
-        .arg(&pr.toml)
-        .output()
-        .unwrap());
+    let v = json_of(
+        &Command::new(exe())
+            .args(["--json", "run"])
+            .arg(&pr.toml)
+            .output()
+            .unwrap(),
+    );
     let report = &v["report"];
     for e in report["epochs"].as_array().unwrap() {
         println!(
@@ -300,31 +278,35 @@ fn hand_written_project_runs_end_to_end_and_every_entry_orients_alike() {
     // The same digital epoch through `cloudcontrol orient` with the run's reference DCPs:
     // the same orientation (the one epoch builder and the same options).
     let dem = tmp.join("dem.tif");
-    ok(Command::new(exe())
-        .args(["--json", "lidar", "dem", "--lidar"])
-        .arg(pr.root.join("lidar"))
-        .args(["--crs", "EPSG:4547", "--out"])
-        .arg(&dem)
-        .output()
-        .unwrap());
+    json_of(
+        &Command::new(exe())
+            .args(["--json", "lidar", "dem", "--lidar"])
+            .arg(pr.root.join("lidar"))
+            .args(["--crs", "EPSG:4547", "--out"])
+            .arg(&dem)
+            .output()
+            .unwrap(),
+    );
     let pkg = out.join("dcp-reference_2024/package");
     let oout = tmp.join("orient");
     let g = pr.gen.join("epochs/digital_2012");
-    ok(Command::new(exe())
-        .args(["--json", "orient", "--dcp"])
-        .arg(&pkg)
-        .arg("--camera")
-        .arg(g.join("camera.json"))
-        .arg("--images")
-        .arg(g.join("images"))
-        .arg("--pos")
-        .arg(pr.root.join("digital_2012_pos.csv"))
-        .arg("--dem")
-        .arg(&dem)
-        .arg("--out")
-        .arg(&oout)
-        .output()
-        .unwrap());
+    json_of(
+        &Command::new(exe())
+            .args(["--json", "orient", "--dcp"])
+            .arg(&pkg)
+            .arg("--camera")
+            .arg(g.join("camera.json"))
+            .arg("--images")
+            .arg(g.join("images"))
+            .arg("--pos")
+            .arg(pr.root.join("digital_2012_pos.csv"))
+            .arg("--dem")
+            .arg(&dem)
+            .arg("--out")
+            .arg(&oout)
+            .output()
+            .unwrap(),
+    );
     let run_block = block_of(&out.join("epoch-digital_2012/block.json"));
     let cli_block = block_of(&oout.join("block.json"));
     let gsd = d["gsd_m"].as_f64().unwrap();

@@ -1,0 +1,35 @@
+//! Helpers shared by the end-to-end tests that run the `cloudcontrol` binary and read its
+//! JSON (each test binary uses the part it needs).
+#![allow(dead_code)]
+
+use serde_json::Value;
+
+pub fn exe() -> &'static str {
+    env!("CARGO_BIN_EXE_cloudcontrol")
+}
+
+/// The JSON a successful command printed on stdout (the command's stderr when it failed).
+pub fn json_of(out: &std::process::Output) -> Value {
+    assert!(
+        out.status.success(),
+        "exit {:?}: {}",
+        out.status,
+        String::from_utf8_lossy(&out.stderr)
+    );
+    serde_json::from_slice(&out.stdout).expect("JSON on stdout")
+}
+
+/// Epoch `name` of a run report.
+pub fn epoch<'a>(report: &'a Value, name: &str) -> &'a Value {
+    report["epochs"]
+        .as_array()
+        .unwrap()
+        .iter()
+        .find(|e| e["name"] == name)
+        .unwrap_or_else(|| panic!("no epoch {name}"))
+}
+
+/// A length of an epoch report (`key`, metres; NaN when null) in the epoch's ground pixels.
+pub fn px(e: &Value, key: &str) -> f64 {
+    e[key].as_f64().unwrap_or(f64::NAN) / e["gsd_m"].as_f64().unwrap()
+}
