@@ -94,6 +94,10 @@ pub enum PhotoFailure {
     },
     #[error("{kept} tie observations kept, fewer than {needed}")]
     TooFewTieObservations { kept: usize, needed: usize },
+    /// Left out of the block adjustment: too few of its points are seen by other photos
+    /// (tie points) or are control.
+    #[error("observes {points} adjustable point(s) of the block; the adjustment needs {needed}")]
+    LostSupport { points: usize, needed: usize },
     #[error("control chip unusable: {message}")]
     Chip { message: String },
     #[error("{first}; with the epoch's own oriented photos as control: {second}")]

@@ -337,7 +337,7 @@ fn recrs(path: &Path, wkt: Option<&str>) {
 
 #[test]
 fn run_takes_the_project_crs_for_tiles_without_one() {
-    use cloudcontrol::pipeline::{demo, project::Project, run::run_project};
+    use cloudcontrol::pipeline::{project::Project, run::run_project};
     use cloudcontrol::synth::{self, PosQuality, Preset, SynthConfig};
     let root = tempfile::tempdir().unwrap();
     let block = root.path().join("block");
@@ -362,7 +362,8 @@ fn run_takes_the_project_crs_for_tiles_without_one() {
         recrs(f, (i % 2 == 1).then_some(compound.as_str()));
     }
     let project_path = block.join("project.toml");
-    std::fs::write(&project_path, demo::project_toml(Preset::Tiny)).unwrap();
+    // The project the generator wrote for the block.
+    let written = std::fs::read_to_string(&project_path).unwrap();
     let project = Project::load(&project_path).unwrap();
     let e = run_project(&project, &mut |_| {}, Some("sources")).unwrap_err();
     assert!(
@@ -395,11 +396,7 @@ fn run_takes_the_project_crs_for_tiles_without_one() {
         .is_file());
 
     // A project CRS whose horizontal part differs from the tiles' is refused naming a file.
-    std::fs::write(
-        &project_path,
-        demo::project_toml(Preset::Tiny).replace("EPSG:4547", "EPSG:4548"),
-    )
-    .unwrap();
+    std::fs::write(&project_path, written.replace("EPSG:4547", "EPSG:4548")).unwrap();
     let project = Project::load(&project_path).unwrap();
     let e = run_project(&project, &mut |_| {}, Some("sources"))
         .unwrap_err()

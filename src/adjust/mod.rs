@@ -15,6 +15,7 @@ pub mod resection;
 mod residual;
 mod robust;
 mod solver;
+pub mod support;
 pub mod synthetic;
 
 pub use precision::intersect;

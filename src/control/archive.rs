@@ -14,6 +14,7 @@ use super::epoch::{
 use super::orient::ControlPatch;
 use super::photo::{orient_photo, PhotoOptions, PhotoOrientation, PhotoReport};
 use super::predict::Prediction;
+use crate::adjust::support::{take_unsupported, MIN_POINTS_PER_PHOTO};
 use crate::adjust::{self, AdjustOptions, AdjustReport, Loss, Rejection};
 use crate::block::{
     Block, BlockCamera, ObjectPoint, Observation, Photo, PhotoFailure, PhotoId, PhotoStatus,
@@ -246,6 +247,22 @@ pub fn orient_epoch(
         }
     }
     let mut photos: Vec<PhotoReport> = outcomes.iter().map(|o| o.report.clone()).collect();
+    // A resected photo whose points the block cannot use (too few control points and tie
+    // points with a second ray) is left out of the adjustment, not oriented, with its count.
+    let mut lost = Vec::new();
+    for (mut ph, points) in take_unsupported(&mut block, MIN_POINTS_PER_PHOTO) {
+        let reason = PhotoFailure::LostSupport {
+            points,
+            needed: MIN_POINTS_PER_PHOTO,
+        };
+        tracing::warn!(epoch = %input.name, photo = %ph.name, points, "photo left out of the adjustment");
+        if let Some(r) = photos.iter_mut().find(|r| r.name == ph.name) {
+            r.oriented = false;
+            r.reason = Some(reason.clone());
+        }
+        ph.status = PhotoStatus::Failed(reason);
+        lost.push(ph);
+    }
     // A single oriented photo keeps its resection: there is nothing to adjust jointly.
     let adjustment = if block.photos.len() < 2 {
         None
@@ -312,6 +329,9 @@ pub fn orient_epoch(
         photo.image = Some(ph.image.clone());
         photo.provenance = "approximate (navigation)".into();
         block.photos.insert(pid, photo);
+    }
+    for ph in lost {
+        block.photos.insert(ph.id, ph);
     }
     let gsd_m = mean_gsd(&block, dem);
     Ok(EpochResult {

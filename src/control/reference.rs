@@ -12,6 +12,7 @@ use super::archive::{mean_gsd, EpochResult};
 use super::chips::MatchStats;
 use super::epoch::{EpochCamera, EpochError, EpochInput, Navigation};
 use super::photo::PhotoReport;
+use crate::adjust::support::{take_unsupported, MIN_POINTS_PER_PHOTO};
 use crate::adjust::{self, AdjustOptions, AdjustReport, PlaneConstraint, PlaneRefitter, Rejection};
 use crate::block::{
     Block, BlockCamera, Photo, PhotoFailure, PhotoId, PhotoStatus, PointId, PointKind, PosPrior,
@@ -304,6 +305,13 @@ pub fn orient_reference(
         source,
     };
 
+    // A photo without enough tie points does not stop the epoch: it leaves the block
+    // with its count and comes back, not oriented, after the adjustment.
+    let lost = take_unsupported(&mut block, MIN_POINTS_PER_PHOTO);
+    for (ph, n) in &lost {
+        tracing::warn!(epoch = %input.name, photo = %ph.name, points = n, "photo left out of the adjustment");
+    }
+
     // 2. Adjustment on the POS alone: tie points get object positions.
     let first_opts = AdjustOptions {
         covariance: false,
@@ -411,6 +419,27 @@ pub fn orient_reference(
             relaxed: false,
             second_pass: false,
         });
+    }
+    for (mut ph, points) in lost {
+        let reason = PhotoFailure::LostSupport {
+            points,
+            needed: MIN_POINTS_PER_PHOTO,
+        };
+        ph.status = PhotoStatus::Failed(reason.clone());
+        photos.push(PhotoReport {
+            name: ph.name.clone(),
+            oriented: false,
+            reason: Some(reason),
+            iterations: Vec::new(),
+            control_matches: 0,
+            sigma_px: f64::NAN,
+            io: None,
+            predicted: 0,
+            matching: MatchStats::default(),
+            relaxed: false,
+            second_pass: false,
+        });
+        block.photos.insert(ph.id, ph);
     }
     let gsd_m = mean_gsd(&block, dem);
     Ok((

@@ -1,6 +1,7 @@
 //! The workflow: the project file, restartable stages, the accuracy report, and the
 //! `demo` that runs on built-in data.
 
+pub mod bench;
 pub mod demo;
 pub mod epoch_files;
 pub mod products;

@@ -216,12 +216,12 @@ fn archive_options(project: &Project) -> ArchiveOptions {
 
 /// Surveyed checkpoints converted to the project CRS, with the file of their image
 /// measurements.
-struct Checkpoints {
+pub(crate) struct Checkpoints {
     surveyed: Vec<(String, [f64; 3])>,
     images: PathBuf,
 }
 
-fn read_checkpoints(project: &Project) -> Result<Option<Checkpoints>, WorkError> {
+pub(crate) fn read_checkpoints(project: &Project) -> Result<Option<Checkpoints>, WorkError> {
     let (Some(c), Some(i)) = (
         &project.control.checkpoints,
         &project.control.checkpoint_images,
@@ -247,7 +247,7 @@ fn read_checkpoints(project: &Project) -> Result<Option<Checkpoints>, WorkError>
 
 /// The checkpoint evaluation of an epoch; too few rays is a result (NaN in the report),
 /// a measurement in a photo the epoch does not have is an input error.
-fn evaluate(
+pub(crate) fn evaluate(
     cps: &Option<Checkpoints>,
     block: &Block,
     epoch: &str,

@@ -15,6 +15,7 @@ pub mod film;
 pub mod flight;
 pub mod lidar;
 pub mod noise;
+pub mod project;
 pub mod reading;
 pub mod render;
 pub mod scene;
@@ -402,6 +403,8 @@ pub fn generate(config: &SynthConfig, out_dir: &Path) -> Result<SynthManifest, S
         stage(&mut stats, &spec.name);
     }
     checkpoints::write_image_truth(&cp_rows, out_dir)?;
+    let project = project::project_toml(config.preset, &format!("EPSG:{CRS_EPSG}"), &epochs);
+    formats::write_bytes_atomically(&out_dir.join("project.toml"), project.as_bytes())?;
 
     let mut manifest = SynthManifest {
         format: "cloudcontrol-synth/1".into(),

@@ -2,6 +2,7 @@
 //! is done by the library.
 
 mod adjust;
+mod bench;
 mod convert;
 mod dcp;
 mod lidar;
@@ -123,6 +124,9 @@ enum Command {
     /// without iterative refinement, and the relative time.
     ///
     /// Example: cloudcontrol bench-table13 --out bench13
+    /// Benchmarks of the workflow (accuracy over seeds).
+    #[command(subcommand)]
+    Bench(bench::BenchCommand),
     #[command(name = "bench-table13")]
     BenchTable13(orient::BenchArgs),
 }
@@ -167,6 +171,7 @@ fn main() -> ExitCode {
         Command::Match(a) => matching::matching(a),
         Command::Ties(a) => matching::ties(a, cli.quiet),
         Command::Orient(a) => finish("orient", orient::run_orient(&a, cli.json, cli.quiet)),
+        Command::Bench(c) => finish("bench", bench::run(c, cli.json)),
         Command::BenchTable13(a) => finish("bench-table13", orient::run_bench(&a, cli.json)),
         Command::Version => {
             println!("cloudcontrol {}", cloudcontrol::VERSION);

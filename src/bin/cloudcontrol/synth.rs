@@ -20,6 +20,27 @@ pub enum PosArg {
     None,
 }
 
+impl From<PresetArg> for Preset {
+    fn from(p: PresetArg) -> Self {
+        match p {
+            PresetArg::Tiny => Preset::Tiny,
+            PresetArg::Small => Preset::Small,
+            PresetArg::Medium => Preset::Medium,
+            PresetArg::Large => Preset::Large,
+        }
+    }
+}
+
+impl From<PosArg> for PosQuality {
+    fn from(p: PosArg) -> Self {
+        match p {
+            PosArg::Good => PosQuality::Good,
+            PosArg::Rough => PosQuality::Rough,
+            PosArg::None => PosQuality::None,
+        }
+    }
+}
+
 #[derive(Args)]
 pub struct SynthArgs {
     /// Output folder (created; existing files are overwritten).
@@ -44,19 +65,10 @@ pub struct SynthArgs {
 
 pub fn run(args: SynthArgs, json: bool, quiet: bool) -> ExitCode {
     let config = SynthConfig {
-        preset: match args.preset {
-            PresetArg::Tiny => Preset::Tiny,
-            PresetArg::Small => Preset::Small,
-            PresetArg::Medium => Preset::Medium,
-            PresetArg::Large => Preset::Large,
-        },
+        preset: args.preset.into(),
         seed: args.seed,
         change: args.change,
-        pos: match args.pos {
-            PosArg::Good => PosQuality::Good,
-            PosArg::Rough => PosQuality::Rough,
-            PosArg::None => PosQuality::None,
-        },
+        pos: args.pos.into(),
         laz: args.laz,
     };
     let spinner = if quiet || json {
