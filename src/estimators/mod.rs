@@ -101,18 +101,54 @@ fn classify<E: Estimator>(
     (inl, n, if n > 0 { sum / n as f64 } else { f64::INFINITY })
 }
 
+/// The items whose flag is set (the inliers of a consensus, in order).
+pub fn selected<'a, T>(items: &'a [T], keep: &[bool]) -> Vec<&'a T> {
+    items
+        .iter()
+        .zip(keep)
+        .filter(|(_, &b)| b)
+        .map(|(s, _)| s)
+        .collect()
+}
+
+/// Random minimal samples (without repetition) from a seeded stream, so that both drivers
+/// are deterministic and refuse a set smaller than one minimal sample alike.
+struct MinimalSamples<'a, S> {
+    samples: &'a [S],
+    m: usize,
+    rng: ChaCha8Rng,
+}
+
+impl<'a, S> MinimalSamples<'a, S> {
+    fn new(samples: &'a [S], m: usize, seed: u64) -> Result<Self, RobustError> {
+        if samples.len() < m {
+            return Err(RobustError::TooFewSamples {
+                needed: m,
+                got: samples.len(),
+            });
+        }
+        Ok(Self {
+            samples,
+            m,
+            rng: ChaCha8Rng::seed_from_u64(seed),
+        })
+    }
+
+    fn draw(&mut self) -> Vec<&'a S> {
+        sample(&mut self.rng, self.samples.len(), self.m)
+            .iter()
+            .map(|i| &self.samples[i])
+            .collect()
+    }
+}
+
 fn refine_on<E: Estimator>(
     est: &E,
     model: &E::Model,
     samples: &[E::Sample],
     inl: &[bool],
 ) -> Option<E::Model> {
-    let chosen: Vec<&E::Sample> = samples
-        .iter()
-        .zip(inl)
-        .filter(|(_, &b)| b)
-        .map(|(s, _)| s)
-        .collect();
+    let chosen = selected(samples, inl);
     if chosen.len() < E::MIN_SAMPLES {
         return None;
     }
@@ -126,21 +162,15 @@ pub fn ransac<E: Estimator>(
     samples: &[E::Sample],
     opts: &RobustOptions,
 ) -> Result<RobustResult<E::Model>, RobustError> {
-    let n = samples.len();
-    let m = E::MIN_SAMPLES;
-    if n < m {
-        return Err(RobustError::TooFewSamples { needed: m, got: n });
-    }
+    let (n, m) = (samples.len(), E::MIN_SAMPLES);
+    let mut draws = MinimalSamples::new(samples, m, opts.seed)?;
     let t2 = opts.threshold * opts.threshold;
-    let mut rng = ChaCha8Rng::seed_from_u64(opts.seed);
     let mut best: Option<(E::Model, Vec<bool>, usize, f64)> = None;
     let mut needed = opts.max_iterations;
     let mut it = 0;
     while it < needed.max(opts.min_iterations).min(opts.max_iterations) {
         it += 1;
-        let idx = sample(&mut rng, n, m);
-        let picked: Vec<&E::Sample> = idx.iter().map(|i| &samples[i]).collect();
-        for model in est.fit_minimal(&picked) {
+        for model in est.fit_minimal(&draws.draw()) {
             let (inl, k, mean) = classify(est, &model, samples, t2);
             let better = best
                 .as_ref()
@@ -181,21 +211,15 @@ pub fn lmeds<E: Estimator>(
     samples: &[E::Sample],
     opts: &RobustOptions,
 ) -> Result<RobustResult<E::Model>, RobustError> {
-    let n = samples.len();
-    let m = E::MIN_SAMPLES;
-    if n < m {
-        return Err(RobustError::TooFewSamples { needed: m, got: n });
-    }
-    let mut rng = ChaCha8Rng::seed_from_u64(opts.seed);
+    let (n, m) = (samples.len(), E::MIN_SAMPLES);
+    let mut draws = MinimalSamples::new(samples, m, opts.seed)?;
     // Enough draws to hit an outlier-free sample with 50 % contamination.
     let iterations =
         iterations_needed(0.5, m, opts.confidence).clamp(opts.min_iterations, opts.max_iterations);
     let mut best: Option<(E::Model, f64)> = None;
     let mut res = vec![0.0; n];
     for _ in 0..iterations {
-        let idx = sample(&mut rng, n, m);
-        let picked: Vec<&E::Sample> = idx.iter().map(|i| &samples[i]).collect();
-        for model in est.fit_minimal(&picked) {
+        for model in est.fit_minimal(&draws.draw()) {
             for (r, s) in res.iter_mut().zip(samples) {
                 *r = est.residual_sq(&model, s);
             }
