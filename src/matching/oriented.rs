@@ -14,7 +14,7 @@ use super::ties::{
 };
 use super::{invalid, GreyImage, Pyramid, Result};
 use crate::block::{Block, ObjectPoint, Observation, PhotoId, PointKind};
-use crate::geometry::{back_project, project, Camera, Dem, Pose, Ray};
+use crate::geometry::{back_project, hartley_normalisation, project, Camera, Dem, Pose, Ray};
 use nalgebra::{DMatrix, Matrix3, Vector3};
 use rayon::prelude::*;
 use serde::Serialize;
@@ -193,20 +193,7 @@ pub fn predict_oriented_pair(
 
 /// Normalised DLT homography from point correspondences (least squares over all).
 fn fit_homography(pa: &[[f64; 2]], pb: &[[f64; 2]]) -> Option<Matrix3<f64>> {
-    let norm = |p: &[[f64; 2]]| {
-        let n = p.len() as f64;
-        let (mx, my) = p
-            .iter()
-            .fold((0.0, 0.0), |s, q| (s.0 + q[0] / n, s.1 + q[1] / n));
-        let d = p.iter().map(|q| (q[0] - mx).hypot(q[1] - my)).sum::<f64>() / n;
-        let s = if d > 0.0 {
-            std::f64::consts::SQRT_2 / d
-        } else {
-            1.0
-        };
-        Matrix3::new(s, 0.0, -s * mx, 0.0, s, -s * my, 0.0, 0.0, 1.0)
-    };
-    let (ta, tb) = (norm(pa), norm(pb));
+    let ((ta, _), (tb, _)) = (hartley_normalisation(pa), hartley_normalisation(pb));
     let mut m = DMatrix::<f64>::zeros(2 * pa.len(), 9);
     for (k, (p, q)) in pa.iter().zip(pb).enumerate() {
         let u = ta * Vector3::new(p[0], p[1], 1.0);

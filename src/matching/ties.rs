@@ -12,6 +12,7 @@ use super::ncc::{ncc_search, Window};
 use super::resample::{warp_patch, Interpolation, PatchWarp};
 use super::{GreyImage, MatchingError, Pyramid, Result};
 use crate::estimators::{lmeds, ransac, Estimator, RobustOptions};
+use crate::geometry::hartley_normalisation;
 use nalgebra::{DMatrix, Matrix3, Vector3};
 use rayon::prelude::*;
 use serde::Serialize;
@@ -114,34 +115,11 @@ impl PairMatches {
 /// is the squared Sampson (first-order epipolar) distance in px².
 pub struct FundamentalEstimator;
 
-fn normalise(pts: &[[f64; 2]]) -> (Matrix3<f64>, Vec<[f64; 2]>) {
-    let n = pts.len() as f64;
-    let (mx, my) = pts
-        .iter()
-        .fold((0.0, 0.0), |a, p| (a.0 + p[0] / n, a.1 + p[1] / n));
-    let d = pts
-        .iter()
-        .map(|p| (p[0] - mx).hypot(p[1] - my))
-        .sum::<f64>()
-        / n;
-    let s = if d > 0.0 {
-        std::f64::consts::SQRT_2 / d
-    } else {
-        1.0
-    };
-    (
-        Matrix3::new(s, 0.0, -s * mx, 0.0, s, -s * my, 0.0, 0.0, 1.0),
-        pts.iter()
-            .map(|p| [(p[0] - mx) * s, (p[1] - my) * s])
-            .collect(),
-    )
-}
-
 fn eight_point(samples: &[&([f64; 2], [f64; 2])]) -> Option<Matrix3<f64>> {
     let a: Vec<[f64; 2]> = samples.iter().map(|s| s.0).collect();
     let b: Vec<[f64; 2]> = samples.iter().map(|s| s.1).collect();
-    let (ta, na) = normalise(&a);
-    let (tb, nb) = normalise(&b);
+    let (ta, na) = hartley_normalisation(&a);
+    let (tb, nb) = hartley_normalisation(&b);
     let n = samples.len();
     let mut m = DMatrix::<f64>::zeros(n.max(9), 9);
     for i in 0..n {
