@@ -6,7 +6,7 @@
 //! snooping on the standardised residuals, and the pose covariance is σ0²·(AᵀA)⁻¹.
 
 use super::AdjustError;
-use crate::estimators::{lmeds, ransac, selected, Estimator, RobustOptions};
+use crate::estimators::{selected, Estimator, RobustMethod, RobustOptions};
 use crate::geometry::{project_with_jacobians, Camera, Pose};
 use nalgebra::{DMatrix, Matrix3, Matrix6, SMatrix, Vector2, Vector3, Vector6};
 use serde::{Deserialize, Serialize};
@@ -379,12 +379,14 @@ pub fn resect(
             min_iterations: 50,
             seed: opts.seed,
         };
-        let r = if opts.lmeds {
-            lmeds(&est, &cs, &ro)
+        let method = if opts.lmeds {
+            RobustMethod::Lmeds
         } else {
-            ransac(&est, &cs, &ro)
-        }
-        .map_err(|e| AdjustError::Degenerate(format!("resection: {e}")))?;
+            RobustMethod::Ransac
+        };
+        let r = method
+            .estimate(&est, &cs, &ro)
+            .map_err(|e| AdjustError::Degenerate(format!("resection: {e}")))?;
         (r.model, r.inliers)
     };
     // Refinement with the full camera model and data snooping on the inliers.

@@ -7,6 +7,7 @@
 use rand::seq::index::sample;
 use rand::SeedableRng;
 use rand_chacha::ChaCha8Rng;
+use serde::Serialize;
 
 /// A model family with a minimal solver.
 pub trait Estimator {
@@ -22,6 +23,31 @@ pub trait Estimator {
     /// Optional least-squares refinement on the inliers (local optimisation).
     fn refine(&self, model: &Self::Model, _inliers: &[&Self::Sample]) -> Option<Self::Model> {
         Some(model.clone())
+    }
+}
+
+/// Which robust driver estimates the model.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize)]
+pub enum RobustMethod {
+    /// Least median of squares: 50 % breakdown, no threshold to choose.
+    Lmeds,
+    /// RANSAC with the inlier threshold of [`RobustOptions`].
+    Ransac,
+}
+
+impl RobustMethod {
+    /// Estimates a model of `est` from `samples` with this driver.
+    pub fn estimate<E: Estimator>(
+        self,
+        est: &E,
+        samples: &[E::Sample],
+        opts: &RobustOptions,
+    ) -> Result<RobustResult<E::Model>, RobustError> {
+        let draws = MinimalSamples::new(samples, E::MIN_SAMPLES, opts.seed)?;
+        match self {
+            RobustMethod::Lmeds => lmeds(est, draws, opts),
+            RobustMethod::Ransac => ransac(est, draws, opts),
+        }
     }
 }
 
@@ -157,13 +183,12 @@ fn refine_on<E: Estimator>(
 
 /// RANSAC with adaptive stopping and a final least-squares refinement on the inliers
 /// (re-classified after refinement, LO-RANSAC style).
-pub fn ransac<E: Estimator>(
+fn ransac<E: Estimator>(
     est: &E,
-    samples: &[E::Sample],
+    mut draws: MinimalSamples<'_, E::Sample>,
     opts: &RobustOptions,
 ) -> Result<RobustResult<E::Model>, RobustError> {
-    let (n, m) = (samples.len(), E::MIN_SAMPLES);
-    let mut draws = MinimalSamples::new(samples, m, opts.seed)?;
+    let (samples, n, m) = (draws.samples, draws.samples.len(), draws.m);
     let t2 = opts.threshold * opts.threshold;
     let mut best: Option<(E::Model, Vec<bool>, usize, f64)> = None;
     let mut needed = opts.max_iterations;
@@ -206,13 +231,12 @@ pub fn ransac<E: Estimator>(
 /// Least median of squares (Rousseeuw): the model minimising the median squared residual
 /// over random minimal samples; inliers are those within 2.5 robust σ. Tolerates up to
 /// 50 % gross errors without a threshold chosen in advance.
-pub fn lmeds<E: Estimator>(
+fn lmeds<E: Estimator>(
     est: &E,
-    samples: &[E::Sample],
+    mut draws: MinimalSamples<'_, E::Sample>,
     opts: &RobustOptions,
 ) -> Result<RobustResult<E::Model>, RobustError> {
-    let (n, m) = (samples.len(), E::MIN_SAMPLES);
-    let mut draws = MinimalSamples::new(samples, m, opts.seed)?;
+    let (samples, n, m) = (draws.samples, draws.samples.len(), draws.m);
     // Enough draws to hit an outlier-free sample with 50 % contamination.
     let iterations =
         iterations_needed(0.5, m, opts.confidence).clamp(opts.min_iterations, opts.max_iterations);
@@ -301,8 +325,8 @@ mod tests {
             ..Default::default()
         };
         for r in [
-            ransac(&Line, &pts, &opts).unwrap(),
-            lmeds(&Line, &pts, &opts).unwrap(),
+            RobustMethod::Ransac.estimate(&Line, &pts, &opts).unwrap(),
+            RobustMethod::Lmeds.estimate(&Line, &pts, &opts).unwrap(),
         ] {
             assert!(
                 (r.model.0 - 2.0).abs() < 0.01 && (r.model.1 + 3.0).abs() < 0.05,
@@ -317,7 +341,9 @@ mod tests {
     #[test]
     fn too_few_samples_is_an_error() {
         assert_eq!(
-            ransac(&Line, &[(0.0, 0.0)], &RobustOptions::default()).unwrap_err(),
+            RobustMethod::Ransac
+                .estimate(&Line, &[(0.0, 0.0)], &RobustOptions::default())
+                .unwrap_err(),
             RobustError::TooFewSamples { needed: 2, got: 1 }
         );
     }

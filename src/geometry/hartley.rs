@@ -1,7 +1,8 @@
-//! Hartley's normalisation of plane points, so that the design matrices of the linear
-//! plane fits (interior orientation, homography, fundamental matrix) are well conditioned.
+//! The normalised direct linear transform of the plane fits (projective interior
+//! orientation, homography, fundamental matrix): Hartley's normalisation, so that the
+//! design matrices are well conditioned, and the 3×3 matrix from their null vector.
 
-use nalgebra::{Matrix3, Vector2};
+use nalgebra::{DMatrix, Matrix3, Vector2};
 
 /// Similarity that moves the centroid to the origin and scales the mean distance to √2,
 /// and the points it maps to. Coincident points are only shifted.
@@ -27,4 +28,20 @@ pub(crate) fn hartley_normalisation(pts: &[[f64; 2]]) -> (Matrix3<f64>, Vec<Vect
         .map(|p| (Vector2::new(p[0], p[1]) - c) * s)
         .collect();
     (t, out)
+}
+
+/// The 3×3 matrix (row-major) of the right singular vector of the smallest singular value
+/// of a DLT design matrix with nine columns; `None` when the SVD fails.
+pub(crate) fn dlt_null_matrix(design: DMatrix<f64>) -> Option<Matrix3<f64>> {
+    let svd = design.svd(false, true);
+    let vt = svd.v_t?;
+    let (imin, _) = svd
+        .singular_values
+        .iter()
+        .enumerate()
+        .min_by(|a, b| a.1.total_cmp(b.1))?;
+    let h = vt.row(imin);
+    Some(Matrix3::new(
+        h[0], h[1], h[2], h[3], h[4], h[5], h[6], h[7], h[8],
+    ))
 }

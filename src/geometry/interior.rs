@@ -1,7 +1,7 @@
 //! Interior orientation of a film scan: the plane transform from scan pixels to the
 //! fiducial coordinate system of the camera's calibration certificate (mm).
 
-use super::{check_finite, hartley_normalisation, GeometryError, Result};
+use super::{check_finite, dlt_null_matrix, hartley_normalisation, GeometryError, Result};
 use nalgebra::{DMatrix, DVector, Matrix2, Matrix3, Vector2, Vector3};
 use serde::{Deserialize, Serialize};
 
@@ -231,18 +231,7 @@ impl InteriorOrientation {
                         -m.y,
                     ]);
                 }
-                let svd = a.svd(false, true);
-                let vt = svd
-                    .v_t
-                    .ok_or_else(|| GeometryError::Degenerate("DLT SVD".into()))?;
-                let (imin, _) = svd
-                    .singular_values
-                    .iter()
-                    .enumerate()
-                    .min_by(|a, b| a.1.total_cmp(b.1))
-                    .expect("nine singular values");
-                let h = vt.row(imin);
-                Matrix3::new(h[0], h[1], h[2], h[3], h[4], h[5], h[6], h[7], h[8])
+                dlt_null_matrix(a).ok_or_else(|| GeometryError::Degenerate("DLT SVD".into()))?
             }
         };
         let tm_inv = tm

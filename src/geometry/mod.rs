@@ -18,7 +18,7 @@ mod similarity;
 pub use camera::{Brown, Camera, FilmCamera, FrameCamera};
 pub use collinearity::{project, project_with_jacobians, Projection, ProjectionJacobians};
 pub use dem::{Dem, GeoTransform};
-pub(crate) use hartley::hartley_normalisation;
+pub(crate) use hartley::{dlt_null_matrix, hartley_normalisation};
 pub use interior::{InteriorOrientation, InteriorTransformKind};
 pub use rotation::{
     matrix_from_opk, matrix_from_quaternion_wxyz, matrix_from_ypr, opk_from_matrix, orthonormalize,
