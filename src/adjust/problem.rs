@@ -30,6 +30,19 @@ pub(super) struct Problem {
     pub(super) datum: String,
 }
 
+impl Problem {
+    /// The sparsity structure of the normal equations over the current residual list.
+    pub(super) fn structure(&self) -> Structure {
+        Structure::new(
+            &self.res,
+            self.photo_ids.len(),
+            self.point_ids.len(),
+            &self.photo_free,
+            &self.camera_free,
+        )
+    }
+}
+
 fn check_options(o: &AdjustOptions) -> Result<(), AdjustError> {
     let bad = |name: &str, message: String| {
         Err(AdjustError::InvalidOption {
@@ -426,13 +439,7 @@ pub fn adjust(
     let mut round = 0;
     loop {
         round += 1;
-        let st = Structure::new(
-            &pb.res,
-            pb.photo_ids.len(),
-            n_points,
-            &pb.photo_free,
-            &pb.camera_free,
-        );
+        let st = pb.structure();
         let out = solver::levenberg_marquardt(&st, &pb.res, &mut pb.state, opts.loss, &lm);
         iterations += out.iterations;
         converged = out.converged;
@@ -476,17 +483,7 @@ pub fn adjust(
         }
         // Re-fitted planes change the residual list: the structure must index the new one
         // before residuals are tested for rejection.
-        let st = if changed {
-            Structure::new(
-                &pb.res,
-                pb.photo_ids.len(),
-                n_points,
-                &pb.photo_free,
-                &pb.camera_free,
-            )
-        } else {
-            st
-        };
+        let st = if changed { pb.structure() } else { st };
         let newly = robust::select_rejections(&st, &pb, opts, round, n_points);
         if !newly.is_empty() {
             for (i, rj) in newly {
@@ -505,13 +502,7 @@ pub fn adjust(
             break;
         }
     }
-    let st = Structure::new(
-        &pb.res,
-        pb.photo_ids.len(),
-        n_points,
-        &pb.photo_free,
-        &pb.camera_free,
-    );
+    let st = pb.structure();
     let report = finish(
         block, &pb, &st, opts, rejected, iterations, round, converged, t0,
     )?;

@@ -6,7 +6,7 @@
 //! snooping on the standardised residuals, and the pose covariance is σ0²·(AᵀA)⁻¹.
 
 use super::AdjustError;
-use crate::estimators::{lmeds, ransac, Estimator, RobustOptions};
+use crate::estimators::{selected, Estimator, RobustMethod, RobustOptions};
 use crate::geometry::{project_with_jacobians, Camera, Pose};
 use nalgebra::{DMatrix, Matrix3, Matrix6, SMatrix, Vector2, Vector3, Vector6};
 use serde::{Deserialize, Serialize};
@@ -379,24 +379,21 @@ pub fn resect(
             min_iterations: 50,
             seed: opts.seed,
         };
-        let r = if opts.lmeds {
-            lmeds(&est, &cs, &ro)
+        let method = if opts.lmeds {
+            RobustMethod::Lmeds
         } else {
-            ransac(&est, &cs, &ro)
-        }
-        .map_err(|e| AdjustError::Degenerate(format!("resection: {e}")))?;
+            RobustMethod::Ransac
+        };
+        let r = method
+            .estimate(&est, &cs, &ro)
+            .map_err(|e| AdjustError::Degenerate(format!("resection: {e}")))?;
         (r.model, r.inliers)
     };
     // Refinement with the full camera model and data snooping on the inliers.
     let mut iterations = 0;
     let mut n_mat;
     loop {
-        let used: Vec<&Corr> = cs
-            .iter()
-            .zip(&inl)
-            .filter(|(_, b)| **b)
-            .map(|(c, _)| c)
-            .collect();
+        let used = selected(&cs, &inl);
         if used.len() < 3 {
             return Err(AdjustError::TooFewObservations(format!(
                 "only {} control points remain after gross-error removal",
@@ -438,12 +435,7 @@ pub fn resect(
             _ => break,
         }
     }
-    let used: Vec<&Corr> = cs
-        .iter()
-        .zip(&inl)
-        .filter(|(_, b)| **b)
-        .map(|(c, _)| c)
-        .collect();
+    let used = selected(&cs, &inl);
     let ssr: f64 = used.iter().map(|c| reprojection_sq(camera, &pose, c)).sum();
     let red = 2 * used.len() as i64 - 6;
     let sigma0 = if red > 0 {

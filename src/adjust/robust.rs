@@ -190,14 +190,7 @@ pub(super) fn readmit(
     let Some(k) = rejection_k(opts.rejection) else {
         return false;
     };
-    let n_points = pb.point_ids.len();
-    let st = Structure::new(
-        &pb.res,
-        pb.photo_ids.len(),
-        n_points,
-        &pb.photo_free,
-        &pb.camera_free,
-    );
+    let st = pb.structure();
     let ev = solver::evaluate(&pb.res, &pb.state, opts.loss);
     let pts = solver::point_systems(&st, &pb.res, &ev, 0.0);
     let s0 = precision::robust_sigma0(&ev, &precision::standardized(&pb.res, &ev, &pts, 1.0));

@@ -7,6 +7,7 @@
 use rand::seq::index::sample;
 use rand::SeedableRng;
 use rand_chacha::ChaCha8Rng;
+use serde::Serialize;
 
 /// A model family with a minimal solver.
 pub trait Estimator {
@@ -22,6 +23,31 @@ pub trait Estimator {
     /// Optional least-squares refinement on the inliers (local optimisation).
     fn refine(&self, model: &Self::Model, _inliers: &[&Self::Sample]) -> Option<Self::Model> {
         Some(model.clone())
+    }
+}
+
+/// Which robust driver estimates the model.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize)]
+pub enum RobustMethod {
+    /// Least median of squares: 50 % breakdown, no threshold to choose.
+    Lmeds,
+    /// RANSAC with the inlier threshold of [`RobustOptions`].
+    Ransac,
+}
+
+impl RobustMethod {
+    /// Estimates a model of `est` from `samples` with this driver.
+    pub fn estimate<E: Estimator>(
+        self,
+        est: &E,
+        samples: &[E::Sample],
+        opts: &RobustOptions,
+    ) -> Result<RobustResult<E::Model>, RobustError> {
+        let draws = MinimalSamples::new(samples, E::MIN_SAMPLES, opts.seed)?;
+        match self {
+            RobustMethod::Lmeds => lmeds(est, draws, opts),
+            RobustMethod::Ransac => ransac(est, draws, opts),
+        }
     }
 }
 
@@ -101,18 +127,54 @@ fn classify<E: Estimator>(
     (inl, n, if n > 0 { sum / n as f64 } else { f64::INFINITY })
 }
 
+/// The items whose flag is set (the inliers of a consensus, in order).
+pub fn selected<'a, T>(items: &'a [T], keep: &[bool]) -> Vec<&'a T> {
+    items
+        .iter()
+        .zip(keep)
+        .filter(|(_, &b)| b)
+        .map(|(s, _)| s)
+        .collect()
+}
+
+/// Random minimal samples (without repetition) from a seeded stream, so that both drivers
+/// are deterministic and refuse a set smaller than one minimal sample alike.
+struct MinimalSamples<'a, S> {
+    samples: &'a [S],
+    m: usize,
+    rng: ChaCha8Rng,
+}
+
+impl<'a, S> MinimalSamples<'a, S> {
+    fn new(samples: &'a [S], m: usize, seed: u64) -> Result<Self, RobustError> {
+        if samples.len() < m {
+            return Err(RobustError::TooFewSamples {
+                needed: m,
+                got: samples.len(),
+            });
+        }
+        Ok(Self {
+            samples,
+            m,
+            rng: ChaCha8Rng::seed_from_u64(seed),
+        })
+    }
+
+    fn draw(&mut self) -> Vec<&'a S> {
+        sample(&mut self.rng, self.samples.len(), self.m)
+            .iter()
+            .map(|i| &self.samples[i])
+            .collect()
+    }
+}
+
 fn refine_on<E: Estimator>(
     est: &E,
     model: &E::Model,
     samples: &[E::Sample],
     inl: &[bool],
 ) -> Option<E::Model> {
-    let chosen: Vec<&E::Sample> = samples
-        .iter()
-        .zip(inl)
-        .filter(|(_, &b)| b)
-        .map(|(s, _)| s)
-        .collect();
+    let chosen = selected(samples, inl);
     if chosen.len() < E::MIN_SAMPLES {
         return None;
     }
@@ -121,26 +183,19 @@ fn refine_on<E: Estimator>(
 
 /// RANSAC with adaptive stopping and a final least-squares refinement on the inliers
 /// (re-classified after refinement, LO-RANSAC style).
-pub fn ransac<E: Estimator>(
+fn ransac<E: Estimator>(
     est: &E,
-    samples: &[E::Sample],
+    mut draws: MinimalSamples<'_, E::Sample>,
     opts: &RobustOptions,
 ) -> Result<RobustResult<E::Model>, RobustError> {
-    let n = samples.len();
-    let m = E::MIN_SAMPLES;
-    if n < m {
-        return Err(RobustError::TooFewSamples { needed: m, got: n });
-    }
+    let (samples, n, m) = (draws.samples, draws.samples.len(), draws.m);
     let t2 = opts.threshold * opts.threshold;
-    let mut rng = ChaCha8Rng::seed_from_u64(opts.seed);
     let mut best: Option<(E::Model, Vec<bool>, usize, f64)> = None;
     let mut needed = opts.max_iterations;
     let mut it = 0;
     while it < needed.max(opts.min_iterations).min(opts.max_iterations) {
         it += 1;
-        let idx = sample(&mut rng, n, m);
-        let picked: Vec<&E::Sample> = idx.iter().map(|i| &samples[i]).collect();
-        for model in est.fit_minimal(&picked) {
+        for model in est.fit_minimal(&draws.draw()) {
             let (inl, k, mean) = classify(est, &model, samples, t2);
             let better = best
                 .as_ref()
@@ -176,26 +231,19 @@ pub fn ransac<E: Estimator>(
 /// Least median of squares (Rousseeuw): the model minimising the median squared residual
 /// over random minimal samples; inliers are those within 2.5 robust σ. Tolerates up to
 /// 50 % gross errors without a threshold chosen in advance.
-pub fn lmeds<E: Estimator>(
+fn lmeds<E: Estimator>(
     est: &E,
-    samples: &[E::Sample],
+    mut draws: MinimalSamples<'_, E::Sample>,
     opts: &RobustOptions,
 ) -> Result<RobustResult<E::Model>, RobustError> {
-    let n = samples.len();
-    let m = E::MIN_SAMPLES;
-    if n < m {
-        return Err(RobustError::TooFewSamples { needed: m, got: n });
-    }
-    let mut rng = ChaCha8Rng::seed_from_u64(opts.seed);
+    let (samples, n, m) = (draws.samples, draws.samples.len(), draws.m);
     // Enough draws to hit an outlier-free sample with 50 % contamination.
     let iterations =
         iterations_needed(0.5, m, opts.confidence).clamp(opts.min_iterations, opts.max_iterations);
     let mut best: Option<(E::Model, f64)> = None;
     let mut res = vec![0.0; n];
     for _ in 0..iterations {
-        let idx = sample(&mut rng, n, m);
-        let picked: Vec<&E::Sample> = idx.iter().map(|i| &samples[i]).collect();
-        for model in est.fit_minimal(&picked) {
+        for model in est.fit_minimal(&draws.draw()) {
             for (r, s) in res.iter_mut().zip(samples) {
                 *r = est.residual_sq(&model, s);
             }
@@ -277,8 +325,8 @@ mod tests {
             ..Default::default()
         };
         for r in [
-            ransac(&Line, &pts, &opts).unwrap(),
-            lmeds(&Line, &pts, &opts).unwrap(),
+            RobustMethod::Ransac.estimate(&Line, &pts, &opts).unwrap(),
+            RobustMethod::Lmeds.estimate(&Line, &pts, &opts).unwrap(),
         ] {
             assert!(
                 (r.model.0 - 2.0).abs() < 0.01 && (r.model.1 + 3.0).abs() < 0.05,
@@ -293,7 +341,9 @@ mod tests {
     #[test]
     fn too_few_samples_is_an_error() {
         assert_eq!(
-            ransac(&Line, &[(0.0, 0.0)], &RobustOptions::default()).unwrap_err(),
+            RobustMethod::Ransac
+                .estimate(&Line, &[(0.0, 0.0)], &RobustOptions::default())
+                .unwrap_err(),
             RobustError::TooFewSamples { needed: 2, got: 1 }
         );
     }

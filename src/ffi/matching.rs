@@ -6,7 +6,9 @@ use crate::matching::fiducial::{
     interior_orientation, CameraDefinition, IoOptions, ScanOrientation,
 };
 use crate::matching::ncc::Window;
-use crate::matching::{match_template, GreyImage, MatchOptions, MatchingError, Pyramid};
+use crate::matching::{
+    match_template, GreyImage, MatchOptions, MatchResult, MatchingError, Pyramid,
+};
 use std::ffi::{c_char, CStr};
 
 impl From<MatchingError> for FfiError {
@@ -46,6 +48,33 @@ pub struct CcpMatchResult {
     pub reason: [c_char; 200],
 }
 
+impl From<&MatchResult> for CcpMatchResult {
+    /// `reason` is truncated to 199 bytes so that the buffer stays NUL-terminated.
+    fn from(m: &MatchResult) -> Self {
+        let mut reason = [0 as c_char; 200];
+        if let Some(r) = &m.reason {
+            for (d, s) in reason.iter_mut().zip(r.bytes().take(199)) {
+                *d = s as c_char;
+            }
+        }
+        CcpMatchResult {
+            accepted: m.accepted as i32,
+            lsm_converged: m.lsm_converged as i32,
+            lsm_iterations: m.lsm_iterations as u32,
+            x: m.x,
+            y: m.y,
+            ncc: m.ncc,
+            ncc_x: m.ncc_x,
+            ncc_y: m.ncc_y,
+            ambiguity: m.ambiguity,
+            sigma_x: m.sigma_x,
+            sigma_y: m.sigma_y,
+            affine: m.affine,
+            reason,
+        }
+    }
+}
+
 fn image_from(ptr: *const f32, width: u32, height: u32, name: &str) -> FfiResult<GreyImage> {
     let (w, h) = (width as usize, height as usize);
     if w == 0 || h == 0 {
@@ -63,6 +92,19 @@ fn image_from(ptr: *const f32, width: u32, height: u32, name: &str) -> FfiResult
         height: h,
         data: data.to_vec(),
     })
+}
+
+/// The image and the template every matching entry takes, both checked.
+unsafe fn image_and_template(
+    image: *const f32,
+    size: [u32; 2],
+    templ: *const f32,
+    templ_size: [u32; 2],
+) -> FfiResult<(GreyImage, GreyImage)> {
+    Ok((
+        image_from(image, size[0], size[1], "image")?,
+        image_from(templ, templ_size[0], templ_size[1], "templ")?,
+    ))
 }
 
 /// Matches a template in a window of an image: coarse-to-fine NCC, then LSM from the NCC
@@ -89,8 +131,8 @@ pub unsafe extern "C" fn ccp_match_template(
 ) -> CcpStatus {
     guard(|| {
         let out = output(out, 1, 1, "out")?;
-        let img = image_from(image, width, height, "image")?;
-        let tpl = image_from(templ, templ_width, templ_height, "templ")?;
+        let (img, tpl) =
+            image_and_template(image, [width, height], templ, [templ_width, templ_height])?;
         finite(&[ncc_threshold, agreement_px], "ncc_threshold/agreement_px")?;
         if !(-1.0..=1.0).contains(&ncc_threshold) || agreement_px <= 0.0 {
             return Err(FfiError::invalid(format!(
@@ -122,27 +164,7 @@ pub unsafe extern "C" fn ccp_match_template(
         };
         let pyr = Pyramid::new(&img, 8, 16);
         let m = match_template(&pyr, &tpl, win, None, &opts)?;
-        let mut reason = [0 as c_char; 200];
-        if let Some(r) = &m.reason {
-            for (d, s) in reason.iter_mut().zip(r.bytes().take(199)) {
-                *d = s as c_char;
-            }
-        }
-        out[0] = CcpMatchResult {
-            accepted: m.accepted as i32,
-            lsm_converged: m.lsm_converged as i32,
-            lsm_iterations: m.lsm_iterations as u32,
-            x: m.x,
-            y: m.y,
-            ncc: m.ncc,
-            ncc_x: m.ncc_x,
-            ncc_y: m.ncc_y,
-            ambiguity: m.ambiguity,
-            sigma_x: m.sigma_x,
-            sigma_y: m.sigma_y,
-            affine: m.affine,
-            reason,
-        };
+        out[0] = CcpMatchResult::from(&m);
         Ok(())
     })
 }
@@ -249,8 +271,8 @@ pub unsafe extern "C" fn ccp_ncc_surface(
     out_len: usize,
 ) -> CcpStatus {
     guard(|| {
-        let img = image_from(image, width, height, "image")?;
-        let tpl = image_from(templ, templ_width, templ_height, "templ")?;
+        let (img, tpl) =
+            image_and_template(image, [width, height], templ, [templ_width, templ_height])?;
         let s = crate::matching::ncc::ncc_surface(&img, &tpl, Window::whole(&img))?;
         let o = output(out, out_len, s.values.len(), "out")?;
         o.copy_from_slice(&s.values);
@@ -279,8 +301,8 @@ pub unsafe extern "C" fn ccp_lsm(
 ) -> CcpStatus {
     guard(|| {
         let out = output(out, 1, 1, "out")?;
-        let img = image_from(image, width, height, "image")?;
-        let tpl = image_from(templ, templ_width, templ_height, "templ")?;
+        let (img, tpl) =
+            image_and_template(image, [width, height], templ, [templ_width, templ_height])?;
         finite(&[x, y], "x/y")?;
         let l = crate::matching::lsm(
             &img,
@@ -290,27 +312,22 @@ pub unsafe extern "C" fn ccp_lsm(
             None,
             &crate::matching::LsmOptions::default(),
         );
-        let mut reason = [0 as c_char; 200];
-        if let Some(r) = &l.reason {
-            for (d, s) in reason.iter_mut().zip(r.bytes().take(199)) {
-                *d = s as c_char;
-            }
-        }
-        out[0] = CcpMatchResult {
-            accepted: l.converged as i32,
-            lsm_converged: l.converged as i32,
-            lsm_iterations: l.iterations as u32,
+        out[0] = CcpMatchResult::from(&MatchResult {
+            accepted: l.converged,
+            reason: l.reason,
             x: l.x,
             y: l.y,
             ncc: f64::NAN,
             ncc_x: f64::NAN,
             ncc_y: f64::NAN,
             ambiguity: f64::NAN,
+            lsm_converged: l.converged,
+            lsm_iterations: l.iterations,
             sigma_x: l.sigma_x,
             sigma_y: l.sigma_y,
+            sigma0: l.sigma0,
             affine: l.affine,
-            reason,
-        };
+        });
         Ok(())
     })
 }

@@ -134,6 +134,29 @@ pub(crate) fn guard(f: impl FnOnce() -> FfiResult<()>) -> CcpStatus {
 /// converted to `size_t` by callers.
 const MAX_ELEMENTS: usize = 1 << 40;
 
+/// Refuses an absurd length and a null pointer, the checks input and output arrays share.
+fn plausible<T>(ptr: *const T, len: usize, name: &str) -> FfiResult<()> {
+    if len > MAX_ELEMENTS {
+        return Err(FfiError::invalid(format!(
+            "{name}: length {len} is not plausible (a negative value passed as size_t?)"
+        )));
+    }
+    if ptr.is_null() {
+        return Err(FfiError::new(
+            CcpStatus::NullPointer,
+            format!("{name} is a null pointer"),
+        ));
+    }
+    Ok(())
+}
+
+fn aligned<T>(ptr: *const T, name: &str) -> FfiResult<()> {
+    if (ptr as usize) % std::mem::align_of::<T>() != 0 {
+        return Err(FfiError::invalid(format!("{name} is not aligned")));
+    }
+    Ok(())
+}
+
 /// Borrows a caller-owned input array of `len` elements, refusing null, zero length when
 /// `allow_empty` is false, and absurd lengths.
 pub(crate) unsafe fn input<'a, T>(
@@ -148,20 +171,8 @@ pub(crate) unsafe fn input<'a, T>(
         }
         return Err(FfiError::invalid(format!("{name}: length is zero")));
     }
-    if len > MAX_ELEMENTS {
-        return Err(FfiError::invalid(format!(
-            "{name}: length {len} is not plausible (a negative value passed as size_t?)"
-        )));
-    }
-    if ptr.is_null() {
-        return Err(FfiError::new(
-            CcpStatus::NullPointer,
-            format!("{name} is a null pointer"),
-        ));
-    }
-    if (ptr as usize) % std::mem::align_of::<T>() != 0 {
-        return Err(FfiError::invalid(format!("{name} is not aligned")));
-    }
+    plausible(ptr, len, name)?;
+    aligned(ptr, name)?;
     Ok(std::slice::from_raw_parts(ptr, len))
 }
 
@@ -172,26 +183,14 @@ pub(crate) unsafe fn output<'a, T>(
     needed: usize,
     name: &str,
 ) -> FfiResult<&'a mut [T]> {
-    if len > MAX_ELEMENTS {
-        return Err(FfiError::invalid(format!(
-            "{name}: length {len} is not plausible (a negative value passed as size_t?)"
-        )));
-    }
-    if ptr.is_null() {
-        return Err(FfiError::new(
-            CcpStatus::NullPointer,
-            format!("{name} is a null pointer"),
-        ));
-    }
+    plausible(ptr, len, name)?;
     if len < needed {
         return Err(FfiError::new(
             CcpStatus::BufferTooSmall,
             format!("{name} holds {len} values but {needed} are needed"),
         ));
     }
-    if (ptr as usize) % std::mem::align_of::<T>() != 0 {
-        return Err(FfiError::invalid(format!("{name} is not aligned")));
-    }
+    aligned(ptr, name)?;
     Ok(std::slice::from_raw_parts_mut(ptr, needed))
 }
 

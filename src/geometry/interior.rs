@@ -1,7 +1,7 @@
 //! Interior orientation of a film scan: the plane transform from scan pixels to the
 //! fiducial coordinate system of the camera's calibration certificate (mm).
 
-use super::{check_finite, GeometryError, Result};
+use super::{check_finite, dlt_null_matrix, hartley_normalisation, GeometryError, Result};
 use nalgebra::{DMatrix, DVector, Matrix2, Matrix3, Vector2, Vector3};
 use serde::{Deserialize, Serialize};
 
@@ -178,8 +178,8 @@ impl InteriorOrientation {
             check_finite(m, "fiducial calibrated coordinate")?;
         }
         // Normalise both point sets (Hartley) so the design matrix is well conditioned.
-        let (tp, np) = normalisation(pixels);
-        let (tm, nm) = normalisation(mm);
+        let (tp, np) = hartley_normalisation(pixels);
+        let (tm, nm) = hartley_normalisation(mm);
         let n = pixels.len();
         let h_norm = match kind {
             InteriorTransformKind::Affine => {
@@ -231,18 +231,7 @@ impl InteriorOrientation {
                         -m.y,
                     ]);
                 }
-                let svd = a.svd(false, true);
-                let vt = svd
-                    .v_t
-                    .ok_or_else(|| GeometryError::Degenerate("DLT SVD".into()))?;
-                let (imin, _) = svd
-                    .singular_values
-                    .iter()
-                    .enumerate()
-                    .min_by(|a, b| a.1.total_cmp(b.1))
-                    .expect("nine singular values");
-                let h = vt.row(imin);
-                Matrix3::new(h[0], h[1], h[2], h[3], h[4], h[5], h[6], h[7], h[8])
+                dlt_null_matrix(a).ok_or_else(|| GeometryError::Degenerate("DLT SVD".into()))?
             }
         };
         let tm_inv = tm
@@ -266,29 +255,4 @@ impl InteriorOrientation {
             .collect();
         Ok((io, residuals_um))
     }
-}
-
-/// Similarity that moves the centroid to the origin and scales the mean distance to √2.
-fn normalisation(pts: &[[f64; 2]]) -> (Matrix3<f64>, Vec<Vector2<f64>>) {
-    let n = pts.len() as f64;
-    let c = pts
-        .iter()
-        .fold(Vector2::zeros(), |a, p| a + Vector2::new(p[0], p[1]))
-        / n;
-    let d = pts
-        .iter()
-        .map(|p| (Vector2::new(p[0], p[1]) - c).norm())
-        .sum::<f64>()
-        / n;
-    let s = if d > 0.0 {
-        std::f64::consts::SQRT_2 / d
-    } else {
-        1.0
-    };
-    let t = Matrix3::new(s, 0.0, -s * c.x, 0.0, s, -s * c.y, 0.0, 0.0, 1.0);
-    let out = pts
-        .iter()
-        .map(|p| (Vector2::new(p[0], p[1]) - c) * s)
-        .collect();
-    (t, out)
 }

@@ -9,6 +9,7 @@
 mod camera;
 mod collinearity;
 mod dem;
+mod hartley;
 mod interior;
 mod rotation;
 pub mod serde_matrix;
@@ -17,6 +18,7 @@ mod similarity;
 pub use camera::{Brown, Camera, FilmCamera, FrameCamera};
 pub use collinearity::{project, project_with_jacobians, Projection, ProjectionJacobians};
 pub use dem::{Dem, GeoTransform};
+pub(crate) use hartley::{dlt_null_matrix, hartley_normalisation};
 pub use interior::{InteriorOrientation, InteriorTransformKind};
 pub use rotation::{
     matrix_from_opk, matrix_from_quaternion_wxyz, matrix_from_ypr, opk_from_matrix, orthonormalize,

@@ -142,6 +142,24 @@ struct Scanned {
     crs_wkt: Option<String>,
 }
 
+/// Bounds `[xmin, ymin, zmin, xmax, ymax, zmax]` of nothing: any point or box grows them.
+const NO_BOUNDS: [f64; 6] = [
+    f64::INFINITY,
+    f64::INFINITY,
+    f64::INFINITY,
+    f64::NEG_INFINITY,
+    f64::NEG_INFINITY,
+    f64::NEG_INFINITY,
+];
+
+/// Grows `b` to contain the box from corner `lo` to corner `hi` (a point: `lo == hi`).
+fn grow_bounds(b: &mut [f64; 6], lo: &[f64], hi: &[f64]) {
+    for k in 0..3 {
+        b[k] = b[k].min(lo[k]);
+        b[k + 3] = b[k + 3].max(hi[k]);
+    }
+}
+
 struct BlockStats {
     bounds: [f64; 6],
     classes: [u64; 256],
@@ -152,23 +170,13 @@ struct BlockStats {
 impl BlockStats {
     fn of(xyz: &[[f64; 3]], class: &[u8], gps: &[f64]) -> Self {
         let mut s = BlockStats {
-            bounds: [
-                f64::INFINITY,
-                f64::INFINITY,
-                f64::INFINITY,
-                f64::NEG_INFINITY,
-                f64::NEG_INFINITY,
-                f64::NEG_INFINITY,
-            ],
+            bounds: NO_BOUNDS,
             classes: [0; 256],
             t0: f64::INFINITY,
             t1: f64::NEG_INFINITY,
         };
         for p in xyz {
-            for (k, &v) in p.iter().enumerate() {
-                s.bounds[k] = s.bounds[k].min(v);
-                s.bounds[k + 3] = s.bounds[k + 3].max(v);
-            }
+            grow_bounds(&mut s.bounds, p, p);
         }
         for &c in class {
             s.classes[c as usize] += 1;
@@ -197,25 +205,14 @@ fn crs_error(path: &Path, e: crate::formats::FormatError) -> LidarError {
 fn scan_file(path: &Path) -> Result<Scanned> {
     let mut s = LasStream::open(path)?;
     let info = s.info().clone();
-    let mut b = [
-        f64::INFINITY,
-        f64::INFINITY,
-        f64::INFINITY,
-        f64::NEG_INFINITY,
-        f64::NEG_INFINITY,
-        f64::NEG_INFINITY,
-    ];
+    let mut b = NO_BOUNDS;
     let mut classes = [0u64; 256];
     let mut sources: BTreeMap<u16, u64> = BTreeMap::new();
     let (mut t0, mut t1) = (f64::INFINITY, f64::NEG_INFINITY);
     let mut batch = PointBatch::with_capacity(1 << 18);
     let mut count = 0u64;
     loop {
-        batch.xyz.clear();
-        batch.class.clear();
-        batch.source.clear();
-        batch.gps_time.clear();
-        if s.read_into(1 << 18, &mut batch)? == 0 {
+        if s.read_batch(1 << 18, &mut batch)? == 0 {
             break;
         }
         count += batch.len() as u64;
@@ -229,10 +226,7 @@ fn scan_file(path: &Path) -> Result<Scanned> {
             .map(|((xyz, cls), gps)| BlockStats::of(xyz, cls, gps))
             .collect();
         for part in parts {
-            for k in 0..3 {
-                b[k] = b[k].min(part.bounds[k]);
-                b[k + 3] = b[k + 3].max(part.bounds[k + 3]);
-            }
+            grow_bounds(&mut b, &part.bounds[..3], &part.bounds[3..]);
             for (c, n) in classes.iter_mut().zip(part.classes.iter()) {
                 *c += n;
             }
@@ -408,19 +402,9 @@ impl Catalogue {
             tracing::warn!("{w}");
             warnings.push(w);
         }
-        let mut bounds = [
-            f64::INFINITY,
-            f64::INFINITY,
-            f64::INFINITY,
-            f64::NEG_INFINITY,
-            f64::NEG_INFINITY,
-            f64::NEG_INFINITY,
-        ];
+        let mut bounds = NO_BOUNDS;
         for t in &tiles {
-            for k in 0..3 {
-                bounds[k] = bounds[k].min(t.bounds[k]);
-                bounds[k + 3] = bounds[k + 3].max(t.bounds[k + 3]);
-            }
+            grow_bounds(&mut bounds, &t.bounds[..3], &t.bounds[3..]);
         }
         Ok(Self {
             schema: CATALOGUE_SCHEMA,

@@ -286,11 +286,7 @@ pub fn grid_dem_tiles(
     for t in catalogue.tiles_in(bbox) {
         let mut s = LasStream::open(&catalogue.tiles[t].file)?;
         loop {
-            batch.xyz.clear();
-            batch.class.clear();
-            batch.source.clear();
-            batch.gps_time.clear();
-            if s.read_into(1 << 18, &mut batch)? == 0 {
+            if s.read_batch(1 << 18, &mut batch)? == 0 {
                 break;
             }
             kept.clear();

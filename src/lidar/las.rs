@@ -66,6 +66,12 @@ impl PointBatch {
             gps_time: Vec::with_capacity(n),
         }
     }
+    pub fn clear(&mut self) {
+        self.xyz.clear();
+        self.class.clear();
+        self.source.clear();
+        self.gps_time.clear();
+    }
     pub fn push(&mut self, xyz: [f64; 3], class: u8, source: u16, gps: f64) {
         self.xyz.push(xyz);
         self.class.push(class);
@@ -369,6 +375,13 @@ impl LasStream {
         self.info.point_count - self.read
     }
 
+    /// Replaces the contents of `batch` (its capacity is kept) with the next up to `max`
+    /// points; returns how many were read (0 at the end).
+    pub fn read_batch(&mut self, max: usize, batch: &mut PointBatch) -> Result<usize> {
+        batch.clear();
+        self.read_into(max, batch)
+    }
+
     /// Appends up to `max` points to `out`; returns how many were read (0 at the end).
     pub fn read_into(&mut self, max: usize, out: &mut PointBatch) -> Result<usize> {
         let n = (self.remaining().min(max as u64)) as usize;
@@ -479,11 +492,7 @@ pub fn read_points(
     }
     let mut batch = PointBatch::with_capacity(1 << 18);
     loop {
-        batch.xyz.clear();
-        batch.class.clear();
-        batch.source.clear();
-        batch.gps_time.clear();
-        if s.read_into(1 << 18, &mut batch)? == 0 {
+        if s.read_batch(1 << 18, &mut batch)? == 0 {
             break;
         }
         for i in 0..batch.len() {

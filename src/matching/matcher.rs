@@ -5,7 +5,7 @@
 
 use super::lsm::{lsm, LsmOptions, LsmResult};
 use super::ncc::{ncc_search_pyramid, NccPeak, Window};
-use super::{GreyImage, MatchingError, Pyramid, Result};
+use super::{holds_template, GreyImage, Pyramid, Result};
 use serde::Serialize;
 
 #[derive(Debug, Clone)]
@@ -68,15 +68,7 @@ pub fn match_template(
     opts: &MatchOptions,
 ) -> Result<MatchResult> {
     let img = &pyr.levels[0];
-    if img.width < tpl.width || img.height < tpl.height {
-        return Err(MatchingError::TooSmall {
-            what: "image".into(),
-            width: img.width,
-            height: img.height,
-            tw: tpl.width,
-            th: tpl.height,
-        });
-    }
+    holds_template("image", img.width, img.height, tpl)?;
     let peak: NccPeak = ncc_search_pyramid(pyr, tpl, window, opts.min_template_px, opts.absolute)?;
     let mut out = MatchResult {
         accepted: false,

@@ -79,3 +79,23 @@ pub(crate) fn invalid(what: impl Into<String>, message: impl Into<String>) -> Ma
         message: message.into(),
     }
 }
+
+/// Refuses an area (image or search window, named by `what`) that cannot hold the
+/// template.
+pub(crate) fn holds_template(
+    what: &str,
+    width: usize,
+    height: usize,
+    tpl: &GreyImage,
+) -> Result<()> {
+    if width < tpl.width || height < tpl.height {
+        return Err(MatchingError::TooSmall {
+            what: what.into(),
+            width,
+            height,
+            tw: tpl.width,
+            th: tpl.height,
+        });
+    }
+    Ok(())
+}

@@ -5,7 +5,7 @@
 //! parallel (rayon) and each is computed independently, so results do not depend on
 //! the thread count.
 
-use super::{invalid, GreyImage, MatchingError, Pyramid, Result};
+use super::{holds_template, invalid, GreyImage, MatchingError, Pyramid, Result};
 use rayon::prelude::*;
 use rustfft::num_complex::Complex32;
 use rustfft::{Fft, FftPlanner};
@@ -543,16 +543,8 @@ pub fn ncc_surface_with(
             ),
         ));
     }
+    holds_template("search window", window.width, window.height, tpl)?;
     let (tw, th) = (tpl.width, tpl.height);
-    if window.width < tw || window.height < th {
-        return Err(MatchingError::TooSmall {
-            what: "search window".into(),
-            width: window.width,
-            height: window.height,
-            tw,
-            th,
-        });
-    }
     let (t, tnorm) = prepared_template(tpl, "template")?;
     let (sw, sh) = (window.width - tw + 1, window.height - th + 1);
     let (ww, wh) = (window.width, window.height);
@@ -768,15 +760,7 @@ pub fn ncc_search_pyramid(
     absolute: bool,
 ) -> Result<NccPeak> {
     let img = &pyr.levels[0];
-    if window.width < tpl.width || window.height < tpl.height {
-        return Err(MatchingError::TooSmall {
-            what: "search window".into(),
-            width: window.width,
-            height: window.height,
-            tw: tpl.width,
-            th: tpl.height,
-        });
-    }
+    holds_template("search window", window.width, window.height, tpl)?;
     prepared_template(tpl, "template")?;
     let mut tpls = vec![tpl.clone()];
     let mut level = 0;

@@ -9,12 +9,14 @@
 
 use super::forstner::forstner;
 use super::ties::{
-    coverage, link_tracks, relative_orientation, search_candidates, Coverage, PairMatches,
-    PairPrediction, RobustMethod, SearchPoint, TieOptions, Track,
+    coverage, relative_orientation, search_candidates, PairPrediction, RobustMethod, SearchPoint,
+    TieOptions, TieResult, Track,
 };
 use super::{invalid, GreyImage, Pyramid, Result};
 use crate::block::{Block, ObjectPoint, Observation, PhotoId, PointKind};
-use crate::geometry::{back_project, project, Camera, Dem, Pose, Ray};
+use crate::geometry::{
+    back_project, dlt_null_matrix, hartley_normalisation, project, Camera, Dem, Pose, Ray,
+};
 use nalgebra::{DMatrix, Matrix3, Vector3};
 use rayon::prelude::*;
 use serde::Serialize;
@@ -193,20 +195,7 @@ pub fn predict_oriented_pair(
 
 /// Normalised DLT homography from point correspondences (least squares over all).
 fn fit_homography(pa: &[[f64; 2]], pb: &[[f64; 2]]) -> Option<Matrix3<f64>> {
-    let norm = |p: &[[f64; 2]]| {
-        let n = p.len() as f64;
-        let (mx, my) = p
-            .iter()
-            .fold((0.0, 0.0), |s, q| (s.0 + q[0] / n, s.1 + q[1] / n));
-        let d = p.iter().map(|q| (q[0] - mx).hypot(q[1] - my)).sum::<f64>() / n;
-        let s = if d > 0.0 {
-            std::f64::consts::SQRT_2 / d
-        } else {
-            1.0
-        };
-        Matrix3::new(s, 0.0, -s * mx, 0.0, s, -s * my, 0.0, 0.0, 1.0)
-    };
-    let (ta, tb) = (norm(pa), norm(pb));
+    let ((ta, _), (tb, _)) = (hartley_normalisation(pa), hartley_normalisation(pb));
     let mut m = DMatrix::<f64>::zeros(2 * pa.len(), 9);
     for (k, (p, q)) in pa.iter().zip(pb).enumerate() {
         let u = ta * Vector3::new(p[0], p[1], 1.0);
@@ -219,15 +208,7 @@ fn fit_homography(pa: &[[f64; 2]], pb: &[[f64; 2]]) -> Option<Matrix3<f64>> {
             m[(2 * k + 1, j)] = r1[j];
         }
     }
-    let svd = m.svd(false, true);
-    let vt = svd.v_t?;
-    let (imin, _) = svd
-        .singular_values
-        .iter()
-        .enumerate()
-        .min_by(|x, y| x.1.total_cmp(y.1))?;
-    let h = vt.row(imin);
-    let hn = Matrix3::new(h[0], h[1], h[2], h[3], h[4], h[5], h[6], h[7], h[8]);
+    let hn = dlt_null_matrix(m)?;
     let hm = tb.try_inverse()? * hn * ta;
     let s = hm[(2, 2)];
     (s.abs() > 1e-12 && hm.iter().all(|v| v.is_finite())).then(|| hm / s)
@@ -313,14 +294,21 @@ pub struct BlockTieReport {
     pub min_per_position: usize,
 }
 
-/// Pairwise matches and tracks of a set of oriented photos (indices into `photos`).
+/// Pairwise matches and tracks of a set of oriented photos (indices into `photos`): the
+/// tie points as [`TieResult`] (`matches`, `tracks`, `coverage` read through it), with the
+/// overlapping pairs and what each gave.
 #[derive(Debug, Clone)]
 pub struct OrientedTies {
     pub pairs: Vec<OrientedPair>,
-    pub matches: Vec<PairMatches>,
     pub reports: Vec<PairReport>,
-    pub tracks: Vec<Track>,
-    pub coverage: Vec<Coverage>,
+    pub ties: TieResult,
+}
+
+impl std::ops::Deref for OrientedTies {
+    type Target = TieResult;
+    fn deref(&self) -> &TieResult {
+        &self.ties
+    }
 }
 
 /// Tie points of oriented photos: every overlapping pair (a < b) is matched a → b by a
@@ -444,19 +432,15 @@ pub fn oriented_tie_points(
             reports.push(report);
         }
     }
-    let tracks = link_tracks(&matches, t.merge_px);
     let sizes: Vec<(usize, usize)> = photos
         .iter()
         .map(|p| (p.image.width, p.image.height))
         .collect();
     let preds: Vec<PairPrediction> = pairs.iter().map(|p| p.prediction).collect();
-    let coverage = coverage(&sizes, &preds, &tracks);
     Ok(OrientedTies {
+        ties: TieResult::link(matches, &sizes, &preds, t.merge_px),
         pairs,
-        matches,
         reports,
-        tracks,
-        coverage,
     })
 }
 
@@ -579,7 +563,7 @@ pub fn block_tie_points(
     // Tracks whose rays meet neither each other nor the surface are not written; the
     // coverage is then counted over the written ones only.
     let mut written: Vec<Track> = Vec::new();
-    for t in &ties.tracks {
+    for t in &ties.ties.tracks {
         let rays: Vec<Ray> = t
             .observations
             .iter()
@@ -642,7 +626,7 @@ pub fn block_tie_points(
         .collect();
     Ok(BlockTieReport {
         pairs: ties.reports,
-        tracks: ties.tracks.len(),
+        tracks: ties.ties.tracks.len(),
         points_added: added,
         observations_added: observations,
         track_lengths: lengths,

@@ -11,19 +11,14 @@ use super::matcher::{match_template, MatchOptions};
 use super::ncc::{ncc_search, Window};
 use super::resample::{warp_patch, Interpolation, PatchWarp};
 use super::{GreyImage, MatchingError, Pyramid, Result};
-use crate::estimators::{lmeds, ransac, Estimator, RobustOptions};
+use crate::estimators::{Estimator, RobustOptions};
+use crate::geometry::{dlt_null_matrix, hartley_normalisation};
 use nalgebra::{DMatrix, Matrix3, Vector3};
 use rayon::prelude::*;
 use serde::Serialize;
 
-/// Which robust driver estimates the relative orientation.
-#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize)]
-pub enum RobustMethod {
-    /// Least median of squares: 50 % breakdown, no threshold to choose.
-    Lmeds,
-    /// RANSAC with the `ro_threshold_px` inlier threshold.
-    Ransac,
-}
+/// The robust driver of the relative orientation (RANSAC uses `ro_threshold_px`).
+pub use crate::estimators::RobustMethod;
 
 #[derive(Debug, Clone)]
 pub struct TieOptions {
@@ -114,34 +109,11 @@ impl PairMatches {
 /// is the squared Sampson (first-order epipolar) distance in px².
 pub struct FundamentalEstimator;
 
-fn normalise(pts: &[[f64; 2]]) -> (Matrix3<f64>, Vec<[f64; 2]>) {
-    let n = pts.len() as f64;
-    let (mx, my) = pts
-        .iter()
-        .fold((0.0, 0.0), |a, p| (a.0 + p[0] / n, a.1 + p[1] / n));
-    let d = pts
-        .iter()
-        .map(|p| (p[0] - mx).hypot(p[1] - my))
-        .sum::<f64>()
-        / n;
-    let s = if d > 0.0 {
-        std::f64::consts::SQRT_2 / d
-    } else {
-        1.0
-    };
-    (
-        Matrix3::new(s, 0.0, -s * mx, 0.0, s, -s * my, 0.0, 0.0, 1.0),
-        pts.iter()
-            .map(|p| [(p[0] - mx) * s, (p[1] - my) * s])
-            .collect(),
-    )
-}
-
 fn eight_point(samples: &[&([f64; 2], [f64; 2])]) -> Option<Matrix3<f64>> {
     let a: Vec<[f64; 2]> = samples.iter().map(|s| s.0).collect();
     let b: Vec<[f64; 2]> = samples.iter().map(|s| s.1).collect();
-    let (ta, na) = normalise(&a);
-    let (tb, nb) = normalise(&b);
+    let (ta, na) = hartley_normalisation(&a);
+    let (tb, nb) = hartley_normalisation(&b);
     let n = samples.len();
     let mut m = DMatrix::<f64>::zeros(n.max(9), 9);
     for i in 0..n {
@@ -161,15 +133,7 @@ fn eight_point(samples: &[&([f64; 2], [f64; 2])]) -> Option<Matrix3<f64>> {
             m[(i, j)] = *v;
         }
     }
-    let svd = m.svd(false, true);
-    let vt = svd.v_t?;
-    let (imin, _) = svd
-        .singular_values
-        .iter()
-        .enumerate()
-        .min_by(|x, y| x.1.total_cmp(y.1))?;
-    let f = vt.row(imin);
-    let fm = Matrix3::new(f[0], f[1], f[2], f[3], f[4], f[5], f[6], f[7], f[8]);
+    let fm = dlt_null_matrix(m)?;
     let svd = fm.svd(true, true);
     let (u, vt) = (svd.u?, svd.v_t?);
     let mut s = svd.singular_values;
@@ -345,15 +309,14 @@ pub fn relative_orientation(
         ..RobustOptions::default()
     };
     let est = FundamentalEstimator;
-    let res = match opts.robust {
-        RobustMethod::Lmeds => lmeds(&est, &samples, &ro),
-        RobustMethod::Ransac => ransac(&est, &samples, &ro),
-    }
-    .map_err(|e| MatchingError::Relative {
-        a: a.to_string(),
-        b: b.to_string(),
-        message: format!("{e} ({} candidates)", samples.len()),
-    })?;
+    let res = opts
+        .robust
+        .estimate(&est, &samples, &ro)
+        .map_err(|e| MatchingError::Relative {
+            a: a.to_string(),
+            b: b.to_string(),
+            message: format!("{e} ({} candidates)", samples.len()),
+        })?;
     // Whatever the driver, the final inliers obey the same geometric tolerance: an LMS
     // σ can be tiny on clean data, and the tolerance reflects the measurement precision.
     let f = res.model;
@@ -674,9 +637,29 @@ pub fn predict_shift(a: &Pyramid, b: &Pyramid, ia: usize, ib: usize) -> Option<P
 /// relative orientation, tracks and coverage.
 #[derive(Debug, Clone, Serialize)]
 pub struct TieResult {
-    pub pairs: Vec<PairMatches>,
+    /// The pairs that gave verified matches.
+    pub matches: Vec<PairMatches>,
     pub tracks: Vec<Track>,
     pub coverage: Vec<Coverage>,
+}
+
+impl TieResult {
+    /// Links the verified matches of photos of `sizes` (width, height) into tracks and
+    /// counts the coverage of the predicted pairs `preds`.
+    pub(crate) fn link(
+        matches: Vec<PairMatches>,
+        sizes: &[(usize, usize)],
+        preds: &[PairPrediction],
+        merge_px: f64,
+    ) -> Self {
+        let tracks = link_tracks(&matches, merge_px);
+        let coverage = coverage(sizes, preds, &tracks);
+        TieResult {
+            matches,
+            tracks,
+            coverage,
+        }
+    }
 }
 
 pub fn tie_points(
@@ -695,12 +678,6 @@ pub fn tie_points(
         }
         pairs.push(match_pair(&photos[p.a], &pyrs[p.b], p, opts)?);
     }
-    let tracks = link_tracks(&pairs, opts.merge_px);
     let sizes: Vec<(usize, usize)> = photos.iter().map(|p| (p.width, p.height)).collect();
-    let coverage = coverage(&sizes, preds, &tracks);
-    Ok(TieResult {
-        pairs,
-        tracks,
-        coverage,
-    })
+    Ok(TieResult::link(pairs, &sizes, preds, opts.merge_px))
 }

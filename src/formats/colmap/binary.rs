@@ -7,10 +7,8 @@ use super::camera_models::{
 };
 use super::open;
 use super::records::{
-    pose_from_qt, qt_from_pose, Cameras, FrameRecord, Image, PointSink, Points2d, PointsTable,
-    RigSensors,
+    pose_from_qt, Cameras, FrameRecord, Image, ImageRow, PointSink, PointsTable, RigSensors,
 };
-use crate::block::{Block, PhotoId};
 use crate::formats::{FormatError, Result};
 use std::collections::{BTreeMap, HashMap};
 use std::fs::File;
@@ -323,21 +321,16 @@ pub(super) fn write_cameras(w: &mut impl Write, cams: &Cameras) -> std::io::Resu
     Ok(())
 }
 
-pub(super) fn write_images(
-    w: &mut impl Write,
-    block: &Block,
-    points2d: &BTreeMap<PhotoId, Points2d>,
-) -> std::io::Result<()> {
-    put(w, (block.photos.len() as u64).to_le_bytes())?;
-    for (id, ph) in &block.photos {
-        let (q, t) = qt_from_pose(&ph.pose);
-        let pts = &points2d[id];
-        put(w, id.to_le_bytes())?;
-        for v in q.iter().chain(t.iter()) {
+pub(super) fn write_images(w: &mut impl Write, images: &[ImageRow]) -> std::io::Result<()> {
+    put(w, (images.len() as u64).to_le_bytes())?;
+    for r in images {
+        let pts = r.points2d;
+        put(w, r.id.to_le_bytes())?;
+        for v in r.q.iter().chain(r.t.iter()) {
             put(w, v.to_le_bytes())?;
         }
-        put(w, ph.camera.to_le_bytes())?;
-        w.write_all(ph.name.as_bytes())?;
+        put(w, r.camera.to_le_bytes())?;
+        w.write_all(r.name.as_bytes())?;
         w.write_all(&[0])?;
         put(w, (pts.len() as u64).to_le_bytes())?;
         let mut rec: Vec<u8> = Vec::with_capacity(pts.len() * 24);
@@ -387,19 +380,18 @@ pub(super) fn write_rigs(w: &mut impl Write, cams: &Cameras) -> std::io::Result<
     Ok(())
 }
 
-pub(super) fn write_frames(w: &mut impl Write, block: &Block) -> std::io::Result<()> {
-    put(w, (block.photos.len() as u64).to_le_bytes())?;
-    for (id, ph) in &block.photos {
-        let (q, t) = qt_from_pose(&ph.pose);
-        put(w, id.to_le_bytes())?;
-        put(w, ph.camera.to_le_bytes())?;
-        for v in q.iter().chain(t.iter()) {
+pub(super) fn write_frames(w: &mut impl Write, images: &[ImageRow]) -> std::io::Result<()> {
+    put(w, (images.len() as u64).to_le_bytes())?;
+    for r in images {
+        put(w, r.id.to_le_bytes())?;
+        put(w, r.camera.to_le_bytes())?;
+        for v in r.q.iter().chain(r.t.iter()) {
             put(w, v.to_le_bytes())?;
         }
         put(w, 1u32.to_le_bytes())?;
         put(w, 0i32.to_le_bytes())?;
-        put(w, ph.camera.to_le_bytes())?;
-        put(w, (*id as u64).to_le_bytes())?;
+        put(w, r.camera.to_le_bytes())?;
+        put(w, (r.id as u64).to_le_bytes())?;
     }
     Ok(())
 }

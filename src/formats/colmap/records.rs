@@ -33,6 +33,17 @@ pub(super) struct Image {
     pub points2d: Points2d,
 }
 
+/// One image as both encodings write it (the images file, and the frames file of the
+/// rig layout): `cam_from_world` as COLMAP's quaternion and translation.
+pub(super) struct ImageRow<'a> {
+    pub id: PhotoId,
+    pub q: [f64; 4],
+    pub t: [f64; 3],
+    pub camera: CameraId,
+    pub name: &'a str,
+    pub points2d: &'a Points2d,
+}
+
 /// Sensor poses of one rig: camera id → `sensor_from_rig` (None for the reference sensor).
 pub(super) type RigSensors = HashMap<u32, Option<Pose>>;
 

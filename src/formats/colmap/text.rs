@@ -3,11 +3,9 @@
 
 use super::camera_models::{camera_from_colmap, camera_to_colmap, model_by_name, unsupported};
 use super::records::{
-    pose_from_qt, qt_from_pose, Cameras, FrameRecord, Image, PointSink, Points2d, PointsTable,
-    RigSensors,
+    pose_from_qt, Cameras, FrameRecord, Image, ImageRow, PointSink, PointsTable, RigSensors,
 };
 use super::{open, INVALID_POINT3D};
-use crate::block::{Block, PhotoId};
 use crate::formats::{FormatError, Result};
 use std::collections::{BTreeMap, HashMap};
 use std::io::{BufRead, Write};
@@ -260,20 +258,16 @@ pub(super) fn write_cameras(w: &mut impl Write, cams: &Cameras) -> std::io::Resu
 }
 
 /// Names were checked to hold no whitespace.
-pub(super) fn write_images(
-    w: &mut impl Write,
-    block: &Block,
-    points2d: &BTreeMap<PhotoId, Points2d>,
-) -> std::io::Result<()> {
-    write!(w, "# Image list with two lines of data per image:\n#   IMAGE_ID, QW, QX, QY, QZ, TX, TY, TZ, CAMERA_ID, NAME\n#   POINTS2D[] as (X, Y, POINT3D_ID)\n# Number of images: {}\n", block.photos.len())?;
-    for (id, ph) in &block.photos {
-        let (q, t) = qt_from_pose(&ph.pose);
+pub(super) fn write_images(w: &mut impl Write, images: &[ImageRow]) -> std::io::Result<()> {
+    write!(w, "# Image list with two lines of data per image:\n#   IMAGE_ID, QW, QX, QY, QZ, TX, TY, TZ, CAMERA_ID, NAME\n#   POINTS2D[] as (X, Y, POINT3D_ID)\n# Number of images: {}\n", images.len())?;
+    for r in images {
+        let (q, t) = (r.q, r.t);
         writeln!(
             w,
-            "{id} {} {} {} {} {} {} {} {} {}",
-            q[0], q[1], q[2], q[3], t[0], t[1], t[2], ph.camera, ph.name
+            "{} {} {} {} {} {} {} {} {} {}",
+            r.id, q[0], q[1], q[2], q[3], t[0], t[1], t[2], r.camera, r.name
         )?;
-        for (k, (xy, pid)) in points2d[id].iter().enumerate() {
+        for (k, (xy, pid)) in r.points2d.iter().enumerate() {
             let sep = if k == 0 { "" } else { " " };
             if *pid == INVALID_POINT3D {
                 write!(w, "{sep}{} {} -1", xy[0], xy[1])?;
@@ -314,14 +308,14 @@ pub(super) fn write_rigs(w: &mut impl Write, cams: &Cameras) -> std::io::Result<
     Ok(())
 }
 
-pub(super) fn write_frames(w: &mut impl Write, block: &Block) -> std::io::Result<()> {
-    write!(w, "# Frame list with one line of data per frame:\n#   FRAME_ID, RIG_ID, RIG_FROM_WORLD[QW, QX, QY, QZ, TX, TY, TZ], NUM_DATA_IDS, DATA_IDS[] as (SENSOR_TYPE, SENSOR_ID, DATA_ID)\n# Number of frames: {}\n", block.photos.len())?;
-    for (id, ph) in &block.photos {
-        let (q, t) = qt_from_pose(&ph.pose);
+pub(super) fn write_frames(w: &mut impl Write, images: &[ImageRow]) -> std::io::Result<()> {
+    write!(w, "# Frame list with one line of data per frame:\n#   FRAME_ID, RIG_ID, RIG_FROM_WORLD[QW, QX, QY, QZ, TX, TY, TZ], NUM_DATA_IDS, DATA_IDS[] as (SENSOR_TYPE, SENSOR_ID, DATA_ID)\n# Number of frames: {}\n", images.len())?;
+    for r in images {
+        let (q, t) = (r.q, r.t);
         writeln!(
             w,
-            "{id} {} {} {} {} {} {} {} {} 1 CAMERA {} {id}",
-            ph.camera, q[0], q[1], q[2], q[3], t[0], t[1], t[2], ph.camera
+            "{} {} {} {} {} {} {} {} {} 1 CAMERA {} {}",
+            r.id, r.camera, q[0], q[1], q[2], q[3], t[0], t[1], t[2], r.camera, r.id
         )?;
     }
     Ok(())

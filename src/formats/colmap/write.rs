@@ -2,7 +2,7 @@
 //! cameras, COLMAP's ERROR column, each model file in the chosen encoding, and the side
 //! file.
 
-use super::records::{Cameras, Points2d, PointsTable};
+use super::records::{qt_from_pose, Cameras, ImageRow, Points2d, PointsTable};
 use super::{binary, side_file, text, Encoding, Layout, WriteOptions, INVALID_POINT3D};
 use crate::block::{Block, CameraId, ObjectPoint, PhotoId};
 use crate::formats::{frame_equivalent, write_atomically, FormatError, Result};
@@ -145,9 +145,24 @@ pub fn write(dir: &Path, block: &Block, opts: &WriteOptions) -> Result<()> {
         Encoding::Text => text::write_cameras(w, &cams),
         Encoding::Binary => binary::write_cameras(w, &cams),
     })?;
+    let images: Vec<ImageRow> = block
+        .photos
+        .iter()
+        .map(|(id, ph)| {
+            let (q, t) = qt_from_pose(&ph.pose);
+            ImageRow {
+                id: *id,
+                q,
+                t,
+                camera: ph.camera,
+                name: &ph.name,
+                points2d: &l2d.per_photo[id],
+            }
+        })
+        .collect();
     write_file(&file("images"), |w| match opts.encoding {
-        Encoding::Text => text::write_images(w, block, &l2d.per_photo),
-        Encoding::Binary => binary::write_images(w, block, &l2d.per_photo),
+        Encoding::Text => text::write_images(w, &images),
+        Encoding::Binary => binary::write_images(w, &images),
     })?;
     // COLMAP's ERROR column: recomputed from the block, in parallel (deterministic: one
     // value per point, collected in order).
@@ -196,8 +211,8 @@ pub fn write(dir: &Path, block: &Block, opts: &WriteOptions) -> Result<()> {
             Encoding::Binary => binary::write_rigs(w, &cams),
         })?;
         write_file(&file("frames"), |w| match opts.encoding {
-            Encoding::Text => text::write_frames(w, block),
-            Encoding::Binary => binary::write_frames(w, block),
+            Encoding::Text => text::write_frames(w, &images),
+            Encoding::Binary => binary::write_frames(w, &images),
         })?;
     }
     side_file::write(dir, block)?;
