@@ -94,6 +94,11 @@ pub enum PhotoFailure {
     },
     #[error("{kept} tie observations kept, fewer than {needed}")]
     TooFewTieObservations { kept: usize, needed: usize },
+    /// The orientation found lies `sigmas` standard deviations of the navigation from it
+    /// (the largest over the centre coordinates and the attitude), beyond `limit`: a
+    /// wrong solution on repeated texture, or navigation with a wrong σ.
+    #[error("the resected pose lies {sigmas:.1} σ from the navigation (at most {limit} accepted)")]
+    FarFromPrior { sigmas: f64, limit: f64 },
     /// Left out of the block adjustment: too few of its points are seen by other photos
     /// (tie points) or are control.
     #[error("observes {points} adjustable point(s) of the block; the adjustment needs {needed}")]

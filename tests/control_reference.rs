@@ -119,4 +119,64 @@ fn reference_epoch_oriented_with_lidar_only_is_within_a_ground_pixel() {
     }
     eprintln!("largest projection-centre error {worst:.3} m");
     assert!(worst < 0.15, "centre error {worst:.3} m");
+
+    // One photo without a single tie point (a blank frame, as a scanner or a camera fault
+    // leaves) must not stop the epoch: it is reported with its count, the rest is
+    // oriented as before.
+    let mut blank_input = input.clone();
+    let k = 1;
+    let (w, h) = image::image_dimensions(&input.photos[k].image).unwrap();
+    let blank = root.join("blank.png");
+    image::GrayImage::from_pixel(w, h, image::Luma([128u8]))
+        .save(&blank)
+        .unwrap();
+    blank_input.photos[k].image = blank;
+    let (result2, _) = reference::orient_reference(
+        &blank_input,
+        &index,
+        &surface.ground,
+        &ReferenceOptions::default(),
+    )
+    .expect("one blank photo does not stop the reference epoch");
+    let lost = &result2.photos[result2
+        .photos
+        .iter()
+        .position(|p| p.name == input.photos[k].name)
+        .unwrap()];
+    assert!(!lost.oriented);
+    assert!(
+        matches!(
+            lost.reason,
+            Some(cloudcontrol::block::PhotoFailure::LostSupport { points: 0, .. })
+        ),
+        "{:?}",
+        lost.reason
+    );
+    let others = result2.photos.iter().filter(|p| p.oriented).count();
+    assert_eq!(others, input.photos.len() - 1);
+    let ev2 = evaluate_checkpoints(&result2.block, &measured, &surveyed, result2.gsd_m).unwrap();
+    eprintln!(
+        "with photo {} blank: plan {:.2} px, height {:.2} px ({} checkpoints)",
+        input.photos[k].name, ev2.rmse_plan_px, ev2.rmse_height_px, ev2.count
+    );
+    // The other photos as without the blank one (its neighbours lose the ties they
+    // shared with it, so not to the millimetre), and the checkpoints they still see.
+    let mut moved: f64 = 0.0;
+    for p in result2.block.photos.values().filter(|p| p.is_oriented()) {
+        let q = result
+            .block
+            .photos
+            .values()
+            .find(|q| q.name == p.name)
+            .unwrap();
+        moved = moved.max((p.pose.center - q.pose.center).norm());
+    }
+    eprintln!("largest centre change of the other photos {moved:.3} m");
+    assert!(moved < 0.05, "centres moved by up to {moved:.3} m");
+    assert!(
+        ev2.rmse_plan_px <= 1.1 && ev2.rmse_height_px <= 1.0,
+        "plan {:.2} px, height {:.2} px",
+        ev2.rmse_plan_px,
+        ev2.rmse_height_px
+    );
 }

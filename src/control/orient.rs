@@ -8,6 +8,7 @@
 //! this loop is the strategy only, and is tested with exact stand-ins.
 
 use super::predict::{self, Prediction};
+use crate::estimators::similarity2::Similarity2;
 use crate::geometry::{Camera, Pose};
 use nalgebra::{Matrix3, SMatrix, Vector2, Vector3};
 use serde::Serialize;
@@ -109,6 +110,17 @@ pub struct Oriented {
     pub matches: Vec<(usize, Vector2<f64>, f64)>,
     pub iterations: Vec<IterationRecord>,
     pub oriented: bool,
+    /// The first round's matches before any resection: (predicted pixel, matched pixel).
+    pub first_round: Vec<(Vector2<f64>, Vector2<f64>)>,
+}
+
+/// An image-space alignment of the predictions found beforehand (a 2-D similarity from
+/// the predicted to the matched positions of a consistent set of patches): until the
+/// first resection, every prediction is mapped through it and searched `half_px` around.
+#[derive(Debug, Clone, Copy)]
+pub struct Guide {
+    pub map: Similarity2,
+    pub half_px: f64,
 }
 
 /// Orients one photo. Patches outside the image are skipped; a patch rejected by the
@@ -122,6 +134,31 @@ pub fn orient_photo(
     resector: &mut dyn Resector,
     opts: &OrientOptions,
 ) -> Oriented {
+    orient_photo_guided(
+        camera,
+        approximate,
+        covariance,
+        patches,
+        matcher,
+        resector,
+        opts,
+        None,
+    )
+}
+
+/// [`orient_photo`] with the predictions of the rounds before the first resection mapped
+/// through `guide`.
+#[allow(clippy::too_many_arguments)]
+pub fn orient_photo_guided(
+    camera: &Camera,
+    approximate: &Pose,
+    covariance: &SMatrix<f64, 6, 6>,
+    patches: &[ControlPatch],
+    matcher: &mut dyn PatchMatcher,
+    resector: &mut dyn Resector,
+    opts: &OrientOptions,
+    guide: Option<&Guide>,
+) -> Oriented {
     let (w, h) = camera.image_size();
     let mut pose = *approximate;
     let mut cov = *covariance;
@@ -130,6 +167,7 @@ pub fn orient_photo(
     let mut banned = std::collections::BTreeSet::new();
     let mut kept: Vec<(usize, Vector2<f64>, f64)> = Vec::new();
     let mut previous_count = 0usize;
+    let mut first_round = Vec::new();
     for iteration in 0..opts.max_iterations {
         let mut found: Vec<(usize, PatchMatch)> = Vec::new();
         let (mut predicted, mut window_sum) = (0usize, 0.0);
@@ -137,9 +175,14 @@ pub fn orient_photo(
             if banned.contains(&p.id) {
                 continue;
             }
-            let Ok(pred) = predict::predict(camera, &pose, &cov, &p.position, &p.covariance) else {
+            let Ok(mut pred) = predict::predict(camera, &pose, &cov, &p.position, &p.covariance)
+            else {
                 continue;
             };
+            let guided = guide.filter(|_| !oriented);
+            if let Some(g) = guided {
+                pred.pixel = g.map.apply(&pred.pixel);
+            }
             if pred.pixel.x < 0.0
                 || pred.pixel.y < 0.0
                 || pred.pixel.x > w as f64
@@ -148,14 +191,20 @@ pub fn orient_photo(
                 continue;
             }
             let hs = pred.search_half_size(opts.k_sigma);
-            let half = [
-                hs[0].clamp(opts.min_half_px, opts.max_half_px),
-                hs[1].clamp(opts.min_half_px, opts.max_half_px),
-            ];
+            let half = match guided {
+                Some(g) => [g.half_px; 2],
+                None => [
+                    hs[0].clamp(opts.min_half_px, opts.max_half_px),
+                    hs[1].clamp(opts.min_half_px, opts.max_half_px),
+                ],
+            };
             predicted += 1;
             window_sum += 0.5 * (half[0] + half[1]);
             if let Some(m) = matcher.find(p, &pose, &pred, half) {
                 found.push((i, m));
+                if iteration == 0 {
+                    first_round.push((pred.pixel, m.pixel));
+                }
             }
         }
         let mut record = IterationRecord {
@@ -217,5 +266,6 @@ pub fn orient_photo(
         matches: kept,
         iterations: records,
         oriented,
+        first_round,
     }
 }

@@ -12,6 +12,8 @@ use super::orient::{self, IterationRecord, OrientOptions, Resection, Resector};
 use super::predict;
 use crate::adjust;
 use crate::block::{PhotoFailure, PosPrior};
+use crate::estimators::similarity2::{Similarity2, Similarity2Estimator};
+use crate::estimators::{RobustMethod, RobustOptions};
 use crate::geometry::{Brown, Camera, Dem, FilmCamera, Pose};
 use crate::matching::{self, CameraDefinition, GreyImage, IoOptions, MatchOptions, Pyramid};
 use nalgebra::{Matrix3, SMatrix, Vector2, Vector3};
@@ -36,6 +38,9 @@ pub struct PhotoOptions {
     pub relaxed_retry: bool,
     pub relaxed_ncc_threshold: f64,
     pub relaxed_min_inliers: usize,
+    /// A resected pose further than this many σ of the navigation from it (largest over
+    /// the centre coordinates and the attitude angle) is not accepted.
+    pub max_prior_sigmas: f64,
 }
 
 impl Default for PhotoOptions {
@@ -54,6 +59,7 @@ impl Default for PhotoOptions {
             relaxed_retry: true,
             relaxed_ncc_threshold: 0.5,
             relaxed_min_inliers: 6,
+            max_prior_sigmas: 5.0,
         }
     }
 }
@@ -104,28 +110,39 @@ pub struct PhotoOrientation {
     pub covariance: SMatrix<f64, 6, 6>,
     /// Accepted matches: store point index, pixel, σ (px).
     pub matches: Vec<(usize, Vector2<f64>, f64)>,
+    /// First-round candidates before any resection: (predicted pixel, matched pixel).
+    first_round: Vec<(Vector2<f64>, Vector2<f64>)>,
+}
+
+impl PhotoReport {
+    /// The report of a photo oriented (`reason` None) or not by other means than control
+    /// patches (tie points, the adjustment), with its final σ (px; NaN when unknown).
+    pub fn without_patches(name: &str, reason: Option<PhotoFailure>, sigma_px: f64) -> Self {
+        Self {
+            name: name.to_string(),
+            oriented: reason.is_none(),
+            reason,
+            iterations: Vec::new(),
+            control_matches: 0,
+            sigma_px,
+            io: None,
+            predicted: 0,
+            matching: MatchStats::default(),
+            relaxed: false,
+            second_pass: false,
+        }
+    }
 }
 
 impl PhotoOrientation {
     fn failed(name: &str, pose: Pose, reason: PhotoFailure) -> Self {
         Self {
-            report: PhotoReport {
-                name: name.to_string(),
-                oriented: false,
-                reason: Some(reason),
-                iterations: Vec::new(),
-                control_matches: 0,
-                sigma_px: f64::NAN,
-                io: None,
-                predicted: 0,
-                matching: MatchStats::default(),
-                relaxed: false,
-                second_pass: false,
-            },
+            report: PhotoReport::without_patches(name, Some(reason), f64::NAN),
             camera: None,
             pose,
             covariance: SMatrix::zeros(),
             matches: Vec::new(),
+            first_round: Vec::new(),
         }
     }
 }
@@ -331,7 +348,9 @@ pub fn orient_photo(
     let pyramid = Pyramid::new(&img, 6, 16);
     let mut best: Option<PhotoOrientation> = None;
     for (camera, io) in candidates {
-        let out = orient_with_camera(name, camera, io, &pose0, &cov0, store, dem, &pyramid, opts);
+        let out = orient_with_camera(
+            name, camera, io, &pose0, &cov0, &pose0, store, dem, &pyramid, opts, None,
+        );
         if matches!(out.report.reason, Some(PhotoFailure::Chip { .. })) {
             return out;
         }
@@ -374,16 +393,204 @@ pub fn orient_photo(
     };
     let io = best.report.io.clone();
     let retry = orient_with_camera(
-        name, camera, io, &pose0, &cov0, store, dem, &pyramid, &relaxed,
+        name,
+        camera.clone(),
+        io.clone(),
+        &pose0,
+        &cov0,
+        &pose0,
+        store,
+        dem,
+        &pyramid,
+        &relaxed,
+        None,
     );
     if retry.report.oriented {
         let mut r = retry;
         r.report.relaxed = true;
-        r
-    } else {
-        best
+        return r;
     }
+    // Every patch's best peak, however ambiguous, is mostly wrong in windows of hundreds
+    // of pixels, but the right ones agree: over the photo, the error of a navigation pose
+    // is close to one shift, swing and scale. A 2-D similarity found by RANSAC among the
+    // candidates maps the predictions; the patches are then searched again in small
+    // windows around the mapped positions, where a repeat of the texture is no longer
+    // in reach (the relaxed correlation threshold, but not its tolerance of ambiguity).
+    if let Some(guide) = align_candidates(&retry.first_round, &opts.orient) {
+        let guided = PhotoOptions {
+            patch: ChipMatchOptions {
+                matching: MatchOptions {
+                    ncc_threshold: opts.relaxed_ncc_threshold,
+                    ..opts.patch.matching.clone()
+                },
+                ..opts.patch.clone()
+            },
+            ..opts.clone()
+        };
+        // The alignment's swing goes into the approximate attitude, so that the templates
+        // are warped as the photo shows them; the guide keeps the rest (shift, scale).
+        let (pose_g, guide) = swing_into_pose(&camera, &pose0, &guide);
+        let r = orient_with_camera(
+            name,
+            camera.clone(),
+            io.clone(),
+            &pose_g,
+            &cov0,
+            &pose0,
+            store,
+            dem,
+            &pyramid,
+            &guided,
+            Some(&guide),
+        );
+        tracing::debug!(
+            photo = name,
+            oriented = r.report.oriented,
+            rounds = ?r.report.iterations.iter().map(|i| (i.predicted, i.matched, i.accepted)).collect::<Vec<_>>(),
+            "guided search"
+        );
+        if r.report.oriented {
+            let mut r = r;
+            r.report.relaxed = true;
+            return r;
+        }
+    }
+    // The templates are warped by the approximate attitude: a swing (κ) error of 5° turns
+    // a 61 px template by 2.6 px at its edge, enough to lose the correlation of fine
+    // texture among changed surroundings, while ω and φ errors mostly shift it (small
+    // block, seed 5: the three photos of a strip with κ off by 3–5° failed, the other
+    // strip's, 0.6–3° off, did not). Re-try from the prior turned by ±1σ and ±2σ of its
+    // stated attitude σ, when 1σ turns the template edge by over a pixel.
+    let sigma_kappa = cov0[(2, 2)].max(0.0).sqrt();
+    if sigma_kappa * opts.patch.template_half as f64 > 1.0 {
+        for k in [1.0, -1.0, 2.0, -2.0] {
+            let turn = nalgebra::Rotation3::from_axis_angle(&Vector3::z_axis(), k * sigma_kappa);
+            let pose_k = Pose::new(turn.matrix() * pose0.rotation, pose0.center);
+            let r = orient_with_camera(
+                name,
+                camera.clone(),
+                io.clone(),
+                &pose_k,
+                &cov0,
+                &pose0,
+                store,
+                dem,
+                &pyramid,
+                opts,
+                None,
+            );
+            if r.report.oriented {
+                return r;
+            }
+        }
+    }
+    best
 }
+
+/// A 2-D similarity from predicted to matched positions that at least
+/// [`ALIGNMENT_MIN_INLIERS`] candidates agree with within [`ALIGNMENT_TOLERANCE_PX`], as a
+/// guide for a strict second search; None when no such consensus exists or it implies
+/// an implausible scale.
+fn align_candidates(
+    candidates: &[(Vector2<f64>, Vector2<f64>)],
+    opts: &OrientOptions,
+) -> Option<orient::Guide> {
+    if candidates.len() < ALIGNMENT_MIN_INLIERS {
+        return None;
+    }
+    let r = RobustMethod::Ransac
+        .estimate(
+            &Similarity2Estimator,
+            candidates,
+            &RobustOptions {
+                threshold: ALIGNMENT_TOLERANCE_PX,
+                ..RobustOptions::default()
+            },
+        )
+        .ok()?;
+    let plausible = (0.8..1.25).contains(&r.model.scale());
+    tracing::debug!(
+        candidates = candidates.len(),
+        inliers = r.num_inliers,
+        scale = r.model.scale(),
+        shift_x = r.model.t.x,
+        shift_y = r.model.t.y,
+        "image alignment of the first-round candidates"
+    );
+    (r.num_inliers >= ALIGNMENT_MIN_INLIERS && plausible).then_some(orient::Guide {
+        map: r.model,
+        half_px: (2.0 * ALIGNMENT_TOLERANCE_PX).max(opts.min_half_px),
+    })
+}
+
+/// The pose turned about its optical axis by the rotation of `guide` (an image rotation
+/// about the principal point), and the guide that remains for predictions of the turned
+/// pose. The turn's sense in the image depends on the camera's axes; it is read off the
+/// camera itself.
+fn swing_into_pose(camera: &Camera, pose: &Pose, guide: &orient::Guide) -> (Pose, orient::Guide) {
+    let theta = guide.map.b.atan2(guide.map.a);
+    let turn = |g: f64| nalgebra::Rotation3::from_axis_angle(&Vector3::z_axis(), g);
+    let (Ok(c), Ok(p)) = (
+        camera.project(&Vector3::new(0.0, 0.0, 1.0)),
+        camera.project(&Vector3::new(0.2, 0.1, 1.0)),
+    ) else {
+        return (*pose, *guide);
+    };
+    let Ok(q) = camera.project(&(turn(theta) * Vector3::new(0.2, 0.1, 1.0))) else {
+        return (*pose, *guide);
+    };
+    let (u, v) = (p - c, q - c);
+    let seen = (u.x * v.y - u.y * v.x).atan2(u.dot(&v));
+    let gamma = if (seen - theta).abs() <= (seen + theta).abs() {
+        theta
+    } else {
+        -theta
+    };
+    let turned = Pose::new(turn(gamma).matrix() * pose.rotation, pose.center);
+    // Predictions of the turned pose are those of the old one rotated by θ about c: undo
+    // that, then apply the alignment.
+    let (cos, sin) = ((-theta).cos(), (-theta).sin());
+    let undo = Similarity2 {
+        a: cos,
+        b: sin,
+        t: c - Vector2::new(cos * c.x - sin * c.y, sin * c.x + cos * c.y),
+    };
+    let map = guide.map.after(&undo);
+    (
+        turned,
+        orient::Guide {
+            map,
+            half_px: guide.half_px,
+        },
+    )
+}
+
+/// How far `pose` lies from the navigation `prior` in its σ (`cov`: rotation vector, then
+/// centre): the largest of the centre coordinates' and the attitude angle's.
+fn prior_distance(pose: &Pose, prior: &Pose, cov: &SMatrix<f64, 6, 6>) -> f64 {
+    let d = pose.center - prior.center;
+    let centre = (0..3)
+        .map(|i| d[i].abs() / cov[(i + 3, i + 3)].max(1e-12).sqrt())
+        .fold(0.0, f64::max);
+    let angle =
+        nalgebra::Rotation3::from_matrix_unchecked(pose.rotation * prior.rotation.transpose())
+            .angle();
+    let sigma_rot = (0..3)
+        .map(|i| cov[(i, i)])
+        .fold(0.0, f64::max)
+        .max(1e-18)
+        .sqrt();
+    centre.max(angle / sigma_rot)
+}
+
+/// Candidates that must agree on an alignment: two fix a similarity, two more confirm it
+/// (a chance agreement of two wrong peaks within the tolerance in a window of ±250 px is
+/// under one in a thousand).
+const ALIGNMENT_MIN_INLIERS: usize = 4;
+/// What a similarity leaves of a navigation pose's error over a photo (px): the
+/// perspective of a 3° tilt error at 500 px from the centre of a 1200 px focal length is
+/// about 10 px, relief displacement differences a few more.
+const ALIGNMENT_TOLERANCE_PX: f64 = 12.0;
 
 #[allow(clippy::too_many_arguments)]
 fn orient_with_camera(
@@ -392,10 +599,12 @@ fn orient_with_camera(
     io: Option<ScanIo>,
     pose0: &Pose,
     cov0: &SMatrix<f64, 6, 6>,
+    prior: &Pose,
     store: &ChipStore,
     dem: &Dem,
     pyramid: &Pyramid,
     opts: &PhotoOptions,
+    guide: Option<&orient::Guide>,
 ) -> PhotoOrientation {
     let fp = match predict::footprint(&camera, pose0, dem, 8) {
         Ok(f) => f,
@@ -413,7 +622,7 @@ fn orient_with_camera(
     let patches = store.patches_in(&grow(&fp, margin));
     let mut matcher = ChipMatcher::new(&camera, pyramid, store, &opts.patch);
     let mut resector = AdjustResector::new(opts);
-    let o = orient::orient_photo(
+    let o = orient::orient_photo_guided(
         &camera,
         pose0,
         cov0,
@@ -421,6 +630,7 @@ fn orient_with_camera(
         &mut matcher,
         &mut resector,
         &opts.orient,
+        guide,
     );
     let predicted = o.iterations.first().map_or(0, |r| r.predicted);
     let reason = if let Some(e) = &matcher.chip_error {
@@ -428,7 +638,11 @@ fn orient_with_camera(
             message: e.to_string(),
         })
     } else if o.oriented {
-        None
+        let sigmas = prior_distance(&o.pose, prior, cov0);
+        (sigmas > opts.max_prior_sigmas).then_some(PhotoFailure::FarFromPrior {
+            sigmas,
+            limit: opts.max_prior_sigmas,
+        })
     } else if predicted == 0 {
         Some(PhotoFailure::NoControlInView {
             in_footprint: patches.len(),
@@ -456,8 +670,9 @@ fn orient_with_camera(
             second_pass: false,
         },
         camera: Some(camera),
-        pose: o.pose,
+        pose: if oriented { o.pose } else { *prior },
         covariance: o.covariance,
         matches: if oriented { o.matches } else { Vec::new() },
+        first_round: o.first_round,
     }
 }

@@ -9,7 +9,6 @@
 //! the report treat every epoch alike.
 
 use super::archive::{mean_gsd, EpochResult};
-use super::chips::MatchStats;
 use super::epoch::{EpochCamera, EpochError, EpochInput, Navigation};
 use super::photo::PhotoReport;
 use crate::adjust::support::{take_unsupported, MIN_POINTS_PER_PHOTO};
@@ -406,19 +405,11 @@ pub fn orient_reference(
             Some(r) => PhotoStatus::Failed(r.clone()),
         };
         ph.provenance = "tie points, ICP onto the LiDAR, adjustment with LiDAR planes".into();
-        photos.push(PhotoReport {
-            name: ph.name.clone(),
-            oriented: reason.is_none(),
+        photos.push(PhotoReport::without_patches(
+            &ph.name,
             reason,
-            iterations: Vec::new(),
-            control_matches: 0,
-            sigma_px: precision.get(&ph.id).copied().unwrap_or(f64::NAN),
-            io: None,
-            predicted: 0,
-            matching: MatchStats::default(),
-            relaxed: false,
-            second_pass: false,
-        });
+            precision.get(&ph.id).copied().unwrap_or(f64::NAN),
+        ));
     }
     for (mut ph, points) in lost {
         let reason = PhotoFailure::LostSupport {
@@ -426,19 +417,11 @@ pub fn orient_reference(
             needed: MIN_POINTS_PER_PHOTO,
         };
         ph.status = PhotoStatus::Failed(reason.clone());
-        photos.push(PhotoReport {
-            name: ph.name.clone(),
-            oriented: false,
-            reason: Some(reason),
-            iterations: Vec::new(),
-            control_matches: 0,
-            sigma_px: f64::NAN,
-            io: None,
-            predicted: 0,
-            matching: MatchStats::default(),
-            relaxed: false,
-            second_pass: false,
-        });
+        photos.push(PhotoReport::without_patches(
+            &ph.name,
+            Some(reason),
+            f64::NAN,
+        ));
         block.photos.insert(ph.id, ph);
     }
     let gsd_m = mean_gsd(&block, dem);

@@ -4,6 +4,8 @@
 //!
 //! The drivers are deterministic: the random stream comes from the caller's seed.
 
+pub mod similarity2;
+
 use rand::seq::index::sample;
 use rand::SeedableRng;
 use rand_chacha::ChaCha8Rng;

@@ -37,7 +37,7 @@ pub fn run(
         pos: PosQuality::Rough,
         laz: false,
     };
-    if !same_block(&block, &cfg) {
+    if !synth::holds_block(&block, &cfg) {
         on_event(&Event::Start {
             stage: "synthetic block".into(),
             index: 0,
@@ -56,17 +56,4 @@ pub fn run(
     let project_path = block.join("project.toml");
     let project = Project::load(&project_path).map_err(RunError::from)?;
     Ok(run_project(&project, on_event, None)?)
-}
-
-/// True when `dir` holds a finished synthetic block of this configuration.
-fn same_block(dir: &Path, cfg: &SynthConfig) -> bool {
-    let Ok(text) = std::fs::read_to_string(dir.join("manifest.json")) else {
-        return false;
-    };
-    let Ok(m) = serde_json::from_str::<serde_json::Value>(&text) else {
-        return false;
-    };
-    dir.join("project.toml").is_file()
-        && m["seed"].as_u64() == Some(cfg.seed)
-        && serde_json::to_value(cfg.preset).ok().as_ref() == Some(&m["preset"])
 }

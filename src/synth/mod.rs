@@ -239,6 +239,22 @@ pub struct SynthManifest {
     pub run: RunStats,
 }
 
+/// True when `dir` holds a finished block of `config` (the manifest is written last) with
+/// its project file: the demo and the bench keep it instead of generating it again.
+pub fn holds_block(dir: &Path, config: &SynthConfig) -> bool {
+    let Ok(text) = std::fs::read_to_string(dir.join("manifest.json")) else {
+        return false;
+    };
+    let Ok(m) = serde_json::from_str::<serde_json::Value>(&text) else {
+        return false;
+    };
+    m["seed"].as_u64() == Some(config.seed)
+        && serde_json::to_value(config.preset).ok().as_ref() == Some(&m["preset"])
+        && serde_json::to_value(config.pos).ok().as_ref() == Some(&m["pos"])
+        && m["change"].as_f64() == Some(config.change)
+        && dir.join("project.toml").is_file()
+}
+
 /// Peak resident set size of this process in MiB (Linux; 0 elsewhere).
 pub fn peak_memory_mib() -> f64 {
     std::fs::read_to_string("/proc/self/status")

@@ -38,6 +38,10 @@ pub struct AccuracyArgs {
     /// Work folder: one `<preset>-<seed>/` per seed (block and run), and `bench.json`.
     #[arg(long, default_value = "cloudcontrol_bench")]
     out: PathBuf,
+    /// Keep a block already generated in the work folder with the same configuration
+    /// (only the run is repeated).
+    #[arg(long)]
+    reuse_blocks: bool,
 }
 
 /// `A..B` or `a,b,c`.
@@ -65,6 +69,14 @@ struct ChildRun {
     success: bool,
     seconds: f64,
     peak_mib: f64,
+}
+
+/// One seed's scored epochs, its run, and the LiDAR's own height error at the
+/// checkpoints (mean, RMSE; m).
+struct SeedResult {
+    rows: Vec<EpochScore>,
+    child: ChildRun,
+    lidar: Option<(f64, f64)>,
 }
 
 /// Runs `cloudcontrol run <project>` as a child and measures its own peak RSS (wait4's
@@ -107,11 +119,7 @@ fn tail(log: &Path) -> String {
     lines[lines.len().saturating_sub(2)..].join(" | ")
 }
 
-fn one_seed(
-    args: &AccuracyArgs,
-    seed: u64,
-    targets: &Targets,
-) -> Result<(Vec<EpochScore>, ChildRun, Option<(f64, f64)>), String> {
+fn one_seed(args: &AccuracyArgs, seed: u64, targets: &Targets) -> Result<SeedResult, String> {
     let config = SynthConfig {
         preset: args.preset.into(),
         seed,
@@ -124,9 +132,14 @@ fn one_seed(
         .and_then(|v| v.as_str().map(str::to_string))
         .unwrap_or_default();
     let dir = args.out.join(format!("{preset}-{seed}"));
-    let _ = std::fs::remove_dir_all(&dir);
     let block = dir.join("block");
-    synth::generate(&config, &block).map_err(|e| format!("synthetic block: {e}"))?;
+    if args.reuse_blocks && synth::holds_block(&block, &config) {
+        // A fresh run over the kept block.
+        let _ = std::fs::remove_dir_all(dir.join("run"));
+    } else {
+        let _ = std::fs::remove_dir_all(&dir);
+        synth::generate(&config, &block).map_err(|e| format!("synthetic block: {e}"))?;
+    }
     let project_path = block.join("project.toml");
     let child = run_child(&project_path, &dir.join("run.log"))?;
     if !child.success {
@@ -144,7 +157,11 @@ fn one_seed(
         .map_err(|e| format!("{}: {e}", report_path.display()))?;
     let rows = bench::score_run(seed, &block, &project, &report, targets)
         .map_err(|e| format!("scoring: {e}"))?;
-    Ok((rows, child, bench::lidar_height_error(&project.output)))
+    Ok(SeedResult {
+        rows,
+        child,
+        lidar: bench::lidar_height_error(&project.output),
+    })
 }
 
 pub fn run(cmd: BenchCommand, json: bool) -> Result<(), String> {
@@ -159,7 +176,11 @@ pub fn run(cmd: BenchCommand, json: bool) -> Result<(), String> {
     }
     for &seed in &seeds {
         match one_seed(&args, seed, &targets) {
-            Ok((r, child, lidar)) => {
+            Ok(SeedResult {
+                rows: r,
+                child,
+                lidar,
+            }) => {
                 if !json {
                     for row in &r {
                         println!("{}", bench::row_line(row));
