@@ -146,6 +146,7 @@ fn rough_pos_converges_with_shrinking_windows_and_rejects_mismatches() {
         &mut matcher,
         &mut GnResector,
         &opts,
+        None,
     );
     assert!(out.oriented);
     let first = &out.iterations[0];

@@ -124,32 +124,10 @@ pub struct Guide {
 }
 
 /// Orients one photo. Patches outside the image are skipped; a patch rejected by the
-/// resection is not offered again.
-pub fn orient_photo(
-    camera: &Camera,
-    approximate: &Pose,
-    covariance: &SMatrix<f64, 6, 6>,
-    patches: &[ControlPatch],
-    matcher: &mut dyn PatchMatcher,
-    resector: &mut dyn Resector,
-    opts: &OrientOptions,
-) -> Oriented {
-    orient_photo_guided(
-        camera,
-        approximate,
-        covariance,
-        patches,
-        matcher,
-        resector,
-        opts,
-        None,
-    )
-}
-
-/// [`orient_photo`] with the predictions of the rounds before the first resection mapped
-/// through `guide`.
+/// resection is not offered again. With a `guide`, the predictions of the rounds before
+/// the first resection are mapped through it.
 #[allow(clippy::too_many_arguments)]
-pub fn orient_photo_guided(
+pub fn orient_photo(
     camera: &Camera,
     approximate: &Pose,
     covariance: &SMatrix<f64, 6, 6>,

@@ -622,7 +622,7 @@ fn orient_with_camera(
     let patches = store.patches_in(&grow(&fp, margin));
     let mut matcher = ChipMatcher::new(&camera, pyramid, store, &opts.patch);
     let mut resector = AdjustResector::new(opts);
-    let o = orient::orient_photo_guided(
+    let o = orient::orient_photo(
         &camera,
         pose0,
         cov0,
