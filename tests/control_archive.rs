@@ -10,12 +10,14 @@ use cloudcontrol::control::cloud::{CloudOptions, GroundSurface};
 use cloudcontrol::control::dcp::{DcpPackage, EpochInfo};
 use cloudcontrol::control::epoch::{EpochInput, Navigation};
 use cloudcontrol::control::export::{export_dcp, DcpExportOptions};
-use cloudcontrol::formats::control_points;
 use cloudcontrol::synth::reading::synth_truth_block;
 use cloudcontrol::synth::{self, PosQuality, Preset, SynthConfig};
 use std::path::{Path, PathBuf};
 use std::sync::OnceLock;
 use std::time::Instant;
+
+mod common;
+use common::synth_checkpoints;
 
 struct Setup {
     dir: PathBuf,
@@ -102,12 +104,7 @@ fn orient(s: &Setup, epoch: &str, dcp: &[DcpPackage], opts: &ArchiveOptions) -> 
     let t = Instant::now();
     let input = EpochInput::from_synth_epoch(&s.dir, epoch).unwrap();
     let result = archive::orient_epoch(&input, dcp, &s.surface.ground, opts).unwrap();
-    let meas = control_points::read_checkpoint_measurements(
-        &s.dir.join("truth/checkpoint_images.csv"),
-        epoch,
-    )
-    .unwrap();
-    let surveyed = surveyed(&s.dir.join("checkpoints.csv"));
+    let (meas, surveyed) = synth_checkpoints(&s.dir, epoch);
     println!(
         "{epoch}: {} DCP points",
         dcp.iter().map(|p| p.manifest.points.len()).sum::<usize>()
@@ -236,12 +233,7 @@ fn time_series_reference_digital_film() {
     let opts = ArchiveOptions::default();
     // The reference epoch (here its true orientation stands for the LiDAR-oriented block).
     let refb = synth_truth_block(&s.dir, "reference_2024").unwrap();
-    let meas = control_points::read_checkpoint_measurements(
-        &s.dir.join("truth/checkpoint_images.csv"),
-        "reference_2024",
-    )
-    .unwrap();
-    let surveyed = surveyed(&s.dir.join("checkpoints.csv"));
+    let (meas, surveyed) = synth_checkpoints(&s.dir, "reference_2024");
     let reference = checkpoints::evaluate_checkpoints(&refb, &meas, &surveyed, 0.1).unwrap();
     println!(
         "reference_2024: checkpoints {} — plan {:.3} m ({:.2} px), height {:.3} m ({:.2} px)",
@@ -369,13 +361,4 @@ fn image_tie_points_join_the_digital_block_when_enabled() {
         assert_eq!(ph.len(), t.observations.len(), "{t:?}");
     }
     assert_accuracy(&o, "digital_2012 with image ties");
-}
-
-/// Surveyed checkpoints (world) of the documented control-point CSV.
-fn surveyed(path: &std::path::Path) -> Vec<(String, [f64; 3])> {
-    control_points::read_points(path)
-        .unwrap()
-        .into_iter()
-        .map(|p| (p.id, p.xyz))
-        .collect()
 }

@@ -6,13 +6,15 @@ use cloudcontrol::control::checkpoints;
 use cloudcontrol::control::cloud::CloudOptions;
 use cloudcontrol::control::dcp::EpochInfo;
 use cloudcontrol::control::export::{export_dcp, DcpExportOptions};
-use cloudcontrol::formats::control_points;
 use cloudcontrol::formats::crs::Crs;
 use cloudcontrol::formats::raster::{write_dem, GeoTiffOptions};
 use cloudcontrol::synth::reading::synth_truth_block;
 use cloudcontrol::synth::{self, PosQuality, Preset, SynthConfig};
 use std::path::{Path, PathBuf};
 use std::process::Command;
+
+mod common;
+use common::synth_checkpoints;
 
 fn bin() -> Command {
     Command::new(env!("CARGO_BIN_EXE_cloudcontrol"))
@@ -111,17 +113,7 @@ fn orient_cli_writes_the_oriented_epoch_and_refuses_a_damaged_package() {
         block.origin
     );
     assert!(!block.photos.is_empty(), "no photo oriented:\n{stdout}");
-    let meas = control_points::read_checkpoint_measurements(
-        &dir.join("truth/checkpoint_images.csv"),
-        "digital_2012",
-    )
-    .unwrap();
-    let surveyed: Vec<(String, [f64; 3])> =
-        control_points::read_points(&dir.join("checkpoints.csv"))
-            .unwrap()
-            .into_iter()
-            .map(|p| (p.id, p.xyz))
-            .collect();
+    let (meas, surveyed) = synth_checkpoints(&dir, "digital_2012");
     let gsd = report["gsd_m"].as_f64().unwrap();
     let e = checkpoints::evaluate_checkpoints(&block, &meas, &surveyed, gsd).unwrap();
     // Height comes from the photos' stereo base: its error is the plan error times the

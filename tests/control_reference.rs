@@ -6,11 +6,13 @@
 use cloudcontrol::control::checkpoints::evaluate_checkpoints;
 use cloudcontrol::control::reference::{self, ReferenceOptions};
 use cloudcontrol::control::EpochInput;
-use cloudcontrol::formats::control_points;
 use cloudcontrol::lidar::PlaneOptions;
 use cloudcontrol::synth::reading::synth_truth_block;
 use cloudcontrol::synth::{self, PosQuality, Preset, SynthConfig};
 use std::path::{Path, PathBuf};
+
+mod common;
+use common::synth_checkpoints;
 
 fn lidar_tiles(dir: &Path) -> Vec<PathBuf> {
     cloudcontrol::lidar::catalogue::expand_inputs(&[dir.join("lidar")]).unwrap()
@@ -79,17 +81,7 @@ fn reference_epoch_oriented_with_lidar_only_is_within_a_ground_pixel() {
         adj.datum
     );
 
-    let surveyed: Vec<(String, [f64; 3])> =
-        control_points::read_points(&dir.join("checkpoints.csv"))
-            .unwrap()
-            .into_iter()
-            .map(|p| (p.id, p.xyz))
-            .collect();
-    let measured = control_points::read_checkpoint_measurements(
-        &dir.join("truth/checkpoint_images.csv"),
-        "reference_2024",
-    )
-    .unwrap();
+    let (measured, surveyed) = synth_checkpoints(&dir, "reference_2024");
     let ev = evaluate_checkpoints(&result.block, &measured, &surveyed, result.gsd_m).unwrap();
     eprintln!(
         "checkpoints: {} at GSD {:.3} m: plan {:.3} m ({:.2} px), height {:.3} m ({:.2} px), max {:.3} m",

@@ -5,22 +5,12 @@ mod lidar_synth;
 
 use lidar_synth::*;
 use std::path::Path;
-use std::process::Command;
 
-fn run(args: &[&str]) -> (bool, String, String) {
-    let out = Command::new(env!("CARGO_BIN_EXE_cloudcontrol"))
-        .args(args)
-        .output()
-        .unwrap();
-    (
-        out.status.success(),
-        String::from_utf8_lossy(&out.stdout).into_owned(),
-        String::from_utf8_lossy(&out.stderr).into_owned(),
-    )
-}
+mod common;
+use common::cli;
 
 fn json(args: &[&str]) -> serde_json::Value {
-    let (ok, out, err) = run(args);
+    let (ok, out, err) = cli(args);
     assert!(ok, "{args:?} failed: {err}");
     serde_json::from_str(&out).unwrap_or_else(|e| panic!("{args:?}: not JSON ({e}): {out}"))
 }
@@ -108,7 +98,7 @@ fn lidar_commands_end_to_end() {
     let rmse2 = ev2["rmse_m"].as_f64().unwrap();
     assert!(rmse2 < 0.05, "RMSE after cleaning {rmse2}");
     // Refuses to overwrite its inputs.
-    let (ok, _, err) = run(&[
+    let (ok, _, err) = cli(&[
         "lidar",
         "clean",
         "--lidar",
@@ -137,7 +127,7 @@ fn lidar_commands_end_to_end() {
     assert!(dem_path.exists());
 
     // Errors name the input.
-    let (ok, _, err) = run(&[
+    let (ok, _, err) = cli(&[
         "lidar",
         "eval",
         "--lidar",
@@ -148,7 +138,7 @@ fn lidar_commands_end_to_end() {
     assert!(!ok && err.contains("nope.csv"), "{err}");
     let bad = dir.path().join("bad.csv");
     std::fs::write(&bad, "id,X,Y,Z\nA,1,2\n").unwrap();
-    let (ok, _, err) = run(&[
+    let (ok, _, err) = cli(&[
         "lidar",
         "eval",
         "--lidar",

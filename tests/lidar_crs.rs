@@ -8,7 +8,9 @@ use cloudcontrol::formats::crs::Crs;
 use cloudcontrol::lidar::{Catalogue, CrsSource, LasStream, LidarError, ScanOptions};
 use cloudcontrol::synth::lidar::{write_tiles, LidarPoint};
 use std::path::{Path, PathBuf};
-use std::process::Command;
+
+mod common;
+use common::cli;
 
 fn samples() -> Option<PathBuf> {
     let dir = Path::new(env!("CARGO_MANIFEST_DIR")).join("../shared/data/las_format_samples");
@@ -261,18 +263,6 @@ fn compound_crs_matches_by_its_horizontal_part() {
         "{:?}",
         cat.warnings
     );
-}
-
-fn cli(args: &[&str]) -> (bool, String, String) {
-    let out = Command::new(env!("CARGO_BIN_EXE_cloudcontrol"))
-        .args(args)
-        .output()
-        .unwrap();
-    (
-        out.status.success(),
-        String::from_utf8_lossy(&out.stdout).into_owned(),
-        String::from_utf8_lossy(&out.stderr).into_owned(),
-    )
 }
 
 #[test]

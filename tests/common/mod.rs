@@ -33,3 +33,40 @@ pub fn epoch<'a>(report: &'a Value, name: &str) -> &'a Value {
 pub fn px(e: &Value, key: &str) -> f64 {
     e[key].as_f64().unwrap_or(f64::NAN) / e["gsd_m"].as_f64().unwrap()
 }
+
+/// Runs the binary with `args`: success, stdout, stderr.
+pub fn cli(args: &[&str]) -> (bool, String, String) {
+    let out = std::process::Command::new(exe())
+        .args(args)
+        .output()
+        .unwrap();
+    (
+        out.status.success(),
+        String::from_utf8_lossy(&out.stdout).into_owned(),
+        String::from_utf8_lossy(&out.stderr).into_owned(),
+    )
+}
+
+/// A synthetic block's checkpoints as an evaluation takes them: the image measurements of
+/// `epoch` (`truth/checkpoint_images.csv`, standing for an operator's) and the surveyed
+/// points (`checkpoints.csv`, world).
+pub fn synth_checkpoints(
+    dir: &std::path::Path,
+    epoch: &str,
+) -> (
+    Vec<cloudcontrol::formats::control_points::CheckpointMeasurement>,
+    Vec<(String, [f64; 3])>,
+) {
+    use cloudcontrol::formats::control_points;
+    let measured = control_points::read_checkpoint_measurements(
+        &dir.join("truth/checkpoint_images.csv"),
+        epoch,
+    )
+    .unwrap();
+    let surveyed = control_points::read_points(&dir.join("checkpoints.csv"))
+        .unwrap()
+        .into_iter()
+        .map(|p| (p.id, p.xyz))
+        .collect();
+    (measured, surveyed)
+}
