@@ -247,8 +247,10 @@ pub fn finish_scan(
                         e = (contrast * (e - 0.5) + 0.5).clamp(0.0, 1.0).powf(gamma);
                         let mut dn = 12.0 + 235.0 * e + grain * gauss(hsh);
                         for (c, rad, dark) in &dust {
-                            let dd = (c[0] - p.x).hypot(c[1] - p.y);
-                            if dd < *rad {
+                            // Squared distances: libm's hypot here, 25 specks per pixel,
+                            // was a tenth of a 42 µm film block's synthesis time.
+                            let (dx, dy) = (c[0] - p.x, c[1] - p.y);
+                            if dx * dx + dy * dy < rad * rad {
                                 dn = if *dark { dn * 0.3 } else { 240.0 };
                             }
                         }

@@ -27,6 +27,8 @@ pub struct RayCaster<'a> {
     max: Vec<f64>,
     /// Cells that hold a building or tree (discontinuous heights).
     objects: Vec<bool>,
+    /// Summed-area table of `objects` ((nx+1)·(ny+1)): object cells in a rectangle in O(1).
+    objects_sat: Vec<u32>,
     top: f64,
     lipschitz: f64,
 }
@@ -105,6 +107,14 @@ impl<'a> RayCaster<'a> {
             );
         }
         let top = max.iter().cloned().fold(f64::NEG_INFINITY, f64::max);
+        let mut objects_sat = vec![0u32; (nx + 1) * (ny + 1)];
+        for j in 0..ny {
+            let mut row = 0u32;
+            for i in 0..nx {
+                row += objects[j * nx + i] as u32;
+                objects_sat[(j + 1) * (nx + 1) + i + 1] = objects_sat[j * (nx + 1) + i + 1] + row;
+            }
+        }
         Self {
             scene,
             x0: bbox[0],
@@ -114,6 +124,7 @@ impl<'a> RayCaster<'a> {
             ny,
             max,
             objects,
+            objects_sat,
             top,
             lipschitz: scene.terrain_lipschitz(),
         }
@@ -140,7 +151,7 @@ impl<'a> RayCaster<'a> {
             }
             origin + (k + if step > 0 { 1 } else { 0 }) as f64 * self.cell
         };
-        let horizontal = d.x.hypot(d.y).max(1e-12);
+        let horizontal = horizontal(d).max(1e-12);
         // Cells with objects: fixed steps of at most 10 cm horizontally (finer than any
         // roof edge or crown) and 0.5 m vertically, then bisection. Terrain-only cells:
         // safe steps from the slope bound (the gap cannot close faster than
@@ -219,6 +230,77 @@ impl<'a> RayCaster<'a> {
         p.z - self.scene.height_at(p.x, p.y)
     }
 
+    /// Whether the rectangle [x0, x1]×[y0, y1] (block-local) lies inside the grid and
+    /// holds no object cell: there the surface is the terrain alone.
+    fn terrain_only(&self, x0: f64, y0: f64, x1: f64, y1: f64) -> bool {
+        let i0 = ((x0 - self.x0) / self.cell).floor();
+        let j0 = ((y0 - self.y0) / self.cell).floor();
+        let i1 = ((x1 - self.x0) / self.cell).floor();
+        let j1 = ((y1 - self.y0) / self.cell).floor();
+        if i0 < 0.0 || j0 < 0.0 || i1 >= self.nx as f64 || j1 >= self.ny as f64 {
+            return false;
+        }
+        let (i0, j0, i1, j1) = (i0 as usize, j0 as usize, i1 as usize + 1, j1 as usize + 1);
+        let n = self.nx + 1;
+        let s = &self.objects_sat;
+        s[j1 * n + i1] + s[j0 * n + i0] == s[j0 * n + i1] + s[j1 * n + i0]
+    }
+
+    /// Whether the ray descends faster than the terrain can rise under it: then the gap
+    /// to a terrain-only surface decreases strictly along the ray and has one root.
+    fn steeper_than_terrain(&self, d: &Vector3<f64>) -> bool {
+        -d.z > 1.25 * self.lipschitz * horizontal(d)
+    }
+
+    /// The hit of a steep ray (see [`Self::steeper_than_terrain`]) on terrain alone,
+    /// found from a nearby ray parameter `t0`: the gap is monotone, so its single root
+    /// is bracketed from the bounds of its rate and found by safeguarded secant steps
+    /// to the tolerance of [`Self::cast`]. The caller checks the terrain-only region.
+    fn terrain_hit_near(&self, o: &Vector3<f64>, d: &Vector3<f64>, t0: f64) -> Hit {
+        let h = horizontal(d);
+        let (fast, slow) = (-d.z + self.lipschitz * h, -d.z - self.lipschitz * h);
+        // Every evaluated point narrows the bracket [lo, hi] of the root by the bounds of
+        // the gap's rate; secant steps from the nearby start, kept inside the bracket.
+        let (mut lo, mut hi) = (f64::NEG_INFINITY, f64::INFINITY);
+        let mut narrow = |t: f64, g: f64| {
+            if g > 0.0 {
+                lo = lo.max(t + g / fast);
+                hi = hi.min(t + g / slow);
+            } else {
+                lo = lo.max(t + g / slow);
+                hi = hi.min(t + g / fast);
+            }
+            (lo, hi)
+        };
+        let (mut ta, mut ga) = (t0, self.gap(o, d, t0));
+        if ga.abs() < 1e-5 {
+            return self.hit(o, d, ta);
+        }
+        narrow(ta, ga);
+        // First step as over flat ground.
+        let (mut tb, mut gb) = (ta + ga / -d.z, 0.0);
+        for _ in 0..40 {
+            gb = self.gap(o, d, tb);
+            let (l, u) = narrow(tb, gb);
+            if gb.abs() < 1e-5 || u - l < 1e-6 {
+                break;
+            }
+            let secant = if gb != ga {
+                tb - gb * (tb - ta) / (gb - ga)
+            } else {
+                0.5 * (l + u)
+            };
+            (ta, ga) = (tb, gb);
+            tb = if secant > l && secant < u {
+                secant
+            } else {
+                0.5 * (l + u)
+            };
+        }
+        let _ = gb;
+        self.hit(o, d, tb)
+    }
+
     fn refine(&self, o: &Vector3<f64>, d: &Vector3<f64>, mut a: f64, mut b: f64) -> Hit {
         // Bisection to 1/4096 of the step: well under a millimetre.
         for _ in 0..12 {
@@ -246,6 +328,13 @@ impl<'a> RayCaster<'a> {
     }
 }
 
+/// Horizontal length of a direction (no overflow is possible here, unlike `hypot`'s
+/// general case, and libm's `hypot` was a tenth of a film frame's render time).
+#[inline]
+fn horizontal(d: &Vector3<f64>) -> f64 {
+    (d.x * d.x + d.y * d.y).sqrt()
+}
+
 /// Renders the scene radiance (albedo × illumination, 0..1) seen by a camera, row-major.
 /// `spp` samples per pixel side (spp² rays, box filter). Rows render in parallel; each
 /// pixel depends only on its own rays, so the result is independent of scheduling.
@@ -261,11 +350,98 @@ pub fn render(
     let rt = pose.rotation.transpose();
     let scene = caster.scene();
     let n = spp.max(1);
+    let ray = |px: [f64; 2]| camera.unproject(px).ok().map(|dc| rt * dc);
+    let shade = |d: &Vector3<f64>, hit: Option<Hit>| -> f64 {
+        match hit {
+            Some(hit) => {
+                let fp = hit.t / (f * n as f64) / (-d.z).max(0.2);
+                scene.albedo(hit.point.x, hit.point.y, &hit.surface, hit.point.z, fp)
+            }
+            None => background as f64,
+        }
+    };
+    // Ray coherence: exact casts on a lattice every LATTICE pixels; inside a lattice cell
+    // whose rays all see terrain alone (no object cell within their parallax), each
+    // pixel's hit is the single root of its monotone gap, found from the interpolated
+    // ray parameter in two or three evaluations instead of a full march. Same surface,
+    // same tolerance, a quarter of the time on a film frame that is mostly open land.
+    const LATTICE: u32 = 4;
+    let lattice = |v: u32, len: u32| (v / LATTICE * LATTICE).min(len.saturating_sub(1));
+    let (lw, lh) = (w.div_ceil(LATTICE) + 1, h.div_ceil(LATTICE) + 1);
+    let lattice_hits: Vec<Option<(f64, Vector3<f64>)>> = if n == 1 {
+        (0..lw * lh)
+            .into_par_iter()
+            .map(|k| {
+                let (c, r) = (
+                    ((k % lw) * LATTICE).min(w - 1),
+                    ((k / lw) * LATTICE).min(h - 1),
+                );
+                let d = ray([c as f64 + 0.5, r as f64 + 0.5])?;
+                let hit = caster.cast(&pose.center, &d)?;
+                (caster.steeper_than_terrain(&d)).then_some((hit.t, hit.point))
+            })
+            .collect()
+    } else {
+        Vec::new()
+    };
+    // The lattice cell's four corners, when its rays see terrain alone.
+    let coherent = |c: u32, r: u32| -> Option<[f64; 4]> {
+        let (i, j) = ((c / LATTICE).min(lw - 2), (r / LATTICE).min(lh - 2));
+        let corners = [
+            lattice_hits[(j * lw + i) as usize]?,
+            lattice_hits[(j * lw + i + 1) as usize]?,
+            lattice_hits[((j + 1) * lw + i) as usize]?,
+            lattice_hits[((j + 1) * lw + i + 1) as usize]?,
+        ];
+        let (mut x0, mut y0, mut x1, mut y1) = (f64::MAX, f64::MAX, f64::MIN, f64::MIN);
+        let mut zmin = f64::MAX;
+        for (_, p) in &corners {
+            (x0, y0, x1, y1) = (x0.min(p.x), y0.min(p.y), x1.max(p.x), y1.max(p.y));
+            zmin = zmin.min(p.z);
+        }
+        // A ray can meet an object up to its height of parallax before its ground point.
+        let tilt = ((corners[0].1 - pose.center).xy().norm() / (pose.center.z - zmin))
+            .max((corners[3].1 - pose.center).xy().norm() / (pose.center.z - zmin));
+        let m = (caster.top - zmin) * tilt.max(1.0) + caster.cell;
+        caster
+            .terrain_only(x0 - m, y0 - m, x1 + m, y1 + m)
+            .then(|| corners.map(|c| c.0))
+    };
     let rows: Vec<Vec<f32>> = (0..h)
         .into_par_iter()
         .map(|row| {
             let mut out = Vec::with_capacity(w as usize);
+            let mut cell: Option<(u32, Option<[f64; 4]>)> = None;
             for col in 0..w {
+                if n == 1 && lw >= 2 && lh >= 2 {
+                    let key = col / LATTICE;
+                    if cell.map(|c| c.0) != Some(key) {
+                        cell = Some((key, coherent(col, row)));
+                    }
+                    if let Some((_, Some(ts))) = cell {
+                        let Some(d) = ray([col as f64 + 0.5, row as f64 + 0.5]) else {
+                            out.push(background);
+                            continue;
+                        };
+                        let (c0, r0) = (lattice(col, w), lattice(row, h));
+                        let (c1, r1) = ((c0 + LATTICE).min(w - 1), (r0 + LATTICE).min(h - 1));
+                        let u = if c1 > c0 {
+                            (col - c0) as f64 / (c1 - c0) as f64
+                        } else {
+                            0.0
+                        };
+                        let v = if r1 > r0 {
+                            (row - r0) as f64 / (r1 - r0) as f64
+                        } else {
+                            0.0
+                        };
+                        let t0 = (1.0 - v) * ((1.0 - u) * ts[0] + u * ts[1])
+                            + v * ((1.0 - u) * ts[2] + u * ts[3]);
+                        let hit = caster.terrain_hit_near(&pose.center, &d, t0);
+                        out.push(shade(&d, Some(hit)) as f32);
+                        continue;
+                    }
+                }
                 let mut acc = 0.0;
                 for sy in 0..n {
                     for sx in 0..n {
@@ -273,24 +449,9 @@ pub fn render(
                             col as f64 + (sx as f64 + 0.5) / n as f64,
                             row as f64 + (sy as f64 + 0.5) / n as f64,
                         ];
-                        acc += match camera.unproject(px) {
-                            Ok(dc) => {
-                                let d = rt * dc;
-                                match caster.cast(&pose.center, &d) {
-                                    Some(hit) => {
-                                        let fp = hit.t / (f * n as f64) / (-d.z).max(0.2);
-                                        scene.albedo(
-                                            hit.point.x,
-                                            hit.point.y,
-                                            &hit.surface,
-                                            hit.point.z,
-                                            fp,
-                                        )
-                                    }
-                                    None => background as f64,
-                                }
-                            }
-                            Err(_) => background as f64,
+                        acc += match ray(px) {
+                            Some(d) => shade(&d, caster.cast(&pose.center, &d)),
+                            None => background as f64,
                         };
                     }
                 }
