@@ -67,7 +67,8 @@ pub trait Resector {
 pub struct OrientOptions {
     /// Search window half size in σ of the predicted position.
     pub k_sigma: f64,
-    /// Smallest and largest window half size (px).
+    /// Smallest and largest window half size (px); a window is also never wider than
+    /// half the photo's shorter side (beyond that the prediction itself is meaningless).
     pub min_half_px: f64,
     pub max_half_px: f64,
     pub max_iterations: usize,
@@ -138,6 +139,7 @@ pub fn orient_photo(
     guide: Option<&Guide>,
 ) -> Oriented {
     let (w, h) = camera.image_size();
+    let max_half = opts.max_half_px.min(0.5 * w.min(h) as f64);
     let mut pose = *approximate;
     let mut cov = *covariance;
     let mut oriented = false;
@@ -172,8 +174,8 @@ pub fn orient_photo(
             let half = match guided {
                 Some(g) => [g.half_px; 2],
                 None => [
-                    hs[0].clamp(opts.min_half_px, opts.max_half_px),
-                    hs[1].clamp(opts.min_half_px, opts.max_half_px),
+                    hs[0].clamp(opts.min_half_px, max_half),
+                    hs[1].clamp(opts.min_half_px, max_half),
                 ],
             };
             predicted += 1;

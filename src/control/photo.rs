@@ -46,9 +46,12 @@ pub struct PhotoOptions {
 impl Default for PhotoOptions {
     fn default() -> Self {
         Self {
+            // Windows follow the navigation's σ through the camera (3σ); the search runs
+            // coarse-to-fine over the pyramid, so a 570 px window (3° on a 42 µm scan of
+            // a 153 mm camera) costs little more than a small one.
             orient: OrientOptions {
                 min_half_px: 6.0,
-                max_half_px: 400.0,
+                max_half_px: f64::INFINITY,
                 ..OrientOptions::default()
             },
             patch: ChipMatchOptions::default(),
@@ -416,7 +419,8 @@ pub fn orient_photo(
     // candidates maps the predictions; the patches are then searched again in small
     // windows around the mapped positions, where a repeat of the texture is no longer
     // in reach (the relaxed correlation threshold, but not its tolerance of ambiguity).
-    if let Some(guide) = align_candidates(&retry.first_round, &opts.orient) {
+    let tolerance = alignment_tolerance(&camera, &retry.first_round, &cov0);
+    if let Some(guide) = align_candidates(&retry.first_round, tolerance, &opts.orient) {
         let guided = PhotoOptions {
             patch: ChipMatchOptions {
                 matching: MatchOptions {
@@ -488,11 +492,12 @@ pub fn orient_photo(
 }
 
 /// A 2-D similarity from predicted to matched positions that at least
-/// [`ALIGNMENT_MIN_INLIERS`] candidates agree with within [`ALIGNMENT_TOLERANCE_PX`], as a
-/// guide for a strict second search; None when no such consensus exists or it implies
-/// an implausible scale.
+/// [`ALIGNMENT_MIN_INLIERS`] candidates agree with within `tolerance` (px), as a guide
+/// for a strict second search; None when no such consensus exists or it implies an
+/// implausible scale.
 fn align_candidates(
     candidates: &[(Vector2<f64>, Vector2<f64>)],
+    tolerance: f64,
     opts: &OrientOptions,
 ) -> Option<orient::Guide> {
     if candidates.len() < ALIGNMENT_MIN_INLIERS {
@@ -503,7 +508,7 @@ fn align_candidates(
             &Similarity2Estimator,
             candidates,
             &RobustOptions {
-                threshold: ALIGNMENT_TOLERANCE_PX,
+                threshold: tolerance,
                 ..RobustOptions::default()
             },
         )
@@ -512,6 +517,7 @@ fn align_candidates(
     tracing::debug!(
         candidates = candidates.len(),
         inliers = r.num_inliers,
+        tolerance,
         scale = r.model.scale(),
         shift_x = r.model.t.x,
         shift_y = r.model.t.y,
@@ -519,8 +525,42 @@ fn align_candidates(
     );
     (r.num_inliers >= ALIGNMENT_MIN_INLIERS && plausible).then_some(orient::Guide {
         map: r.model,
-        half_px: (2.0 * ALIGNMENT_TOLERANCE_PX).max(opts.min_half_px),
+        half_px: (2.0 * tolerance).max(opts.min_half_px),
     })
+}
+
+/// What a 2-D similarity cannot absorb of the navigation's attitude error over the
+/// candidates (px): their predicted rays are tilted by 1σ about each image axis, the
+/// best similarity is fitted to the moved positions, and the largest residual is taken,
+/// plus [`ALIGNMENT_MATCH_PX`] for matching and relief. It grows with the candidates'
+/// spread and their distance from the principal point over the focal length: about
+/// 12 px for a 3° σ over a 1000 px frame photo at f = 1200 px, more on a wide film scan.
+fn alignment_tolerance(
+    camera: &Camera,
+    candidates: &[(Vector2<f64>, Vector2<f64>)],
+    cov: &SMatrix<f64, 6, 6>,
+) -> f64 {
+    let sigma = cov[(0, 0)].max(cov[(1, 1)]).max(0.0).sqrt();
+    let rays: Vec<(Vector2<f64>, Vector3<f64>)> = candidates
+        .iter()
+        .filter_map(|(p, _)| Some((*p, camera.unproject([p.x, p.y]).ok()?)))
+        .collect();
+    let mut worst = 0.0f64;
+    for axis in [Vector3::x_axis(), Vector3::y_axis()] {
+        let tilt = nalgebra::Rotation3::from_axis_angle(&axis, sigma);
+        let moved: Vec<(Vector2<f64>, Vector2<f64>)> = rays
+            .iter()
+            .filter_map(|(p, d)| Some((*p, camera.project(&(tilt * d)).ok()?)))
+            .collect();
+        let refs: Vec<&(Vector2<f64>, Vector2<f64>)> = moved.iter().collect();
+        let Some(s) = Similarity2::fit(&refs) else {
+            continue;
+        };
+        for (p, q) in &moved {
+            worst = worst.max((s.apply(p) - q).norm());
+        }
+    }
+    worst + ALIGNMENT_MATCH_PX
 }
 
 /// The pose turned about its optical axis by the rotation of `guide` (an image rotation
@@ -587,10 +627,8 @@ fn prior_distance(pose: &Pose, prior: &Pose, cov: &SMatrix<f64, 6, 6>) -> f64 {
 /// (a chance agreement of two wrong peaks within the tolerance in a window of ±250 px is
 /// under one in a thousand).
 const ALIGNMENT_MIN_INLIERS: usize = 4;
-/// What a similarity leaves of a navigation pose's error over a photo (px): the
-/// perspective of a 3° tilt error at 500 px from the centre of a 1200 px focal length is
-/// about 10 px, relief displacement differences a few more.
-const ALIGNMENT_TOLERANCE_PX: f64 = 12.0;
+/// Matching error and relief displacement differences left after the alignment (px).
+const ALIGNMENT_MATCH_PX: f64 = 3.0;
 
 #[allow(clippy::too_many_arguments)]
 fn orient_with_camera(
@@ -674,5 +712,53 @@ fn orient_with_camera(
         covariance: o.covariance,
         matches: if oriented { o.matches } else { Vec::new() },
         first_round: o.first_round,
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::geometry::FrameCamera;
+
+    /// Predicted pixels on a regular grid over a region of the image.
+    fn grid(x0: f64, y0: f64, x1: f64, y1: f64) -> Vec<(Vector2<f64>, Vector2<f64>)> {
+        let mut out = Vec::new();
+        for i in 0..5 {
+            for j in 0..5 {
+                let p = Vector2::new(
+                    x0 + (x1 - x0) * i as f64 / 4.0,
+                    y0 + (y1 - y0) * j as f64 / 4.0,
+                );
+                out.push((p, p));
+            }
+        }
+        out
+    }
+
+    #[test]
+    fn alignment_tolerance_follows_the_camera_geometry() {
+        let cov = predict::pos_covariance(10.0, 3f64.to_radians());
+        // The digital archive camera of the synthetic blocks, candidates over the frame.
+        let frame = Camera::Frame(FrameCamera::pinhole(1000, 666, 1200.0));
+        let t_frame = alignment_tolerance(&frame, &grid(50.0, 50.0, 950.0, 616.0), &cov);
+        // A 153 mm camera scanned at 42 µm (f = 3643 px), candidates in one corner
+        // 600 px across, 2000 px from the centre.
+        let film = Camera::Frame(FrameCamera::pinhole(5476, 5476, 153.0 / 0.042));
+        let t_film = alignment_tolerance(&film, &grid(4300.0, 4300.0, 4900.0, 4900.0), &cov);
+        // Same film, same spread, around the centre: only the spread matters then.
+        let t_centre = alignment_tolerance(&film, &grid(2438.0, 2438.0, 3038.0, 3038.0), &cov);
+        assert!((6.0..16.0).contains(&t_frame), "frame {t_frame}");
+        assert!(
+            t_film > t_centre + 2.0,
+            "film corner {t_film}, centre {t_centre}"
+        );
+        assert!(
+            t_centre < t_frame,
+            "film centre {t_centre}, frame {t_frame}"
+        );
+        // A tenth of the attitude σ leaves little more than the matching allowance.
+        let fine = predict::pos_covariance(1.0, 0.3f64.to_radians());
+        let t_fine = alignment_tolerance(&frame, &grid(50.0, 50.0, 950.0, 616.0), &fine);
+        assert!(t_fine < ALIGNMENT_MATCH_PX + 1.5, "fine {t_fine}");
     }
 }
