@@ -139,7 +139,11 @@ pub fn orient_photo(
     guide: Option<&Guide>,
 ) -> Oriented {
     let (w, h) = camera.image_size();
-    let max_half = opts.max_half_px.min(0.5 * w.min(h) as f64);
+    // Never below the smallest window (clamp needs min ≤ max, even for a tiny image).
+    let max_half = opts
+        .max_half_px
+        .min(0.5 * w.min(h) as f64)
+        .max(opts.min_half_px);
     let mut pose = *approximate;
     let mut cov = *covariance;
     let mut oriented = false;
