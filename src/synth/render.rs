@@ -278,9 +278,9 @@ impl<'a> RayCaster<'a> {
         }
         narrow(ta, ga);
         // First step as over flat ground.
-        let (mut tb, mut gb) = (ta + ga / -d.z, 0.0);
+        let mut tb = ta + ga / -d.z;
         for _ in 0..40 {
-            gb = self.gap(o, d, tb);
+            let gb = self.gap(o, d, tb);
             let (l, u) = narrow(tb, gb);
             if gb.abs() < 1e-5 || u - l < 1e-6 {
                 break;
@@ -297,7 +297,6 @@ impl<'a> RayCaster<'a> {
                 0.5 * (l + u)
             };
         }
-        let _ = gb;
         self.hit(o, d, tb)
     }
 
@@ -384,9 +383,10 @@ pub fn render(
     } else {
         Vec::new()
     };
-    // The lattice cell's four corners, when its rays see terrain alone.
-    let coherent = |c: u32, r: u32| -> Option<[f64; 4]> {
-        let (i, j) = ((c / LATTICE).min(lw - 2), (r / LATTICE).min(lh - 2));
+    // Per lattice cell (row-major, (lw − 1) per row): its corners' ray parameters, when
+    // its rays see terrain alone.
+    let coherent = |k: u32| -> Option<[f64; 4]> {
+        let (i, j) = (k % (lw - 1), k / (lw - 1));
         let corners = [
             lattice_hits[(j * lw + i) as usize]?,
             lattice_hits[(j * lw + i + 1) as usize]?,
@@ -407,18 +407,22 @@ pub fn render(
             .terrain_only(x0 - m, y0 - m, x1 + m, y1 + m)
             .then(|| corners.map(|c| c.0))
     };
+    let cells: Vec<Option<[f64; 4]>> = if n == 1 && lw >= 2 && lh >= 2 {
+        (0..(lw - 1) * (lh - 1))
+            .into_par_iter()
+            .map(coherent)
+            .collect()
+    } else {
+        Vec::new()
+    };
     let rows: Vec<Vec<f32>> = (0..h)
         .into_par_iter()
         .map(|row| {
             let mut out = Vec::with_capacity(w as usize);
-            let mut cell: Option<(u32, Option<[f64; 4]>)> = None;
             for col in 0..w {
-                if n == 1 && lw >= 2 && lh >= 2 {
-                    let key = col / LATTICE;
-                    if cell.map(|c| c.0) != Some(key) {
-                        cell = Some((key, coherent(col, row)));
-                    }
-                    if let Some((_, Some(ts))) = cell {
+                if !cells.is_empty() {
+                    let (i, j) = ((col / LATTICE).min(lw - 2), (row / LATTICE).min(lh - 2));
+                    if let Some(ts) = cells[(j * (lw - 1) + i) as usize] {
                         let Some(d) = ray([col as f64 + 0.5, row as f64 + 0.5]) else {
                             out.push(background);
                             continue;
