@@ -39,6 +39,7 @@ pub(crate) fn specs(config: &SynthConfig, p: &PresetParams) -> Vec<EpochSpec> {
         PosQuality::Rough => Some((10.0, 3.0f64.to_radians())),
         PosQuality::None => None,
     };
+    // Youngest first: each archive epoch's world is generated from the one before it.
     vec![
         EpochSpec {
             name: "reference_2024".into(),
@@ -191,14 +192,27 @@ pub(crate) fn generate_epoch(
             (n, n, geo, None, None)
         }
     };
-    // At least a stereo pair per strip, even when one photo would cover the area.
+    // At least a stereo pair per strip, even when one photo would cover the area; film
+    // at least its preset's layout, centred on the area.
+    let (strips, per_strip) = match spec.kind {
+        Kind::Frame => (1, 2),
+        Kind::Film => p.film_layout,
+    };
     let mut plan_area = p.area;
+    let spacing = geo.across_m * (1.0 - geo.side_overlap);
     let base = geo.along_m * (1.0 - geo.forward_overlap);
-    let need = geo.along_m + base;
-    if plan_area[3] - plan_area[1] < need {
-        let cy = 0.5 * (plan_area[1] + plan_area[3]);
-        plan_area[1] = cy - need / 2.0;
-        plan_area[3] = cy + need / 2.0;
+    // Just under the extent that gives that many strips and photos (flight::plan rounds up).
+    let need = [
+        geo.across_m + (strips as f64 - 1.0 - 1e-6) * spacing,
+        geo.along_m + (per_strip as f64 - 1.0 - 1e-6) * base,
+    ];
+    for (axis, need) in need.into_iter().enumerate() {
+        let (lo, hi) = (plan_area[axis], plan_area[axis + 2]);
+        if hi - lo < need {
+            let c = 0.5 * (lo + hi);
+            plan_area[axis] = c - need / 2.0;
+            plan_area[axis + 2] = c + need / 2.0;
+        }
     }
     let prefix = spec.name.split('_').next().unwrap_or("p");
     let photos: Vec<PlannedPhoto> = flight::plan(plan_area, &geo, mean_ground, prefix, rng);

@@ -113,6 +113,9 @@ pub(crate) struct PresetParams {
     pub archive_gsd: f64,
     pub film_gsd: f64,
     pub film_scan_mm: f64,
+    /// Least film flight: strips × photos per strip (a film frame covers kilometres, far
+    /// more than the LiDAR area, so the block is planned by its layout, not the area).
+    pub film_layout: (usize, usize),
 }
 
 impl Preset {
@@ -151,9 +154,18 @@ impl Preset {
                 0.05,
             ),
         };
+        // Film as archives hold it: a 153 mm camera scanned at 42 µm, 0.5 m ground pixel
+        // (a 5.7k-pixel scan covering 2.7 km). The tiny preset keeps a coarse scan for
+        // unit tests of other modules.
         let (archive_gsd, film_gsd, film_scan_mm) = match self {
             Preset::Tiny => (0.3, 0.6, 0.2),
-            _ => (2.0 * f64::max(ref_gsd, 0.1), 0.5, 0.1),
+            _ => (2.0 * f64::max(ref_gsd, 0.1), 0.5, 0.042),
+        };
+        let film_layout = match self {
+            Preset::Tiny => (1, 2),
+            Preset::Small => (2, 3),
+            Preset::Medium => (4, 6),
+            Preset::Large => (8, 10),
         };
         PresetParams {
             area,
@@ -165,6 +177,7 @@ impl Preset {
             archive_gsd,
             film_gsd,
             film_scan_mm,
+            film_layout,
         }
     }
 }
@@ -191,6 +204,7 @@ pub struct EpochInfo {
     pub camera: String,
     /// `pos.csv`, or `strips.csv` when no POS is given.
     pub navigation: String,
+    /// Change of the step from the next younger epoch (0 for the reference).
     pub scene_change: f64,
     pub truth_dir: String,
 }
@@ -405,12 +419,12 @@ pub fn generate(config: &SynthConfig, out_dir: &Path) -> Result<SynthManifest, S
     let mut epochs = Vec::new();
     let mut cp_rows = Vec::new();
     let specs = epoch::specs(config, &p);
+    // Epochs from the youngest back: each one's world is the younger one's, changed.
+    let mut epoch_scene = scene.clone();
     for (k, spec) in specs.iter().enumerate() {
-        let epoch_scene = if spec.change > 0.0 {
-            scene.changed(spec.change, 0xE90C + k as u64)
-        } else {
-            scene.clone()
-        };
+        if spec.change > 0.0 {
+            epoch_scene = epoch_scene.changed(spec.change, 0xE90C + k as u64);
+        }
         let mut rng = sub_seed(config.seed, 10 + k as u64);
         let (info, rows) =
             epoch::generate_epoch(spec, &epoch_scene, config, &p, out_dir, &mut rng)?;

@@ -151,8 +151,8 @@ pub struct Scene {
     pub targets: Vec<Target>,
     field_angle: f64,
     field_salt: u64,
-    retexture_salt: u64,
-    retexture_fraction: f64,
+    /// Re-texturing of each change step back in time, youngest first: (salt, fraction).
+    retexture: Vec<(u64, f64)>,
     grid: Vec<Vec<u32>>,
     grid_dims: (usize, usize),
 }
@@ -181,8 +181,12 @@ impl Scene {
             targets: Vec::new(),
             field_angle: rng.gen_range(-0.6..0.6),
             field_salt: rng.gen(),
-            retexture_salt: rng.gen(),
-            retexture_fraction: 0.0,
+            retexture: {
+                // The stream keeps the draw of a former field, so every seed's scene
+                // stays the one earlier versions generated.
+                let _: u64 = rng.gen();
+                Vec::new()
+            },
             grid: Vec::new(),
             grid_dims: (0, 0),
         };
@@ -390,16 +394,17 @@ impl Scene {
         self.grid_dims = (nx, ny);
     }
 
-    /// The same world at another time: a fraction `change` of it differs. Half of the
-    /// changed buildings are absent (built later), as many others stand that were
-    /// demolished since; roofs and field parcels are re-textured; trees were smaller or
-    /// absent. Targets stay: checkpoints are chosen on stable features.
+    /// The same world one step earlier in time: a fraction `change` of it differs from
+    /// `self`. Half of the changed buildings are absent (built later), as many others
+    /// stand that were demolished since; roofs and field parcels are re-textured; trees
+    /// were smaller or absent. Targets stay: checkpoints are chosen on stable features.
+    /// Steps nest, as a time series does: what an older scene shares with the present
+    /// is a subset of what the younger one shares with it.
     pub fn changed(&self, change: f64, salt: u64) -> Scene {
         let change = change.clamp(0.0, 1.0);
         let mut rng = ChaCha8Rng::seed_from_u64(self.seed ^ salt ^ 0xC4A46E);
         let mut s = self.clone();
-        s.retexture_salt = rng.gen();
-        s.retexture_fraction = change;
+        s.retexture.push((rng.gen(), change));
         let n0 = s.buildings.len();
         s.buildings.retain(|_| !rng.gen_bool(change * 0.5));
         s.trees.retain(|_| !rng.gen_bool(change * 0.3));
@@ -411,7 +416,14 @@ impl Scene {
         }
         let added = (n0 as f64 * change * 0.5).round() as usize;
         let mut tries = 0;
-        let mut next_id = 100_000;
+        // Buildings added by an earlier step keep their ids: new ones follow them.
+        let mut next_id = s
+            .buildings
+            .iter()
+            .map(|b| b.id + 1)
+            .max()
+            .unwrap_or(0)
+            .max(100_000);
         let target = s.buildings.len() + added;
         while s.buildings.len() < target && tries < added * 40 + 10 {
             tries += 1;

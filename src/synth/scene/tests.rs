@@ -79,6 +79,43 @@ fn changed_epoch_differs_but_keeps_the_targets() {
 }
 
 #[test]
+fn change_steps_nest_back_in_time() {
+    // reference → one step back → two steps back, each step re-texturing half the world.
+    let s0 = Scene::generate(3, EXTENT);
+    let s1 = s0.changed(0.5, 1);
+    let s2 = s1.changed(0.5, 2);
+    let (mut same_01, mut same_02, mut same_12, mut n) = (0, 0, 0, 0);
+    for i in -20..20 {
+        for j in -20..20 {
+            let [h0, h1, h2] = [&s0, &s1, &s2].map(|s| s.salt_for(0xF1E1D, i, j).0);
+            n += 1;
+            same_01 += (h0 == h1) as usize;
+            same_02 += (h0 == h2) as usize;
+            same_12 += (h1 == h2) as usize;
+            // What the oldest scene shares with today, the younger one shares too.
+            assert!(h0 != h2 || h0 == h1, "parcel {i},{j}");
+        }
+    }
+    let f = |k: usize| k as f64 / n as f64;
+    // Each step keeps half; two steps keep a quarter.
+    assert!((f(same_01) - 0.5).abs() < 0.06, "{}", f(same_01));
+    assert!((f(same_12) - 0.5).abs() < 0.06, "{}", f(same_12));
+    assert!((f(same_02) - 0.25).abs() < 0.06, "{}", f(same_02));
+    // Buildings: none of today's that the older scene has is missing from the younger
+    // one, and the ids stay unique.
+    let ids = |s: &Scene| s.buildings.iter().map(|b| b.id).collect::<Vec<_>>();
+    let (i0, i1, i2) = (ids(&s0), ids(&s1), ids(&s2));
+    assert!(i2
+        .iter()
+        .filter(|id| i0.contains(id))
+        .all(|id| i1.contains(id)));
+    let mut u = i2.clone();
+    u.sort_unstable();
+    u.dedup();
+    assert_eq!(u.len(), i2.len());
+}
+
+#[test]
 fn render_photo_shows_a_target_where_it_projects() {
     use crate::geometry::{Camera, FrameCamera, Pose};
     let s = Scene::generate(3, EXTENT);

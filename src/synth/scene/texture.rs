@@ -91,15 +91,16 @@ impl Scene {
         }
     }
 
-    /// Re-texture decision for an object or parcel: (hash, changed?).
-    fn salt_for(&self, kind: u64, a: i64, b: i64) -> (u64, bool) {
-        let changed = self.retexture_fraction > 0.0
-            && unit(hash3(self.retexture_salt ^ kind, a, b)) < self.retexture_fraction;
-        if changed {
-            (hash3(self.retexture_salt ^ kind ^ 0xC4A6, a, b), true)
-        } else {
-            (hash3(self.field_salt ^ kind, a, b), false)
+    /// Re-texture decision for an object or parcel: (hash, changed?). Its texture is the
+    /// one of the oldest change step that re-textured it (before that step it looked
+    /// like that), else today's.
+    pub(super) fn salt_for(&self, kind: u64, a: i64, b: i64) -> (u64, bool) {
+        for &(salt, fraction) in self.retexture.iter().rev() {
+            if unit(hash3(salt ^ kind, a, b)) < fraction {
+                return (hash3(salt ^ kind ^ 0xC4A6, a, b), true);
+            }
         }
+        (hash3(self.field_salt ^ kind, a, b), false)
     }
 
     fn field_albedo(&self, x: f64, y: f64, fp: f64) -> f64 {
