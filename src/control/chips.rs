@@ -336,14 +336,15 @@ impl<'a> ChipMatcher<'a> {
         scored.into_iter().map(|s| s.0).collect()
     }
 
-    /// The chip of view `view` aligned to the target at `pixel`, or None when the chip
-    /// does not hold the template.
+    /// The chip of view `view` aligned to the target at `pixel` as a template of half
+    /// size at most `max_half`, or None when the chip does not hold the template.
     fn template(
         &mut self,
         point: usize,
         view: usize,
         pose: &Pose,
         pixel: Vector2<f64>,
+        max_half: f64,
     ) -> Option<GreyImage> {
         let store = self.store;
         let p = &store.points[point];
@@ -368,7 +369,7 @@ impl<'a> ChipMatcher<'a> {
         // a coarser target needs more chip pixels per template pixel.
         let stretch = l.column(0).norm().max(l.column(1).norm()).max(1e-9);
         let room = (v.width.min(v.height) as f64 / 2.0 - 3.0) / (stretch * 1.05);
-        let th = (self.opts.template_half as f64).min(room.floor() - 1.0);
+        let th = max_half.min(room.floor() - 1.0);
         if th < self.opts.min_template_half as f64 {
             return None;
         }
@@ -400,30 +401,31 @@ impl<'a> ChipMatcher<'a> {
     }
 }
 
-impl PatchMatcher for ChipMatcher<'_> {
-    fn find(
+/// Half size of the retry template relative to the first one's.
+const SMALLER_TEMPLATE: f64 = 0.55;
+
+impl ChipMatcher<'_> {
+    /// The template of the best-ranked view that holds one of half size ≤ `max_half`.
+    fn best_template(
         &mut self,
-        patch: &ControlPatch,
+        point: usize,
         pose: &Pose,
+        pixel: Vector2<f64>,
+        max_half: f64,
+    ) -> Option<GreyImage> {
+        self.ranked_views(point, pose)
+            .into_iter()
+            .find_map(|view| self.template(point, view, pose, pixel, max_half))
+    }
+
+    /// NCC + LSM of `tpl` in the window around the prediction; None when rejected.
+    fn search(
+        &self,
+        patch: usize,
+        tpl: &GreyImage,
         prediction: &Prediction,
         half_size: [f64; 2],
-    ) -> Option<PatchMatch> {
-        self.stats.offered += 1;
-        let mut tpl = None;
-        for view in self.ranked_views(patch.id, pose) {
-            if let Some(t) = self.template(patch.id, view, pose, prediction.pixel) {
-                tpl = Some(t);
-                break;
-            }
-        }
-        let Some(tpl) = tpl else {
-            self.stats.no_chip += 1;
-            return None;
-        };
-        if tpl.std_dev() < self.opts.min_chip_std {
-            self.stats.textureless += 1;
-            return None;
-        }
+    ) -> Option<crate::matching::MatchResult> {
         let img = &self.pyramid.levels[0];
         let th = tpl.width as f64 / 2.0;
         let window = Window::around(
@@ -433,13 +435,14 @@ impl PatchMatcher for ChipMatcher<'_> {
             half_size[0] + th,
             half_size[1] + th,
         )?;
-        let rr = match_template(self.pyramid, &tpl, window, None, &self.opts.matching);
+        let rr = match_template(self.pyramid, tpl, window, None, &self.opts.matching);
         if let Ok(r) = &rr {
             tracing::debug!(
-                patch = patch.id,
+                patch,
                 pred_x = prediction.pixel.x,
                 pred_y = prediction.pixel.y,
                 half = half_size[0],
+                template_half = tpl.width / 2,
                 x = r.x,
                 y = r.y,
                 ncc = r.ncc,
@@ -448,20 +451,69 @@ impl PatchMatcher for ChipMatcher<'_> {
                 "control patch match"
             );
         }
-        let r = match rr {
-            Ok(r) if r.accepted => r,
-            _ => {
+        let r = rr.ok().filter(|r| r.accepted)?;
+        // The match must lie in the window that was searched (LSM may drift out of it).
+        ((r.x - prediction.pixel.x).abs() <= half_size[0] + 1.0
+            && (r.y - prediction.pixel.y).abs() <= half_size[1] + 1.0)
+            .then_some(r)
+    }
+}
+
+impl PatchMatcher for ChipMatcher<'_> {
+    fn find(
+        &mut self,
+        patch: &ControlPatch,
+        pose: &Pose,
+        prediction: &Prediction,
+        half_size: [f64; 2],
+    ) -> Option<PatchMatch> {
+        self.stats.offered += 1;
+        // The largest template first: in a wide window its many pixels set the true peak
+        // apart from near-repeats. Where it is rejected, once more with a template of
+        // about half the size: the larger the template's ground footprint, the likelier
+        // it spans a parcel or roof that changed since, or relief the plane transfer
+        // does not follow (film from 0.2 m digital chips: 30 m templates matched 0 of 64
+        // patches in a photo where 17 m ones matched 12).
+        let mut max_half = self.opts.template_half as f64;
+        let mut found = None;
+        let mut offered = false;
+        loop {
+            let mut th = max_half;
+            if let Some(tpl) = self.best_template(patch.id, pose, prediction.pixel, max_half) {
+                if tpl.std_dev() < self.opts.min_chip_std {
+                    if !offered {
+                        self.stats.textureless += 1;
+                        return None;
+                    }
+                    break;
+                }
+                offered = true;
+                found = self.search(patch.id, &tpl, prediction, half_size);
+                th = (tpl.width / 2) as f64;
+            }
+            // A template that did not fit in the chip may fit at the smaller size. It
+            // keeps enough pixels for a coarse pyramid level: a full-resolution search
+            // of a first-round window costs ~20× the search one level up.
+            let smaller = (th * SMALLER_TEMPLATE)
+                .round()
+                .max(self.opts.matching.min_template_px as f64);
+            if found.is_some() || smaller < self.opts.min_template_half as f64 || smaller > th - 2.0
+            {
+                break;
+            }
+            max_half = smaller;
+        }
+        let r = match (found, offered) {
+            (Some(r), _) => r,
+            (None, true) => {
                 self.stats.rejected += 1;
                 return None;
             }
+            (None, false) => {
+                self.stats.no_chip += 1;
+                return None;
+            }
         };
-        // The match must lie in the window that was searched (LSM may drift out of it).
-        if (r.x - prediction.pixel.x).abs() > half_size[0] + 1.0
-            || (r.y - prediction.pixel.y).abs() > half_size[1] + 1.0
-        {
-            self.stats.rejected += 1;
-            return None;
-        }
         self.stats.accepted += 1;
         let sigma = (0.5 * (r.sigma_x.powi(2) + r.sigma_y.powi(2))).sqrt();
         Some(PatchMatch {
