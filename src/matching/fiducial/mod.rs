@@ -268,7 +268,8 @@ pub fn interior_orientation(
             continue;
         };
         let origin_px = Vector2::new(pa.0, pa.1) - inv * Vector2::new(fa.x_mm, fa.y_mm);
-        let mut marks = measure_marks(cam, img, &pyr, &lin, origin_px, s, margin_mm, opts);
+        let predict = |f: &FiducialDef| origin_px + inv * Vector2::new(f.x_mm, f.y_mm);
+        let mut marks = measure_marks(cam, img, &pyr, &|_| lin, &predict, s, margin_mm, opts);
         match solve::fit(&mut marks, opts.kind, max_res, name) {
             Ok(fit) => {
                 let score = orientation::score(
@@ -365,7 +366,32 @@ pub fn interior_orientation(
             (0, best_margin, "decided by the marks".to_string())
         }
     };
-    let h = hyps.swap_remove(chosen);
+    let mut h = hyps.swap_remove(chosen);
+    // The templates were drawn through the similarity of two marks; drawn again through
+    // the fitted transform (scale difference and shear of the scanner included), an
+    // asymmetric mark (a real crop) no longer pulls its match off by a fraction of the
+    // geometric mismatch.
+    let io0 = h.io.clone();
+    let mut marks = measure_marks(
+        cam,
+        img,
+        &pyr,
+        &|f| {
+            let (_, jac) = io0.mm_to_pixel_with_jacobian(Vector2::new(f.x_mm, f.y_mm));
+            jac.try_inverse().unwrap_or_else(|| o_lin(&io0))
+        },
+        &|f| io0.mm_to_pixel(Vector2::new(f.x_mm, f.y_mm)),
+        s,
+        margin_mm,
+        opts,
+    );
+    if let Ok(fit) = solve::fit(&mut marks, opts.kind, max_res, name) {
+        if marks.iter().filter(|m| m.used).count() >= h.score.marks_used {
+            h.marks = marks;
+            h.io = fit.io;
+            h.rmse_plain = fit.rmse_plain;
+        }
+    }
     tracing::debug!(scan = name, rmse_um = h.rmse_plain, orientation = %h.orientation, margin, "interior orientation");
     let io = h.io;
     let measured_um = io.mean_pixel_size_mm() * 1000.0;
@@ -408,23 +434,28 @@ pub fn interior_orientation(
     })
 }
 
-/// Measures every mark around its position predicted by the similarity (`lin`,
-/// `origin_px`): NCC + LSM in a ±1 mm window.
+/// Linear part (pixel → mm) of a transform.
+fn o_lin(io: &InteriorOrientation) -> Matrix2<f64> {
+    io.pixel_to_mm.fixed_view::<2, 2>(0, 0).into_owned()
+}
+
+/// Measures every mark around its predicted position: NCC + LSM in a ±1 mm window, the
+/// template drawn through `lin` (pixel → mm at the mark).
 #[allow(clippy::too_many_arguments)]
 fn measure_marks(
     cam: &CameraDefinition,
     img: &GreyImage,
     pyr: &Pyramid,
-    lin: &Matrix2<f64>,
-    origin_px: Vector2<f64>,
+    lin: &dyn Fn(&FiducialDef) -> Matrix2<f64>,
+    predict: &dyn Fn(&FiducialDef) -> Vector2<f64>,
     s: f64,
     margin_mm: f64,
     opts: &IoOptions,
 ) -> Vec<MarkResult> {
-    let inv = lin.try_inverse().unwrap_or_else(Matrix2::zeros);
     let mut marks = Vec::new();
     for f in &cam.fiducials {
-        let pred = origin_px + inv * Vector2::new(f.x_mm, f.y_mm);
+        let pred = predict(f);
+        let lin = lin(f);
         let mut mr = MarkResult {
             id: f.id.clone(),
             x: pred.x,
@@ -438,7 +469,7 @@ fn measure_marks(
             residual_norm_um: f64::NAN,
             reason: None,
         };
-        let Some(tpl) = render_template(&f.shape, lin, margin_mm) else {
+        let Some(tpl) = render_template(&f.shape, &lin, margin_mm) else {
             mr.reason = Some("template smaller than 5 scan pixels".into());
             marks.push(mr);
             continue;
