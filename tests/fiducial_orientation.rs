@@ -51,9 +51,18 @@ const STRIP_Y: [f64; 2] = [-100.0, -20.0];
 enum Mark {
     /// Crosshair of span `span`, bar width `line`, in a ring (outer diameter `ring`,
     /// width `line`), with a central dot.
-    CrossRingDot { span: f64, line: f64, ring: f64, dot: f64 },
+    CrossRingDot {
+        span: f64,
+        line: f64,
+        ring: f64,
+        dot: f64,
+    },
     /// Plain cross, optionally with a central dot.
-    Cross { span: f64, line: f64, dot: Option<f64> },
+    Cross {
+        span: f64,
+        line: f64,
+        dot: Option<f64>,
+    },
 }
 
 const RC10_MARK: Mark = Mark::CrossRingDot {
@@ -87,7 +96,10 @@ fn truth(o: ScanOrientation, pixel_mm: f64, size: usize) -> (Matrix2<f64>, Vecto
     let a = 0.004f64;
     let rot = Matrix2::new(a.cos(), -a.sin(), a.sin(), a.cos());
     let lin = rot * o.linear(pixel_mm) * Matrix2::new(1.002, 0.0015, 0.0, 0.9985);
-    (lin, Vector2::new(size as f64 / 2.0 + 3.3, size as f64 / 2.0 - 2.7))
+    (
+        lin,
+        Vector2::new(size as f64 / 2.0 + 3.3, size as f64 / 2.0 - 2.7),
+    )
 }
 
 /// Cheap deterministic grain in [−1, 1] (sum of two hashed uniforms).
@@ -115,28 +127,30 @@ fn render(scene: &Scene, o: ScanOrientation, pixel_mm: f64, size: usize, seed: u
     let (lin, origin) = truth(o, pixel_mm, size);
     let inv = lin.try_inverse().unwrap();
     let mut data = vec![0f32; size * size];
-    data.par_chunks_mut(size).enumerate().for_each(|(row, line)| {
-        for (col, v) in line.iter_mut().enumerate() {
-            let p = Vector2::new(col as f64 + 0.5, row as f64 + 0.5) - origin;
-            let mm = lin * p;
-            let mut base = 30.0;
-            if mm.x.abs() < 100.0 && mm.y.abs() < 100.0 {
-                base = 120.0 + 50.0 * ((mm.x / 3.1).sin() * (mm.y / 4.7).cos()) as f32;
-            }
-            if scene.strip
-                && (STRIP_X[0]..STRIP_X[1]).contains(&mm.x)
-                && (STRIP_Y[0]..STRIP_Y[1]).contains(&mm.y)
-            {
-                // Characters 1.5 mm apart, 1 mm tall blocks, some lit.
-                let (cx, cy) = ((mm.x / 1.5).floor() as i64, (mm.y / 1.5).floor() as i64);
-                let lit = (cx * 7 + cy * 13).rem_euclid(5) < 2;
-                if lit && (mm.x / 1.5).fract().abs() < 0.7 && (mm.y / 1.5).fract().abs() < 0.7 {
-                    base = 200.0;
+    data.par_chunks_mut(size)
+        .enumerate()
+        .for_each(|(row, line)| {
+            for (col, v) in line.iter_mut().enumerate() {
+                let p = Vector2::new(col as f64 + 0.5, row as f64 + 0.5) - origin;
+                let mm = lin * p;
+                let mut base = 30.0;
+                if mm.x.abs() < 100.0 && mm.y.abs() < 100.0 {
+                    base = 120.0 + 50.0 * ((mm.x / 3.1).sin() * (mm.y / 4.7).cos()) as f32;
                 }
+                if scene.strip
+                    && (STRIP_X[0]..STRIP_X[1]).contains(&mm.x)
+                    && (STRIP_Y[0]..STRIP_Y[1]).contains(&mm.y)
+                {
+                    // Characters 1.5 mm apart, 1 mm tall blocks, some lit.
+                    let (cx, cy) = ((mm.x / 1.5).floor() as i64, (mm.y / 1.5).floor() as i64);
+                    let lit = (cx * 7 + cy * 13).rem_euclid(5) < 2;
+                    if lit && (mm.x / 1.5).fract().abs() < 0.7 && (mm.y / 1.5).fract().abs() < 0.7 {
+                        base = 200.0;
+                    }
+                }
+                *v = base + 6.0 * grain(col, row, seed);
             }
-            *v = base + 6.0 * grain(col, row, seed);
-        }
-    });
+        });
     let mut img = GreyImage::new(size, size, data).unwrap();
     for &(x, y, m) in &scene.marks {
         let c = origin + inv * Vector2::new(x, y);
@@ -198,7 +212,10 @@ fn bilinear(img: &GreyImage, u: f64, v: f64) -> Option<f64> {
     if x < 0.0 || y < 0.0 || x > (img.width - 1) as f64 || y > (img.height - 1) as f64 {
         return None;
     }
-    let (i, j) = ((x as usize).min(img.width - 2), (y as usize).min(img.height - 2));
+    let (i, j) = (
+        (x as usize).min(img.width - 2),
+        (y as usize).min(img.height - 2),
+    );
     let (fx, fy) = (x - i as f64, y - j as f64);
     let g = |a: usize, b: usize| img.at(a, b) as f64;
     Some(
@@ -211,7 +228,9 @@ fn bilinear(img: &GreyImage, u: f64, v: f64) -> Option<f64> {
 fn camera_json(layout: &[(&str, f64, f64)], shape: &str, strip: bool) -> String {
     let fids: Vec<String> = layout
         .iter()
-        .map(|(id, x, y)| format!(r#"{{"id": "{id}", "x_mm": {x}, "y_mm": {y}, "shape": {shape}}}"#))
+        .map(|(id, x, y)| {
+            format!(r#"{{"id": "{id}", "x_mm": {x}, "y_mm": {y}, "shape": {shape}}}"#)
+        })
         .collect();
     let strip = if strip {
         format!(
@@ -229,7 +248,8 @@ fn camera_json(layout: &[(&str, f64, f64)], shape: &str, strip: bool) -> String 
     )
 }
 
-const RC10_SHAPE: &str = r#"{"type": "cross", "size_mm": 2.0, "line_mm": 0.1, "ring_mm": 1.4, "dot_mm": 0.25}"#;
+const RC10_SHAPE: &str =
+    r#"{"type": "cross", "size_mm": 2.0, "line_mm": 0.1, "ring_mm": 1.4, "dot_mm": 0.25}"#;
 
 fn camera(json: &str) -> CameraDefinition {
     let c: CameraDefinition = serde_json::from_str(json).unwrap();
@@ -247,7 +267,13 @@ fn orientations() -> Vec<ScanOrientation> {
         rotation_deg,
         mirrored,
     };
-    vec![o(0, false), o(90, false), o(180, false), o(270, false), o(0, true)]
+    vec![
+        o(0, false),
+        o(90, false),
+        o(180, false),
+        o(270, false),
+        o(0, true),
+    ]
 }
 
 /// Worst distance (px) of the measured marks from their true pixel centres; every mark
@@ -343,7 +369,10 @@ fn symmetric_layout_without_cue_is_an_error_naming_the_scan_or_takes_the_given_o
     let cam = camera(&camera_json(&SYMMETRIC, RC10_SHAPE, false));
     let (pixel_mm, size) = (0.042, 5800);
     let scene = Scene {
-        marks: SYMMETRIC.iter().map(|(_, x, y)| (*x, *y, RC10_MARK)).collect(),
+        marks: SYMMETRIC
+            .iter()
+            .map(|(_, x, y)| (*x, *y, RC10_MARK))
+            .collect(),
         crops: vec![],
         strip: false,
     };
@@ -391,7 +420,10 @@ fn data_strip_decides_a_symmetric_layout_and_the_epoch_majority_fixes_the_rest()
     let with_strip = camera(&camera_json(&SYMMETRIC, RC10_SHAPE, true));
     let (pixel_mm, size) = (0.042, 5900);
     let scene = |strip| Scene {
-        marks: SYMMETRIC.iter().map(|(_, x, y)| (*x, *y, RC10_MARK)).collect(),
+        marks: SYMMETRIC
+            .iter()
+            .map(|(_, x, y)| (*x, *y, RC10_MARK))
+            .collect(),
         crops: vec![],
         strip,
     };
@@ -419,7 +451,12 @@ fn data_strip_decides_a_symmetric_layout_and_the_epoch_majority_fixes_the_rest()
     let out = interior_orientation_epoch(
         &with_strip,
         &scans,
-        |&strip| Ok((format!("strip_{strip}"), render(&scene(strip), o, pixel_mm, size, 9))),
+        |&strip| {
+            Ok((
+                format!("strip_{strip}"),
+                render(&scene(strip), o, pixel_mm, size, 9),
+            ))
+        },
         &IoOptions::default(),
     );
     for r in &out {
@@ -428,7 +465,8 @@ fn data_strip_decides_a_symmetric_layout_and_the_epoch_majority_fixes_the_rest()
     }
     let last = out[2].as_ref().unwrap();
     assert!(
-        last.orientation_source.starts_with("epoch majority (2 of 2"),
+        last.orientation_source
+            .starts_with("epoch majority (2 of 2"),
         "{}",
         last.orientation_source
     );
@@ -439,7 +477,10 @@ fn data_strip_decides_a_symmetric_layout_and_the_epoch_majority_fixes_the_rest()
 fn cross_described_as_a_cross_is_found_with_and_without_dot() {
     let (pixel_mm, size) = (0.042, 5800);
     for (dot, shape) in [
-        (Some(0.3), r#"{"type": "cross", "size_mm": 1.6, "line_mm": 0.1, "dot_mm": 0.3}"#),
+        (
+            Some(0.3),
+            r#"{"type": "cross", "size_mm": 1.6, "line_mm": 0.1, "dot_mm": 0.3}"#,
+        ),
         (None, r#"{"type": "cross", "size_mm": 1.6, "line_mm": 0.1}"#),
     ] {
         let cam = camera(&camera_json(&RC10, shape, true));
@@ -521,7 +562,10 @@ fn template_kind(style: &str, ext: &str, limit_px: f64) {
     // A template path leaving the camera's folder is refused.
     std::fs::write(dir.join("escape.json"), json.replace("marks/L", "../L")).unwrap();
     let e = CameraDefinition::load(&dir.join("escape.json")).unwrap_err();
-    assert!(e.to_string().contains("inside the camera file's folder"), "{e}");
+    assert!(
+        e.to_string().contains("inside the camera file's folder"),
+        "{e}"
+    );
     let (pixel_mm, size) = (0.04, 6000);
     let scene = Scene {
         marks: vec![],

@@ -112,8 +112,7 @@ impl CameraDefinition {
             }
             let img = GreyImage::load(&real).map_err(|e| format!("fiducial {}: {e}", f.id))?;
             if let Some([cx, cy]) = f.shape.centre_px {
-                if !(cx >= 0.0 && cy >= 0.0 && cx <= img.width as f64 && cy <= img.height as f64)
-                {
+                if !(cx >= 0.0 && cy >= 0.0 && cx <= img.width as f64 && cy <= img.height as f64) {
                     return Err(format!(
                         "fiducial {}: centre_px [{cx}, {cy}] lies outside the {}×{} template",
                         f.id, img.width, img.height

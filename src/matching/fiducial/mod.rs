@@ -476,7 +476,10 @@ fn measure_marks(
         };
         // Local search: ±1 mm around the prediction covers scan shear and scale.
         let half = (1.0 / s).max(8.0);
-        let (hw, hh) = (half + tpl.width as f64 / 2.0, half + tpl.height as f64 / 2.0);
+        let (hw, hh) = (
+            half + tpl.width as f64 / 2.0,
+            half + tpl.height as f64 / 2.0,
+        );
         match Window::around(img, pred.x, pred.y, hw, hh) {
             None => mr.reason = Some("predicted position outside the scan".into()),
             Some(w) => match match_template(pyr, &tpl, w, None, &opts.matching) {

@@ -160,7 +160,11 @@ pub(super) fn score(
 
 /// Grey-value standard deviation of the scan over the data strip as `io` places it;
 /// None when less than half of it lies inside the scan.
-pub(super) fn strip_std(img: &GreyImage, io: &InteriorOrientation, strip: &DataStrip) -> Option<f64> {
+pub(super) fn strip_std(
+    img: &GreyImage,
+    io: &InteriorOrientation,
+    strip: &DataStrip,
+) -> Option<f64> {
     let step_mm = (io.mean_pixel_size_mm()).max(0.1);
     let nx = (((strip.x_mm[1] - strip.x_mm[0]) / step_mm).ceil() as usize).clamp(1, 4000);
     let ny = (((strip.y_mm[1] - strip.y_mm[0]) / step_mm).ceil() as usize).clamp(1, 4000);
@@ -189,11 +193,7 @@ pub(super) fn strip_std(img: &GreyImage, io: &InteriorOrientation, strip: &DataS
 
 /// Adds the data-strip cue (when every hypothesis can see the strip) and sorts the
 /// hypotheses best first; returns the margin of the best over the second.
-pub(super) fn rank(
-    hyps: &mut [Hypothesis],
-    img: &GreyImage,
-    strip: Option<&DataStrip>,
-) -> f64 {
+pub(super) fn rank(hyps: &mut [Hypothesis], img: &GreyImage, strip: Option<&DataStrip>) -> f64 {
     if let Some(strip) = strip {
         let stds: Vec<Option<f64>> = hyps.iter().map(|h| strip_std(img, &h.io, strip)).collect();
         if stds.iter().all(Option::is_some) {
