@@ -400,6 +400,20 @@ fn symmetric_layout_without_cue_is_an_error_naming_the_scan_or_takes_the_given_o
     assert!(io.orientation_ambiguous);
     let worst = worst_mark_px(&io, &SYMMETRIC, o, pixel_mm, size);
     assert!(worst <= 0.1, "worst {worst}");
+    // A fallback (an epoch's majority) is taken only because the marks cannot decide.
+    let opts = IoOptions {
+        fallback_orientation: Some(o),
+        ..IoOptions::default()
+    };
+    let io = interior_orientation(&cam, &scan, "frame_0412.tif", &opts).unwrap();
+    assert_eq!(io.orientation, o);
+    assert!(
+        io.orientation_source.starts_with("fallback 90°"),
+        "{}",
+        io.orientation_source
+    );
+    assert!(io.orientation_ambiguous);
+    assert!(worst_mark_px(&io, &SYMMETRIC, o, pixel_mm, size) <= 0.1);
     // An epoch fixes it: two scans decided by their data strip (another camera
     // definition would be needed for that), here the epoch of undecided scans alone has
     // no majority and keeps the error.

@@ -17,8 +17,8 @@ pub use camera::{
     FiducialDef, SCAN_PIXEL_UM,
 };
 pub use orientation::{
-    interior_orientation_epoch, majority_orientation, OrientationScore, ScanOrientation,
-    ORIENTATION_MARGIN_CAP, ORIENTATION_MIN_MARGIN,
+    epoch_orientation, interior_orientation_epoch, majority_orientation, OrientationScore,
+    ScanOrientation, ORIENTATION_MARGIN_CAP, ORIENTATION_MIN_MARGIN,
 };
 pub use shape::{render_template, FiducialShape, ShapeKind};
 
@@ -42,6 +42,10 @@ pub struct IoOptions {
     /// marks say (the others are still measured, for the reported margin). None: the
     /// marks decide, or the result is [`MatchingError::OrientationUndecided`].
     pub orientation: Option<ScanOrientation>,
+    /// The orientation taken when the marks cannot decide (e.g. the majority of an
+    /// epoch's decided scans, [`majority_orientation`]), instead of the
+    /// [`MatchingError::OrientationUndecided`] error; a decided scan keeps its own.
+    pub fallback_orientation: Option<ScanOrientation>,
     pub kind: InteriorTransformKind,
     /// Half-size of the wide search for the first two marks (mm).
     pub search_mm: f64,
@@ -70,6 +74,7 @@ impl Default for IoOptions {
         Self {
             pixel_mm: None,
             orientation: None,
+            fallback_orientation: None,
             kind: InteriorTransformKind::Affine,
             search_mm: 10.0,
             max_residual_um: 0.0,
@@ -102,14 +107,15 @@ pub struct IoResult {
     pub camera: String,
     pub orientation: ScanOrientation,
     /// The marks alone do not decide the orientation (margin below
-    /// [`IoOptions::min_orientation_margin`]); only possible with a given orientation,
-    /// since an undecided search is an error.
+    /// [`IoOptions::min_orientation_margin`]); only with a given or fallback orientation,
+    /// since an undecided search is otherwise an error.
     pub orientation_ambiguous: bool,
     /// Cost of the best other orientation over the chosen one's
     /// ([`OrientationScore::cost`]); below 1 when a given orientation fits worse than
     /// another. [`ORIENTATION_MARGIN_CAP`] when no other orientation measured enough marks.
     pub orientation_margin: f64,
-    /// `"given"`, `"decided by the marks"` or `"epoch majority (…)"`.
+    /// `"given"`, `"decided by the marks"`, `"fallback …"` ([`IoOptions::fallback_orientation`])
+    /// or `"epoch majority (…)"`.
     pub orientation_source: String,
     /// Every measured orientation hypothesis, best first.
     pub orientation_hypotheses: Vec<OrientationScore>,
@@ -328,44 +334,50 @@ pub fn interior_orientation(
                 .unwrap_or_default()
         )
     };
-    let (chosen, margin, source) = match opts.orientation {
-        Some(o) => {
-            let k = hyps
-                .iter()
-                .position(|h| h.orientation == o)
-                .expect("the given orientation was measured");
-            let other = hyps
-                .iter()
-                .enumerate()
-                .filter(|(i, _)| *i != k)
-                .map(|(_, h)| h.score.cost)
-                .fold(f64::INFINITY, f64::min);
-            let m = (other / hyps[k].score.cost).min(ORIENTATION_MARGIN_CAP);
-            if m < 1.0 {
-                tracing::warn!(
-                    scan = name,
-                    "given scan orientation {o} fits the fiducial marks {:.2}× worse than {}",
-                    1.0 / m,
-                    hyps[0].orientation
-                );
-            }
-            (k, m, "given".to_string())
-        }
-        None => {
-            if best_margin < opts.min_orientation_margin {
-                let detail = format!("{}; {}", describe(0), describe(1));
-                return Err(MatchingError::OrientationUndecided {
-                    scan: name.to_string(),
-                    best: hyps[0].orientation,
-                    second: hyps[1].orientation,
-                    margin: best_margin,
-                    required: opts.min_orientation_margin,
-                    detail,
-                });
-            }
-            (0, best_margin, "decided by the marks".to_string())
-        }
+    let position = |o: ScanOrientation| hyps.iter().position(|h| h.orientation == o);
+    let (chosen, source) = if let Some(o) = opts.orientation {
+        let k = position(o).expect("the given orientation was measured");
+        (k, "given".to_string())
+    } else if best_margin >= opts.min_orientation_margin {
+        (0, "decided by the marks".to_string())
+    } else if let Some((o, k)) = opts
+        .fallback_orientation
+        .and_then(|o| Some((o, position(o)?)))
+    {
+        (
+            k,
+            format!(
+                "fallback {o}: the marks do not decide (margin {best_margin:.2} between {} and {})",
+                hyps[0].orientation, hyps[1].orientation
+            ),
+        )
+    } else {
+        let detail = format!("{}; {}", describe(0), describe(1));
+        return Err(MatchingError::OrientationUndecided {
+            scan: name.to_string(),
+            best: hyps[0].orientation,
+            second: hyps[1].orientation,
+            margin: best_margin,
+            required: opts.min_orientation_margin,
+            detail,
+        });
     };
+    let other = hyps
+        .iter()
+        .enumerate()
+        .filter(|(i, _)| *i != chosen)
+        .map(|(_, h)| h.score.cost)
+        .fold(f64::INFINITY, f64::min);
+    let margin = (other / hyps[chosen].score.cost).min(ORIENTATION_MARGIN_CAP);
+    if margin < 1.0 {
+        tracing::warn!(
+            scan = name,
+            "scan orientation {} ({source}) fits the fiducial marks {:.2}× worse than {}",
+            hyps[chosen].orientation,
+            1.0 / margin,
+            hyps[0].orientation
+        );
+    }
     let mut h = hyps.swap_remove(chosen);
     // The templates were drawn through the similarity of two marks; drawn again through
     // the fitted transform (scale difference and shear of the scanner included), an
