@@ -19,8 +19,9 @@ pub mod resample;
 pub mod ties;
 
 pub use fiducial::{
-    interior_orientation, interior_orientation_file, CameraDefinition, FiducialDef, FiducialShape,
-    IoOptions, IoResult, MarkResult, ScanOrientation,
+    interior_orientation, interior_orientation_epoch, interior_orientation_file,
+    majority_orientation, CameraDefinition, FiducialDef, FiducialShape, IoOptions, IoResult,
+    MarkResult, ScanOrientation,
 };
 pub use forstner::{forstner, ForstnerOptions, InterestPoint};
 pub use image::GreyImage;
@@ -61,6 +62,20 @@ pub enum MatchingError {
     Camera(String),
     #[error("interior orientation of {scan}: {message}")]
     Orientation { scan: String, message: String },
+    #[error(
+        "interior orientation of {scan}: scan orientation undecided: {best} fits the marks only \
+         {margin:.2}× better than {second} ({required}× needed; {detail}); give the orientation \
+         (cloudcontrol io --orientation, or the epoch's majority), or describe a distinct mark \
+         or the data strip in the camera definition"
+    )]
+    OrientationUndecided {
+        scan: String,
+        best: fiducial::ScanOrientation,
+        second: fiducial::ScanOrientation,
+        margin: f64,
+        required: f64,
+        detail: String,
+    },
     #[error("relative orientation {a}–{b}: {message}")]
     Relative {
         a: String,

@@ -147,18 +147,15 @@ pub fn io(a: IoArgs, quiet: bool) -> ExitCode {
             if !quiet {
                 let used = io.marks.iter().filter(|m| m.used).count();
                 println!(
-                    "{}: {used}/{} marks, RMSE {:.1} µm, orientation {}°{}{} → {}",
+                    "{}: {used}/{} marks, RMSE {:.1} µm, orientation {} ({}, margin {:.1}×{}) → {}",
                     a.scan.display(),
                     io.marks.len(),
                     io.rmse_um,
-                    io.orientation.rotation_deg,
-                    if io.orientation.mirrored {
-                        " mirrored"
-                    } else {
-                        ""
-                    },
+                    io.orientation,
+                    io.orientation_source,
+                    io.orientation_margin,
                     if io.orientation_ambiguous {
-                        " (ambiguous: symmetric fiducial layout)"
+                        "; the marks alone do not decide it"
                     } else {
                         ""
                     },

@@ -1,0 +1,186 @@
+//! The camera definition of a metric film camera (its calibration certificate): fiducial
+//! marks with their calibrated positions and shapes, the data strip, and the plausible
+//! scan pixel sizes.
+
+use super::shape::{FiducialShape, ShapeKind};
+use crate::matching::{GreyImage, MatchingError, Result};
+use serde::{Deserialize, Serialize};
+use std::path::{Component, Path};
+use std::sync::Arc;
+
+/// Camera definition (formats/cameras/*.json, schema in formats/cameras/README.md).
+#[derive(Debug, Clone, Serialize, Deserialize)]
+pub struct CameraDefinition {
+    pub name: String,
+    pub source: String,
+    pub focal_mm: f64,
+    pub principal_point_mm: [f64; 2],
+    pub format_mm: [f64; 2],
+    #[serde(default)]
+    pub distortion: DistortionDef,
+    pub fiducials: Vec<FiducialDef>,
+    /// Where the camera images its data strip (clock, altimeter, frame counter) outside
+    /// the format: the asymmetry of the frame that tells the scan orientation when the
+    /// fiducial layout is symmetric.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub data_strip: Option<DataStrip>,
+}
+
+#[derive(Debug, Clone, Default, Serialize, Deserialize)]
+pub struct DistortionDef {
+    #[serde(default)]
+    pub k1: f64,
+    #[serde(default)]
+    pub k2: f64,
+    #[serde(default)]
+    pub k3: f64,
+    #[serde(default)]
+    pub p1: f64,
+    #[serde(default)]
+    pub p2: f64,
+}
+
+#[derive(Debug, Clone, Serialize, Deserialize)]
+pub struct FiducialDef {
+    pub id: String,
+    /// Calibrated position in the fiducial system (x right, y up, mm).
+    pub x_mm: f64,
+    pub y_mm: f64,
+    pub shape: FiducialShape,
+}
+
+/// A rectangle of the fiducial system (mm) holding the data strip: textured in a scan,
+/// while its images under the square's rotations and reflections lie on the uniform
+/// opaque frame.
+#[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
+pub struct DataStrip {
+    /// [min, max] along x (mm).
+    pub x_mm: [f64; 2],
+    /// [min, max] along y (mm).
+    pub y_mm: [f64; 2],
+}
+
+impl CameraDefinition {
+    /// Reads a camera definition; template marks' image files are read relative to the
+    /// folder of `path`.
+    pub fn load(path: &Path) -> Result<Self> {
+        let text = std::fs::read_to_string(path)
+            .map_err(|e| MatchingError::Camera(format!("{}: {e}", path.display())))?;
+        let mut def: Self = serde_json::from_str(&text)
+            .map_err(|e| MatchingError::Camera(format!("{}: {e}", path.display())))?;
+        def.validate()
+            .map_err(|e| MatchingError::Camera(format!("{}: {e}", path.display())))?;
+        let dir = path.parent().unwrap_or(Path::new("."));
+        def.load_templates(dir)
+            .map_err(|e| MatchingError::Camera(format!("{}: {e}", path.display())))?;
+        Ok(def)
+    }
+
+    /// Reads the image file of every template mark, relative to `dir` (the camera JSON's
+    /// folder). A path that is absolute or leaves `dir` (`..`, a symbolic link out) is
+    /// refused: a camera file must not make the program read elsewhere.
+    pub fn load_templates(&mut self, dir: &Path) -> std::result::Result<(), String> {
+        let root = dir
+            .canonicalize()
+            .map_err(|e| format!("camera folder {}: {e}", dir.display()))?;
+        for f in &mut self.fiducials {
+            if f.shape.kind != ShapeKind::Template {
+                continue;
+            }
+            let file = f.shape.file.as_deref().unwrap_or_default();
+            let rel = Path::new(file);
+            if rel.is_absolute()
+                || rel
+                    .components()
+                    .any(|c| !matches!(c, Component::Normal(_) | Component::CurDir))
+            {
+                return Err(format!(
+                    "fiducial {}: template file {file:?} must be a path inside the camera \
+                     file's folder (no absolute path, no ..)",
+                    f.id
+                ));
+            }
+            let full = root.join(rel);
+            let real = full
+                .canonicalize()
+                .map_err(|e| format!("fiducial {}: template file {}: {e}", f.id, full.display()))?;
+            if !real.starts_with(&root) {
+                return Err(format!(
+                    "fiducial {}: template file {file:?} leads out of the camera file's folder",
+                    f.id
+                ));
+            }
+            let img = GreyImage::load(&real).map_err(|e| format!("fiducial {}: {e}", f.id))?;
+            if let Some([cx, cy]) = f.shape.centre_px {
+                if !(cx >= 0.0 && cy >= 0.0 && cx <= img.width as f64 && cy <= img.height as f64) {
+                    return Err(format!(
+                        "fiducial {}: centre_px [{cx}, {cy}] lies outside the {}×{} template",
+                        f.id, img.width, img.height
+                    ));
+                }
+            }
+            f.shape.image = Some(Arc::new(img));
+        }
+        Ok(())
+    }
+
+    pub fn validate(&self) -> std::result::Result<(), String> {
+        if !(self.focal_mm > 0.0 && self.focal_mm.is_finite()) {
+            return Err(format!(
+                "focal_mm {} is not a positive length",
+                self.focal_mm
+            ));
+        }
+        if self.fiducials.len() < 3 {
+            return Err(format!(
+                "{} fiducials defined; interior orientation needs at least 3",
+                self.fiducials.len()
+            ));
+        }
+        for f in &self.fiducials {
+            if !(f.x_mm.is_finite() && f.y_mm.is_finite()) {
+                return Err(format!("fiducial {}: position is not finite", f.id));
+            }
+            f.shape
+                .validate()
+                .map_err(|e| format!("fiducial {}: {e}", f.id))?;
+        }
+        if let Some(s) = &self.data_strip {
+            let ok = |r: [f64; 2]| r[0].is_finite() && r[1].is_finite() && r[0] < r[1];
+            if !(ok(s.x_mm) && ok(s.y_mm)) {
+                return Err(format!(
+                    "data_strip x_mm {:?}, y_mm {:?}: each must be [min, max] with min < max",
+                    s.x_mm, s.y_mm
+                ));
+            }
+        }
+        Ok(())
+    }
+}
+
+/// Scan pixel sizes (µm) taken as physically plausible for a film scan: photogrammetric
+/// scanners work at 4–25 µm, office scanners down to 127 dpi (200 µm). A value outside is
+/// a unit mistake (mm or dpi given as µm).
+pub const SCAN_PIXEL_UM: std::ops::RangeInclusive<f64> = 3.0..=200.0;
+
+/// Checks a given scan pixel size (µm): finite, positive and within [`SCAN_PIXEL_UM`].
+pub fn check_scan_pixel_um(um: f64) -> std::result::Result<(), String> {
+    if um.is_finite() && SCAN_PIXEL_UM.contains(&um) {
+        Ok(())
+    } else {
+        Err(format!(
+            "scan pixel size {um} µm is not a plausible film scan pixel ({}–{} µm, i.e. \
+             {:.0}–{:.0} dpi)",
+            SCAN_PIXEL_UM.start(),
+            SCAN_PIXEL_UM.end(),
+            scan_pixel_um_from_dpi(*SCAN_PIXEL_UM.end()),
+            scan_pixel_um_from_dpi(*SCAN_PIXEL_UM.start()),
+        ))
+    }
+}
+
+/// Pixel size (µm) of a scan at `dpi` dots per inch (25 400 µm to the inch); the same
+/// formula turns a pixel size in µm back into dpi.
+pub fn scan_pixel_um_from_dpi(dpi: f64) -> f64 {
+    25_400.0 / dpi
+}
