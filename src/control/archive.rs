@@ -135,6 +135,15 @@ pub fn orient_epoch(
     if let Some(um) = input.scan_pixel_um {
         photo_opts.io.pixel_mm = Some(um / 1000.0);
     }
+    if let (EpochCamera::Film(def), None) = (&input.camera, photo_opts.io.orientation) {
+        photo_opts.io.fallback_orientation = crate::matching::fiducial::epoch_orientation(
+            def,
+            &input.photos,
+            |ph| Ok((ph.name.clone(), GreyImage::load(&ph.image)?)),
+            &photo_opts.io,
+        )
+        .map(|m| m.0);
+    }
     let mut outcomes: Vec<PhotoOrientation> = input
         .photos
         .par_iter()
