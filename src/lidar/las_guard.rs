@@ -256,7 +256,12 @@ fn check_chunk_table(
     let data_start = h.offset_to_point_data;
     let mut table = i64::from_le_bytes(read_at(path, f, data_start, "the LAZ chunk table offset")?);
     if table <= data_start as i64 && file_len >= 8 {
-        table = i64::from_le_bytes(read_at(path, f, file_len - 8, "the LAZ chunk table offset")?);
+        table = i64::from_le_bytes(read_at(
+            path,
+            f,
+            file_len - 8,
+            "the LAZ chunk table offset",
+        )?);
     }
     if table <= data_start as i64 {
         // No chunk table: laz-rs refuses the file by name.

@@ -126,6 +126,16 @@ impl CameraDefinition {
                 self.focal_mm
             ));
         }
+        let [fw, fh] = self.format_mm;
+        if !(fw.is_finite() && fh.is_finite() && fw > 0.0 && fh > 0.0) || fw.max(fh) > MAX_FORMAT_MM
+        {
+            return Err(format!(
+                "format_mm [{fw}, {fh}] is not a film format (positive, at most \
+                 {MAX_FORMAT_MM} mm a side)"
+            ));
+        }
+        // A mark is a small part of the frame; templates and searches are sized from it.
+        let max_mark = MAX_MARK_FRACTION * fw.min(fh);
         if self.fiducials.len() < 3 {
             return Err(format!(
                 "{} fiducials defined; interior orientation needs at least 3",
@@ -139,6 +149,22 @@ impl CameraDefinition {
             if f.shape.size_mm.is_nan() || f.shape.size_mm <= 0.0 {
                 return Err(format!("fiducial {}: size_mm must be positive", f.id));
             }
+            let sizes = [
+                ("size_mm", f.shape.size_mm),
+                ("line_mm", f.shape.line_mm),
+                ("dot_mm", f.shape.dot_mm.unwrap_or(0.0)),
+            ];
+            for (name, v) in sizes {
+                if !(v.is_finite() && v >= 0.0 && v <= max_mark) {
+                    return Err(format!(
+                        "fiducial {}: {name} {v} is not a mark size: at most {max_mark} mm \
+                         ({} of the {} mm film side)",
+                        f.id,
+                        MAX_MARK_FRACTION,
+                        fw.min(fh)
+                    ));
+                }
+            }
             if matches!(f.shape.kind, ShapeKind::Cross | ShapeKind::Ring)
                 && (f.shape.line_mm.is_nan() || f.shape.line_mm <= 0.0)
             {
@@ -151,6 +177,13 @@ impl CameraDefinition {
         Ok(())
     }
 }
+
+/// Largest film format side accepted (mm): aerial film is at most 9 × 18 in (229 × 457 mm).
+pub const MAX_FORMAT_MM: f64 = 500.0;
+
+/// Largest fiducial mark dimension (`size_mm`, `line_mm`, `dot_mm`) as a fraction of the
+/// shorter film side (23 mm on 230 mm film; real marks are 1–20 mm).
+pub const MAX_MARK_FRACTION: f64 = 0.1;
 
 /// How the scan lies relative to the fiducial system: the ideal map pixel → mm
 /// (x = col·s, y = −row·s about the centre) is rotated counter-clockwise by
