@@ -22,7 +22,7 @@ pub const RASTER_DRIVERS: &[&str] = &["GTiff", "PNG", "JPEG"];
 
 /// Refuses an image of `width`×`height` pixels beyond [`MAX_IMAGE_PIXELS`].
 pub fn check_pixels(path: &Path, width: u64, height: u64) -> Result<()> {
-    let pixels = width.checked_mul(height).unwrap_or(u64::MAX);
+    let pixels = width.saturating_mul(height);
     if pixels > MAX_IMAGE_PIXELS {
         return Err(FormatError::TooLarge {
             path: path.to_path_buf(),

@@ -120,8 +120,12 @@ impl GreyImage {
             Err(e @ FormatError::TooLarge { .. }) => return Err(err(e.detail())),
             // Large or exotic TIFF scans (tiled, BigTIFF, JPEG-in-TIFF) go through GDAL.
             Err(e) => {
-                return Self::load_window(path, None)
-                    .map_err(|g| err(format!("{}; GDAL: {g}", e.detail())))
+                return Self::load_window(path, None).map_err(|g| match g {
+                    MatchingError::Read { message, .. } => {
+                        err(format!("{}; GDAL: {message}", e.detail()))
+                    }
+                    g => g,
+                })
             }
         };
         let (w, h) = (img.width() as usize, img.height() as usize);
