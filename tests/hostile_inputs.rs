@@ -504,6 +504,14 @@ fn images_beyond_the_size_limits_are_refused_before_decoding() {
         let err = cli_fails(&["match", f.to_str().unwrap(), f.to_str().unwrap()]);
         says(&err, f, &words);
     }
+    // From memory (a package member) the same limits hold.
+    let e = cloudcontrol::formats::image_open::decode_image_bytes(
+        Path::new("chip.png"),
+        &png_header(30_000, 30_000, 16, 6),
+    )
+    .unwrap_err()
+    .to_string();
+    assert!(e.contains("chip.png") && e.contains(&bytes), "{e}");
     // The same header with a size that fits reads (an empty IDAT: a decode error, not a
     // size error).
     let small = tmp.path().join("small.png");

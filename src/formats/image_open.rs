@@ -85,15 +85,29 @@ pub fn image_size(path: &Path) -> Result<(u32, u32)> {
 /// [`MAX_IMAGE_PIXELS`] and its decoded size against [`MAX_DECODED_BYTES`], which also caps
 /// the decoder's allocations.
 pub fn decode_image(path: &Path) -> Result<image::DynamicImage> {
+    decode(path, reader(path)?)
+}
+
+/// [`decode_image`] of an image held in memory (a package member); `name` labels errors.
+pub fn decode_image_bytes(name: &Path, bytes: &[u8]) -> Result<image::DynamicImage> {
+    let r = image::ImageReader::new(std::io::Cursor::new(bytes))
+        .with_guessed_format()
+        .map_err(|e| FormatError::io(name, e))?;
+    decode(name, r)
+}
+
+fn decode<R: std::io::BufRead + std::io::Seek>(
+    path: &Path,
+    mut r: image::ImageReader<R>,
+) -> Result<image::DynamicImage> {
     use image::ImageDecoder;
-    let (w, h) = image_size(path)?;
-    check_pixels(path, w.into(), h.into())?;
-    let mut r = reader(path)?;
-    // Our limit replaces the reader's default, checked here on the header's figures.
-    r.no_limits();
     let bad =
         |e: image::ImageError| FormatError::invalid(path, format!("cannot decode the image: {e}"));
+    // Our limits replace the reader's default, checked on the header's figures.
+    r.no_limits();
     let mut decoder = r.into_decoder().map_err(bad)?;
+    let (w, h) = decoder.dimensions();
+    check_pixels(path, w.into(), h.into())?;
     let bytes = decoder.total_bytes();
     if bytes > MAX_DECODED_BYTES {
         return Err(FormatError::TooLarge {
