@@ -238,6 +238,11 @@ fn las_refused(f: &Path, words: &[&str]) {
     says(&e, f, words);
     let e = read_xyz(f).unwrap_err().to_string();
     says(&e, f, words);
+    let out = f.with_extension("rewritten.las");
+    let e = cloudcontrol::lidar::las::rewrite_las(f, &out, |_, p| Some(p))
+        .unwrap_err()
+        .to_string();
+    says(&e, f, words);
     let err = cli_fails(&["lidar", "info", f.to_str().unwrap()]);
     says(&err, f, words);
     let err = cli_fails(&[

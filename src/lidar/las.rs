@@ -584,7 +584,15 @@ pub fn rewrite_las(
     output: &Path,
     mut edit: impl FnMut(u64, las::Point) -> Option<las::Point>,
 ) -> Result<u64> {
-    let f = File::open(input).map_err(|e| LidarError::io(input, e))?;
+    let mut f = File::open(input).map_err(|e| LidarError::io(input, e))?;
+    let len = f.metadata().map_err(|e| LidarError::io(input, e))?.len();
+    if let Some(h) = las_guard::guard(input, &mut f, len)? {
+        if !h.compressed() {
+            raw_points(input, &h, len)?;
+        }
+    }
+    f.seek(SeekFrom::Start(0))
+        .map_err(|e| LidarError::io(input, e))?;
     let mut reader = las::Reader::new(BufReader::new(f)).map_err(|e| las_err(input, e))?;
     let mut builder = las::Builder::from(reader.header().clone());
     // The LAZ writer adds its own laszip VLR.
