@@ -103,9 +103,12 @@ fn decode<R: std::io::BufRead + std::io::Seek>(
     use image::ImageDecoder;
     let bad =
         |e: image::ImageError| FormatError::invalid(path, format!("cannot decode the image: {e}"));
-    // Our limits replace the reader's default, checked on the header's figures.
-    r.no_limits();
-    let mut decoder = r.into_decoder().map_err(bad)?;
+    // Our cap replaces the reader's default (512 MiB) for the header's own allocations
+    // (PNG text and ICC chunks, TIFF tags) and the decoded image.
+    let mut limits = image::Limits::default();
+    limits.max_alloc = Some(MAX_DECODED_BYTES);
+    r.limits(limits);
+    let decoder = r.into_decoder().map_err(bad)?;
     let (w, h) = decoder.dimensions();
     check_pixels(path, w.into(), h.into())?;
     let bytes = decoder.total_bytes();
@@ -121,9 +124,6 @@ fn decode<R: std::io::BufRead + std::io::Seek>(
             basis: "the bytes an image may decode to".into(),
         });
     }
-    let mut limits = image::Limits::default();
-    limits.max_alloc = Some(MAX_DECODED_BYTES);
-    decoder.set_limits(limits).map_err(bad)?;
     image::DynamicImage::from_decoder(decoder).map_err(bad)
 }
 
