@@ -131,8 +131,9 @@ fn decode<R: std::io::BufRead + std::io::Seek>(
 /// after a buffer for its whole claimed size was allocated.
 const STRIP_ROWS: usize = 256;
 
-/// Reads band `band` (1-based) of the window `(col, row, width, height)` as f32, row
-/// strip by row strip, passing each strip (whole rows, row-major) to `strip`.
+/// Reads `bands` (1-based) of the window `(col, row, width, height)` as f32, row strip by
+/// row strip, passing each strip (one row-major buffer per band, in the order of `bands`)
+/// to `strip`.
 pub fn read_band_strips(
     path: &Path,
     ds: &Dataset,
