@@ -488,8 +488,10 @@ impl DcpPackage {
                 "checksum mismatch: the chip was changed or damaged".into()
             ));
         }
-        let img =
-            image::load_from_memory(&data).map_err(|e| err(format!("cannot be decoded ({e})")))?;
+        // Decoded within the image limits: a chip is a few hundred pixels, a crafted one
+        // must not decompress to gigabytes.
+        let img = crate::formats::image_open::decode_image_bytes(Path::new(&chip.file), &data)
+            .map_err(|e| err(format!("cannot be decoded ({e})")))?;
         if img.width() != chip.width || img.height() != chip.height {
             return Err(err(format!(
                 "is {}×{} pixels, the manifest says {}×{}",

@@ -221,7 +221,7 @@ pub fn export_dcp(
             .get(&pid)
             .and_then(|p| p.image.as_ref())
             .ok_or_else(|| format!("no image for photo {pid}"))?;
-        image::open(p).map_err(|e| format!("{}: {e}", p.display()))
+        crate::formats::image_open::decode_image(p).map_err(|e| e.to_string())
     })
     .map_err(|e| input_err(out, e))?;
     Ok(DcpPackage::write(out, m, &chips)?)

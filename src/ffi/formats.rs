@@ -5,7 +5,7 @@ use super::{finite, guard, input, output, CcpStatus, FfiError, FfiResult};
 use crate::formats::convert::{convert, orthophoto_from_files, ConvertOptions};
 use crate::formats::crs::Crs;
 use crate::formats::ortho::OrthoOptions;
-use crate::formats::raster::{read_dem, write_dem, GeoTiffOptions};
+use crate::formats::raster::{dem_size, read_dem, write_dem, GeoTiffOptions};
 use crate::geometry::{Dem, GeoTransform};
 use std::ffi::{c_char, CStr};
 use std::path::PathBuf;
@@ -161,21 +161,21 @@ pub unsafe extern "C" fn ccp_dem_read(
         let w = output(width_out, 1, 1, "width_out")?;
         let h = output(height_out, 1, 1, "height_out")?;
         let gt = output(geotransform_out, 6, 6, "geotransform_out")?;
-        let (dem, _) = read_dem(&p)?;
-        w[0] = dem.width;
-        h[0] = dem.height;
-        gt.copy_from_slice(&dem.transform.0);
-        if heights.is_null() || heights_len < dem.data.len() {
+        // The size query reads the header only; the heights are read once they fit.
+        let (width, height, transform) = dem_size(&p)?;
+        w[0] = width;
+        h[0] = height;
+        gt.copy_from_slice(&transform);
+        if heights.is_null() || heights_len < width * height {
             return Err(FfiError::new(
                 CcpStatus::BufferTooSmall,
                 format!(
-                    "heights holds {heights_len} values but the DEM has {} ({}×{})",
-                    dem.data.len(),
-                    dem.width,
-                    dem.height
+                    "heights holds {heights_len} values but the DEM has {} ({width}×{height})",
+                    width * height,
                 ),
             ));
         }
+        let (dem, _) = read_dem(&p)?;
         let out = output(heights, heights_len, dem.data.len(), "heights")?;
         out.copy_from_slice(&dem.data);
         Ok(())

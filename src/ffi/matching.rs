@@ -3,7 +3,7 @@
 use super::{finite, guard, input, output, CcpStatus, FfiError, FfiResult};
 use crate::geometry::InteriorTransformKind;
 use crate::matching::fiducial::{
-    interior_orientation, CameraDefinition, IoOptions, ScanOrientation,
+    check_scan_pixel_um, interior_orientation, CameraDefinition, IoOptions, ScanOrientation,
 };
 use crate::matching::ncc::Window;
 use crate::matching::{
@@ -216,6 +216,10 @@ pub unsafe extern "C" fn ccp_fiducial_io(
             .map_err(|e| FfiError::invalid(format!("camera_json: {e}")))?;
         let img = image_from(scan, width, height, "scan")?;
         finite(&[pixel_mm], "pixel_mm")?;
+        if pixel_mm > 0.0 {
+            check_scan_pixel_um(pixel_mm * 1000.0)
+                .map_err(|m| FfiError::invalid(format!("pixel_mm {pixel_mm}: {m}")))?;
+        }
         let orientation = match orientation {
             -1 => None,
             k @ 0..=7 => Some(ScanOrientation {

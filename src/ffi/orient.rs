@@ -80,12 +80,9 @@ pub unsafe extern "C" fn ccp_orient_photo(
         if !(sigma[0] > 0.0 && sigma[1] > 0.0) {
             return Err(FfiError::invalid("sigma: both σ must be positive"));
         }
-        if !(scan_pixel_um == 0.0
-            || (scan_pixel_um.is_finite() && (1.0..=500.0).contains(&scan_pixel_um)))
-        {
-            return Err(FfiError::invalid(format!(
-                "scan_pixel_um {scan_pixel_um} is outside [1, 500] µm (0 to estimate it)"
-            )));
+        if scan_pixel_um != 0.0 {
+            crate::matching::fiducial::check_scan_pixel_um(scan_pixel_um)
+                .map_err(|m| FfiError::invalid(format!("scan_pixel_um (0 to estimate it): {m}")))?;
         }
         let camera = EpochCamera::load(Path::new(path_arg(camera_path, "camera_path")?))?;
         let image = Path::new(path_arg(image_path, "image_path")?).to_path_buf();

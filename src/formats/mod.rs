@@ -7,6 +7,7 @@ pub mod control_points;
 pub mod convert;
 pub mod crs;
 pub mod csv;
+pub mod image_open;
 pub mod ortho;
 pub mod pos;
 pub mod raster;
@@ -33,6 +34,16 @@ pub enum FormatError {
     },
     #[error("coordinate reference system {crs:?}: {message}")]
     Crs { crs: String, message: String },
+    /// A size or count in the file claims more than the file or a documented limit
+    /// allows: refused before anything is allocated or decoded from it.
+    #[error("{path}: {what}: {claimed} exceeds {limit}, {basis}")]
+    TooLarge {
+        path: PathBuf,
+        what: String,
+        claimed: u64,
+        limit: u64,
+        basis: String,
+    },
     #[error("{path}: GDAL: {message}")]
     Gdal { path: PathBuf, message: String },
     #[error(transparent)]
@@ -68,6 +79,13 @@ impl FormatError {
         match self {
             FormatError::Io { source, .. } => source.to_string(),
             FormatError::Invalid { message, .. } => message.clone(),
+            FormatError::TooLarge {
+                what,
+                claimed,
+                limit,
+                basis,
+                ..
+            } => format!("{what}: {claimed} exceeds {limit}, {basis}"),
             FormatError::Csv {
                 line,
                 column,

@@ -50,9 +50,7 @@ impl RgbImage {
 
     /// Loads any format the `image` crate decodes (TIFF, PNG, JPEG), converted to RGB8.
     pub fn load(path: &Path) -> Result<Self> {
-        let img = image::open(path)
-            .map_err(|e| FormatError::invalid(path, format!("cannot read the image: {e}")))?
-            .to_rgb8();
+        let img = super::image_open::decode_image(path)?.to_rgb8();
         let (w, h) = img.dimensions();
         Ok(Self {
             width: w,
@@ -82,6 +80,10 @@ impl RgbImage {
         Some(out)
     }
 }
+
+/// Largest orthophoto (pixels): 2³² (65 536² px, e.g. 6.5 km square at 10 cm). A gsd far
+/// below the photos' ground pixel over a large extent is refused before anything is made.
+pub const MAX_ORTHO_PIXELS: u64 = 1 << 32;
 
 /// Options of orthophoto production.
 #[derive(Debug, Clone)]
@@ -254,8 +256,22 @@ pub fn write_orthophoto(
     let (x0, y0, x1, y1) = opts.extent.unwrap_or_else(|| dem.extent());
     // Snap the grid to multiples of the GSD so adjacent products align.
     let (x0, y1) = ((x0 / gsd).floor() * gsd, (y1 / gsd).ceil() * gsd);
-    let width = ((x1 - x0) / gsd).ceil() as usize;
-    let height = ((y1 - y0) / gsd).ceil() as usize;
+    let (w, h) = (((x1 - x0) / gsd).ceil(), ((y1 - y0) / gsd).ceil());
+    if w * h > MAX_ORTHO_PIXELS as f64 {
+        return Err(FormatError::TooLarge {
+            path: path.to_path_buf(),
+            what: format!(
+                "orthophoto of {w}×{h} pixels (gsd {gsd} m over {:.1}×{:.1} m)",
+                x1 - x0,
+                y1 - y0
+            ),
+            claimed: (w * h).min(u64::MAX as f64) as u64,
+            limit: MAX_ORTHO_PIXELS,
+            basis: "the pixels an orthophoto may have; raise the gsd or give a smaller extent"
+                .into(),
+        });
+    }
+    let (width, height) = (w as usize, h as usize);
     if width == 0 || height == 0 || width > 1 << 20 || height > 1 << 20 {
         return Err(FormatError::invalid(
             path,
@@ -421,7 +437,7 @@ fn inside(image: &RgbImage, px: Vector2<f64>) -> Option<[f64; 3]> {
 pub fn preview(path: &Path, max_side: usize) -> Result<(Vec<u8>, [f64; 4])> {
     use image::ImageEncoder;
     let err = |e: gdal::errors::GdalError| FormatError::gdal(path, e);
-    let ds = gdal::Dataset::open(path).map_err(err)?;
+    let ds = super::image_open::open_raster(path)?;
     let (w, h) = ds.raster_size();
     let gt = ds.geo_transform().map_err(err)?;
     if w == 0 || h == 0 || gt[2] != 0.0 || gt[4] != 0.0 {

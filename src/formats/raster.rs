@@ -3,7 +3,7 @@
 //! half-written GeoTIFF behind.
 
 use super::crs::Crs;
-use super::{write_atomically, FormatError, Result};
+use super::{image_open, write_atomically, FormatError, Result};
 use crate::geometry::{Dem, GeoTransform};
 use gdal::raster::{Buffer, RasterCreationOptions};
 use gdal::{Dataset, DriverManager};
@@ -88,20 +88,38 @@ pub fn write_dem(path: &Path, dem: &Dem, crs: &Crs, opts: &GeoTiffOptions) -> Re
     })
 }
 
-/// Reads a single-band DEM GeoTIFF (any numeric type) with its CRS; nodata becomes NaN.
-pub fn read_dem(path: &Path) -> Result<(Dem, Option<Crs>)> {
+/// Width, height and geotransform of a DEM raster from its header, without reading the
+/// heights (the size query of `ccp_dem_read`).
+pub fn dem_size(path: &Path) -> Result<(usize, usize, [f64; 6])> {
+    let ds = open_dem(path)?;
+    let (w, h) = ds.raster_size();
+    let gt = ds.geo_transform().map_err(|e| FormatError::gdal(path, e))?;
+    Ok((w, h, gt))
+}
+
+/// Opens a DEM through [`image_open::open_raster`] and checks its size against
+/// [`image_open::MAX_IMAGE_PIXELS`] before any height is read.
+fn open_dem(path: &Path) -> Result<Dataset> {
     if !path.exists() {
         return Err(FormatError::invalid(path, "file does not exist"));
     }
-    let ds = Dataset::open(path).map_err(|e| FormatError::gdal(path, e))?;
+    let ds = image_open::open_raster(path)?;
+    let (w, h) = ds.raster_size();
+    image_open::check_pixels(path, w as u64, h as u64)?;
+    Ok(ds)
+}
+
+/// Reads a single-band DEM GeoTIFF (any numeric type) with its CRS; nodata becomes NaN.
+pub fn read_dem(path: &Path) -> Result<(Dem, Option<Crs>)> {
+    let ds = open_dem(path)?;
     let gt = ds.geo_transform().map_err(|e| FormatError::gdal(path, e))?;
     let band = ds.rasterband(1).map_err(|e| FormatError::gdal(path, e))?;
     let (w, h) = band.size();
     let nodata = band.no_data_value();
-    let buf = band
-        .read_as::<f32>((0, 0), (w, h), (w, h), None)
-        .map_err(|e| FormatError::gdal(path, e))?;
-    let (_, mut data) = buf.into_shape_and_vec();
+    let mut data = Vec::new();
+    image_open::read_band_strips(path, &ds, &[1], (0, 0, w, h), |s| {
+        data.extend_from_slice(&s[0])
+    })?;
     if let Some(nd) = nodata {
         let nd = nd as f32;
         for v in data.iter_mut().filter(|v| **v == nd) {

@@ -5,14 +5,17 @@
 //! Uncompressed LAS is decoded straight from the point records (the `las` crate parses the
 //! header and VLRs; coordinates, class, point source id and GPS time are read from their
 //! fixed offsets), which is several times faster than building a full `las::Point` per
-//! record. LAZ goes through `las::Reader` (laz-rs).
+//! record. LAZ goes through `las::Reader` (laz-rs), in batches bounded in bytes.
+//!
+//! Before either crate sees a file, `las_guard` checks the header, VLR and EVLR lengths,
+//! the LAZ chunk table and the point count against the file length.
 
-use super::{LidarError, Result};
+use super::{las_guard, LidarError, Result};
 use crate::formats::crs::{Crs, LinearUnit};
 use rayon::prelude::*;
 use serde::{Deserialize, Serialize};
 use std::fs::File;
-use std::io::{BufReader, Read};
+use std::io::{BufReader, Read, Seek, SeekFrom};
 use std::path::{Path, PathBuf};
 
 /// Header facts of one LAS/LAZ file.
@@ -138,8 +141,16 @@ enum Inner {
         layout: Layout,
         buf: Vec<u8>,
     },
-    Laz(Box<las::Reader>),
+    /// `batch`: the most points decompressed in one call (bounded in bytes).
+    Laz {
+        reader: Box<las::Reader>,
+        batch: usize,
+    },
 }
+
+/// Bytes of decompressed point records one LAZ read produces at most: the batch is sized
+/// from this, never from the header's count.
+const LAZ_BATCH_BYTES: usize = 16 << 20;
 
 /// A streaming reader of one LAS/LAZ file.
 pub struct LasStream {
@@ -264,17 +275,56 @@ fn header_crs(path: &Path, header: &las::Header) -> Result<Option<Crs>> {
         .map_err(to_las)
 }
 
+/// The record layout and start of the point data of an uncompressed file, after checking
+/// that the records the header declares are all present, and no more: the count never
+/// sizes anything before it is known to fit in the file.
+fn raw_points(path: &Path, h: &las_guard::PublicHeader, file_len: u64) -> Result<(Layout, u64)> {
+    let n = h.point_count;
+    let len = h.record_len as usize;
+    let format = h.point_format & 0x3f;
+    let layout = Layout::of(format, len).ok_or_else(|| LidarError::Las {
+        path: path.to_path_buf(),
+        message: format!("point format {format} with record length {len} is not supported"),
+    })?;
+    let start = h.offset_to_point_data;
+    let end = Some(h.first_evlr)
+        .filter(|&s| h.evlr_count > 0 && s >= start)
+        .unwrap_or(file_len)
+        .min(file_len);
+    let available = end.saturating_sub(start) / len as u64;
+    if available < n {
+        return Err(LidarError::Truncated {
+            path: path.to_path_buf(),
+            declared: n,
+            found: available,
+        });
+    }
+    if available > n {
+        return Err(LidarError::CountMismatch {
+            path: path.to_path_buf(),
+            declared: n,
+            found: available,
+        });
+    }
+    Ok((layout, start))
+}
+
 impl LasStream {
     /// Opens a file, reads its header and VLRs and checks that the point records the
     /// header declares are present (uncompressed LAS: from the file size).
     pub fn open(path: &Path) -> Result<Self> {
-        let file = File::open(path).map_err(|e| LidarError::io(path, e))?;
+        let mut file = File::open(path).map_err(|e| LidarError::io(path, e))?;
         let file_len = file.metadata().map_err(|e| LidarError::io(path, e))?.len();
-        let mut br = BufReader::new(file);
-        let raw = las::raw::Header::read_from(&mut br).map_err(|e| las_err(path, e))?;
+        // Bounds first: the crates below size buffers from header fields.
+        let guarded = las_guard::guard(path, &mut file, file_len)?;
+        let raw_layout = match &guarded {
+            Some(h) if !h.compressed() => Some(raw_points(path, h, file_len)?),
+            _ => None,
+        };
         let header = {
-            let f = File::open(path).map_err(|e| LidarError::io(path, e))?;
-            las::Header::new(BufReader::new(f)).map_err(|e| las_err(path, e))?
+            file.seek(SeekFrom::Start(0))
+                .map_err(|e| LidarError::io(path, e))?;
+            las::Header::new(BufReader::new(&mut file)).map_err(|e| las_err(path, e))?
         };
         let crs = header_crs(path, &header)?;
         let fmt = header.point_format();
@@ -302,50 +352,31 @@ impl LasStream {
             creation_date: header.date().map(|d| d.to_string()),
             file_source_id: header.file_source_id(),
         };
-        let n = info.point_count;
-        let inner = if fmt.is_compressed {
-            let f = File::open(path).map_err(|e| LidarError::io(path, e))?;
-            let reader = las::Reader::new(BufReader::new(f)).map_err(|e| las_err(path, e))?;
-            Inner::Laz(Box::new(reader))
-        } else {
-            let len = raw.point_data_record_length as usize;
-            let layout = Layout::of(info.point_format, len).ok_or_else(|| LidarError::Las {
-                path: path.to_path_buf(),
-                message: format!(
-                    "point format {} with record length {len} is not supported",
-                    info.point_format
-                ),
-            })?;
-            let start = raw.offset_to_point_data as u64;
-            let end = raw
-                .evlr
-                .as_ref()
-                .map(|e| e.start_of_first_evlr)
-                .filter(|&s| s >= start)
-                .unwrap_or(file_len)
-                .min(file_len);
-            let available = end.saturating_sub(start) / len as u64;
-            if available < n {
-                return Err(LidarError::Truncated {
-                    path: path.to_path_buf(),
-                    declared: n,
-                    found: available,
-                });
+        let inner = match raw_layout {
+            None if fmt.is_compressed => {
+                file.seek(SeekFrom::Start(0))
+                    .map_err(|e| LidarError::io(path, e))?;
+                let reader =
+                    las::Reader::new(BufReader::new(file)).map_err(|e| las_err(path, e))?;
+                Inner::Laz {
+                    reader: Box::new(reader),
+                    batch: (LAZ_BATCH_BYTES / usize::from(fmt.len()).max(1)).max(1),
+                }
             }
-            if available > n {
-                return Err(LidarError::CountMismatch {
-                    path: path.to_path_buf(),
-                    declared: n,
-                    found: available,
-                });
+            Some((layout, start)) => {
+                file.seek(SeekFrom::Start(start))
+                    .map_err(|e| LidarError::io(path, e))?;
+                Inner::Raw {
+                    file: BufReader::with_capacity(1 << 20, file),
+                    layout,
+                    buf: Vec::new(),
+                }
             }
-            use std::io::{Seek, SeekFrom};
-            br.seek(SeekFrom::Start(start))
-                .map_err(|e| LidarError::io(path, e))?;
-            Inner::Raw {
-                file: BufReader::with_capacity(1 << 20, br.into_inner()),
-                layout,
-                buf: Vec::new(),
+            None => {
+                return Err(LidarError::Las {
+                    path: path.to_path_buf(),
+                    message: "the LAS header could not be read".into(),
+                })
             }
         };
         Ok(Self {
@@ -384,7 +415,10 @@ impl LasStream {
 
     /// Appends up to `max` points to `out`; returns how many were read (0 at the end).
     pub fn read_into(&mut self, max: usize, out: &mut PointBatch) -> Result<usize> {
-        let n = (self.remaining().min(max as u64)) as usize;
+        let mut n = (self.remaining().min(max as u64)) as usize;
+        if let Inner::Laz { batch, .. } = &self.inner {
+            n = n.min(*batch);
+        }
         if n == 0 {
             return Ok(0);
         }
@@ -438,7 +472,7 @@ impl LasStream {
                         }
                     });
             }
-            Inner::Laz(reader) => {
+            Inner::Laz { reader, .. } => {
                 let mut pts = Vec::with_capacity(n);
                 let got =
                     reader
@@ -481,7 +515,9 @@ pub fn read_points(
 ) -> Result<PointBatch> {
     let mut s = LasStream::open(path)?;
     let keep_all = bbox.is_none() && classes.is_none();
-    let mut out = PointBatch::with_capacity(if keep_all {
+    // An uncompressed file's count was checked against its length; a LAZ file's only
+    // bounds its batches, so its points are collected as they come.
+    let mut out = PointBatch::with_capacity(if keep_all && !s.info().compressed {
         s.info().point_count as usize
     } else {
         0
@@ -548,7 +584,15 @@ pub fn rewrite_las(
     output: &Path,
     mut edit: impl FnMut(u64, las::Point) -> Option<las::Point>,
 ) -> Result<u64> {
-    let f = File::open(input).map_err(|e| LidarError::io(input, e))?;
+    let mut f = File::open(input).map_err(|e| LidarError::io(input, e))?;
+    let len = f.metadata().map_err(|e| LidarError::io(input, e))?.len();
+    if let Some(h) = las_guard::guard(input, &mut f, len)? {
+        if !h.compressed() {
+            raw_points(input, &h, len)?;
+        }
+    }
+    f.seek(SeekFrom::Start(0))
+        .map_err(|e| LidarError::io(input, e))?;
     let mut reader = las::Reader::new(BufReader::new(f)).map_err(|e| las_err(input, e))?;
     let mut builder = las::Builder::from(reader.header().clone());
     // The LAZ writer adds its own laszip VLR.

@@ -13,6 +13,7 @@ pub mod eval;
 pub mod grid_index;
 pub mod icp;
 pub mod las;
+mod las_guard;
 pub mod planes;
 pub mod points_io;
 pub mod store;
@@ -28,6 +29,7 @@ pub use dem::{grid_dem, DemMethod, DemOptions};
 pub use eval::{evaluate_checkpoints, CheckpointOptions, CheckpointReport};
 pub use icp::{icp_point_to_plane, IcpIteration, IcpModel, IcpOptions, IcpResult};
 pub use las::{LasInfo, LasStream, PointBatch};
+pub use las_guard::MAX_LAZ_CHUNK_BYTES;
 pub use planes::{LocalPlane, PlaneIndex, PlaneOptions};
 pub use store::{Bbox, TileStore};
 pub use surfaces::{lidar_surfaces, GroundSurface, LIDAR_CELL_M};
@@ -74,6 +76,16 @@ pub enum LidarError {
         path: PathBuf,
         declared: u64,
         found: u64,
+    },
+    /// A count or length in the file claims more than the file (or a documented limit)
+    /// can hold: refused before anything is sized from it.
+    #[error("{path}: {what} {claimed} exceeds {limit}, {basis} (corrupt or crafted file)")]
+    TooLarge {
+        path: PathBuf,
+        what: String,
+        claimed: u64,
+        limit: u64,
+        basis: String,
     },
     #[error("{path}: no coordinate reference system (no WKT or GeoTIFF keys VLR, or an empty one); pass the CRS explicitly (e.g. --crs EPSG:32650)")]
     MissingCrs { path: PathBuf },

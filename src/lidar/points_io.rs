@@ -75,7 +75,9 @@ pub fn read_text(path: &Path) -> Result<Vec<[f64; 3]>> {
 /// PLY vertices (x, y, z as float or double; other properties skipped).
 pub fn read_ply(path: &Path) -> Result<Vec<[f64; 3]>> {
     let f = std::fs::File::open(path).map_err(|e| LidarError::io(path, e))?;
+    let file_len = f.metadata().map_err(|e| LidarError::io(path, e))?.len();
     let mut r = BufReader::new(f);
+    let mut header_len = 0u64;
     let mut line = String::new();
     let mut format = String::new();
     let mut n_vertex = None;
@@ -93,12 +95,13 @@ pub fn read_ply(path: &Path) -> Result<Vec<[f64; 3]>> {
     let mut first = true;
     loop {
         line.clear();
-        if r.read_line(&mut line)
-            .map_err(|e| LidarError::io(path, e))?
-            == 0
-        {
+        let got = r
+            .read_line(&mut line)
+            .map_err(|e| LidarError::io(path, e))?;
+        if got == 0 {
             return Err(bad(path, "PLY header has no end_header"));
         }
+        header_len += got as u64;
         let t = line.trim();
         if first {
             if t != "ply" {
@@ -112,8 +115,8 @@ pub fn read_ply(path: &Path) -> Result<Vec<[f64; 3]>> {
             ["format", f, ..] => format = f.to_string(),
             ["element", "vertex", n] => {
                 n_vertex = Some(
-                    n.parse::<usize>()
-                        .map_err(|_| bad(path, "bad vertex count"))?,
+                    n.parse::<u64>()
+                        .map_err(|_| bad(path, format!("bad vertex count {n:?}")))?,
                 );
                 in_vertex = true;
             }
@@ -137,6 +140,28 @@ pub fn read_ply(path: &Path) -> Result<Vec<[f64; 3]>> {
             .ok_or_else(|| bad(path, format!("PLY vertices have no {axis} property")))
     };
     let (ix, iy, iz) = (find("x")?, find("y")?, find("z")?);
+    // The fewest bytes a vertex can take: its binary record, or in ascii one digit and one
+    // separator per property. Nothing is sized from the count before it fits in the file.
+    let stride: usize = props.iter().map(|p| p.1).sum();
+    let min_record = if format == "ascii" {
+        2 * props.len()
+    } else {
+        stride
+    } as u64;
+    let body = file_len.saturating_sub(header_len);
+    if n.checked_mul(min_record).is_none_or(|need| need > body) {
+        return Err(LidarError::TooLarge {
+            path: path.to_path_buf(),
+            what: "PLY element vertex count".into(),
+            claimed: n,
+            limit: body / min_record.max(1),
+            basis: format!(
+                "what the {body} bytes after the header can hold at {min_record} bytes per \
+                 vertex"
+            ),
+        });
+    }
+    let n = n as usize;
     let mut out = Vec::with_capacity(n);
     match format.as_str() {
         "ascii" => {
@@ -162,7 +187,6 @@ pub fn read_ply(path: &Path) -> Result<Vec<[f64; 3]>> {
             }
         }
         "binary_little_endian" => {
-            let stride: usize = props.iter().map(|p| p.1).sum();
             let offs: Vec<usize> = props
                 .iter()
                 .scan(0, |o, p| {

@@ -113,16 +113,19 @@ impl GreyImage {
             path: path.to_path_buf(),
             message: m,
         };
-        let img = image::ImageReader::open(path)
-            .map_err(|e| err(e.to_string()))?
-            .with_guessed_format()
-            .map_err(|e| err(e.to_string()))?
-            .decode();
-        let img = match img {
+        use crate::formats::{image_open, FormatError};
+        let img = match image_open::decode_image(path) {
             Ok(i) => i,
+            // Refused for its size: GDAL must not read it either.
+            Err(e @ FormatError::TooLarge { .. }) => return Err(err(e.detail())),
             // Large or exotic TIFF scans (tiled, BigTIFF, JPEG-in-TIFF) go through GDAL.
             Err(e) => {
-                return Self::load_window(path, None).map_err(|g| err(format!("{e}; GDAL: {g}")))
+                return Self::load_window(path, None).map_err(|g| match g {
+                    MatchingError::Read { message, .. } => {
+                        err(format!("{}; GDAL: {message}", e.detail()))
+                    }
+                    g => g,
+                })
             }
         };
         let (w, h) = (img.width() as usize, img.height() as usize);
@@ -160,7 +163,8 @@ impl GreyImage {
             path: path.to_path_buf(),
             message: m,
         };
-        let ds = gdal::Dataset::open(path).map_err(|e| err(e.to_string()))?;
+        use crate::formats::image_open;
+        let ds = image_open::open_raster(path).map_err(|e| err(e.detail()))?;
         let (rw, rh) = ds.raster_size();
         let (c, r, w, h) = window.unwrap_or((0, 0, rw, rh));
         if w == 0 || h == 0 || c + w > rw || r + h > rh {
@@ -168,24 +172,25 @@ impl GreyImage {
                 "window {w}×{h} at ({c}, {r}) is outside the {rw}×{rh} raster"
             )));
         }
-        let bands = ds.raster_count();
-        let read = |b: usize| -> Result<Vec<f32>> {
-            let band = ds.rasterband(b).map_err(|e| err(e.to_string()))?;
-            let buf = band
-                .read_as::<f32>((c as isize, r as isize), (w, h), (w, h), None)
-                .map_err(|e| err(e.to_string()))?;
-            Ok(buf.data().to_vec())
-        };
-        let data = if bands >= 3 {
-            let (rr, gg, bb) = (read(1)?, read(2)?, read(3)?);
-            rr.iter()
-                .zip(&gg)
-                .zip(&bb)
-                .map(|((r, g), b)| 0.299 * r + 0.587 * g + 0.114 * b)
-                .collect()
+        image_open::check_pixels(path, w as u64, h as u64).map_err(|e| err(e.detail()))?;
+        // Luma from the first three bands, strip by strip.
+        let bands: &[usize] = if ds.raster_count() >= 3 {
+            &[1, 2, 3]
         } else {
-            read(1)?
+            &[1]
         };
+        let mut data = Vec::new();
+        image_open::read_band_strips(path, &ds, bands, (c, r, w, h), |s| match s {
+            [rr, gg, bb] => data.extend(
+                rr.iter()
+                    .zip(gg)
+                    .zip(bb)
+                    .map(|((r, g), b)| 0.299 * r + 0.587 * g + 0.114 * b),
+            ),
+            [grey] => data.extend_from_slice(grey),
+            _ => {}
+        })
+        .map_err(|e| err(e.detail()))?;
         GreyImage::new(w, h, data).map_err(|e| err(e.to_string()))
     }
 

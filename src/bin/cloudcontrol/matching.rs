@@ -7,7 +7,7 @@ use cloudcontrol::formats::raster::read_dem;
 use cloudcontrol::formats::write_bytes_atomically;
 use cloudcontrol::geometry::InteriorTransformKind;
 use cloudcontrol::matching::fiducial::{
-    interior_orientation_file, CameraDefinition, IoOptions, ScanOrientation,
+    check_scan_pixel_um, interior_orientation_file, CameraDefinition, IoOptions, ScanOrientation,
 };
 use cloudcontrol::matching::ncc::Window;
 use cloudcontrol::matching::ties::{coverage, link_tracks, match_pair, predict_shift, TieOptions};
@@ -100,6 +100,11 @@ fn fail(cmd: &str, e: impl std::fmt::Display) -> ExitCode {
 }
 
 pub fn io(a: IoArgs, quiet: bool) -> ExitCode {
+    if let Some(um) = a.pixel_um {
+        if let Err(m) = check_scan_pixel_um(um) {
+            return fail("io", format!("--pixel-um: {m}"));
+        }
+    }
     let cam = match CameraDefinition::load(&a.camera) {
         Ok(c) => c,
         Err(e) => return fail("io", e),

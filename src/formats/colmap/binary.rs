@@ -97,9 +97,17 @@ impl Bin {
             Err(e) => Err(self.fail(e, what)),
         }
     }
-    /// A count, refused when it could not fit in the rest of the file (corrupt header).
+    /// A `uint64` count, refused when it could not fit in the file (corrupt header).
     fn count(&mut self, min_record: u64, what: &dyn Fn() -> String) -> Result<u64> {
         let n = self.u64(what)?;
+        self.check_count(n, min_record, what)
+    }
+    /// A `uint32` count (frames' data ids), checked as [`Self::count`].
+    fn count_u32(&mut self, min_record: u64, what: &dyn Fn() -> String) -> Result<u64> {
+        let n = u64::from(self.u32(what)?);
+        self.check_count(n, min_record, what)
+    }
+    fn check_count(&self, n: u64, min_record: u64, what: &dyn Fn() -> String) -> Result<u64> {
         let len = self.len;
         if n.saturating_mul(min_record) > len {
             return Err(FormatError::invalid(
@@ -284,9 +292,9 @@ pub(super) fn read_frames(path: &Path) -> Result<Vec<FrameRecord>> {
         let rig = b.u32(&ctx)?;
         let q = b.f64s::<4>(&ctx)?;
         let t = b.f64s::<3>(&ctx)?;
-        let nd = b.u32(&ctx)?;
-        // `nd` is unchecked: no allocation sized by it.
-        let mut data = Vec::new();
+        // A data id is sensor type (int32), sensor id (uint32) and data id (uint64).
+        let nd = b.count_u32(16, &|| format!("frame record {i}: the data id count"))?;
+        let mut data = Vec::with_capacity(nd as usize);
         for _ in 0..nd {
             data.push((b.i32(&ctx)?, b.u32(&ctx)?, b.u64(&ctx)?));
         }

@@ -47,6 +47,19 @@ impl<'a> Tokens<'a> {
         }
         Ok(out)
     }
+    /// A count of `per_item`-field items that follow on the line, refused when the line
+    /// holds fewer fields (so a corrupt count never sizes an allocation).
+    fn count(&mut self, field: &str, per_item: usize) -> Result<usize> {
+        let n: u64 = self.parse(field)?;
+        let left = self.it.clone().count();
+        if n.saturating_mul(per_item as u64) > left as u64 {
+            return Err(self.err(format!(
+                "{field} {n} needs {per_item} fields each but the line holds {left} more \
+                 (corrupt or truncated)"
+            )));
+        }
+        Ok(n as usize)
+    }
     fn rest_is_empty(&mut self) -> Result<()> {
         match self.it.next() {
             None => Ok(()),
@@ -227,9 +240,8 @@ pub(super) fn read_frames(path: &Path) -> Result<Vec<FrameRecord>> {
         let rig: u32 = t.parse("RIG_ID")?;
         let q = t.f64s::<4>("QW QX QY QZ")?;
         let tr = t.f64s::<3>("TX TY TZ")?;
-        let nd: u32 = t.parse("NUM_DATA_IDS")?;
-        // `nd` is unchecked: no allocation sized by it.
-        let mut data = Vec::new();
+        let nd = t.count("NUM_DATA_IDS", 3)?;
+        let mut data = Vec::with_capacity(nd);
         for _ in 0..nd {
             let ty = sensor_type(t.next_str("SENSOR_TYPE")?);
             data.push((ty, t.parse("SENSOR_ID")?, t.parse("DATA_ID")?));

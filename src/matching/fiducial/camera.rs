@@ -131,6 +131,14 @@ impl CameraDefinition {
                 self.focal_mm
             ));
         }
+        let [fw, fh] = self.format_mm;
+        if !(fw.is_finite() && fh.is_finite() && fw > 0.0 && fh > 0.0) || fw.max(fh) > MAX_FORMAT_MM
+        {
+            return Err(format!(
+                "format_mm [{fw}, {fh}] is not a film format (positive, at most \
+                 {MAX_FORMAT_MM} mm a side)"
+            ));
+        }
         if self.fiducials.len() < 3 {
             return Err(format!(
                 "{} fiducials defined; interior orientation needs at least 3",
@@ -144,6 +152,28 @@ impl CameraDefinition {
             f.shape
                 .validate()
                 .map_err(|e| format!("fiducial {}: {e}", f.id))?;
+            // A mark is a small part of the frame; templates and searches are sized from
+            // it, so a unit mistake (µm as mm) must not render a template of 10¹⁰ pixels.
+            let max_mark = MAX_MARK_FRACTION * fw.min(fh);
+            let sh = &f.shape;
+            let sizes = [
+                ("size_mm", Some(sh.size_mm)),
+                ("line_mm", Some(sh.line_mm)),
+                ("dot_mm", sh.dot_mm),
+                ("ring_mm", sh.ring_mm),
+                ("ring_line_mm", sh.ring_line_mm),
+                ("gap_mm", sh.gap_mm),
+            ];
+            for (name, v) in sizes {
+                if let Some(v) = v.filter(|v| !(v.is_finite() && *v <= max_mark)) {
+                    return Err(format!(
+                        "fiducial {}: {name} {v} is not a mark size: at most {max_mark} mm \
+                         ({MAX_MARK_FRACTION} of the {} mm film side)",
+                        f.id,
+                        fw.min(fh)
+                    ));
+                }
+            }
         }
         if let Some(s) = &self.data_strip {
             let ok = |r: [f64; 2]| r[0].is_finite() && r[1].is_finite() && r[0] < r[1];
@@ -157,6 +187,13 @@ impl CameraDefinition {
         Ok(())
     }
 }
+
+/// Largest film format side accepted (mm): aerial film is at most 9 × 18 in (229 × 457 mm).
+pub const MAX_FORMAT_MM: f64 = 500.0;
+
+/// Largest fiducial mark dimension (`size_mm`, `line_mm`, `dot_mm`, ring and gap sizes) as
+/// a fraction of the shorter film side (23 mm on 230 mm film; real marks are 1–20 mm).
+pub const MAX_MARK_FRACTION: f64 = 0.1;
 
 /// Scan pixel sizes (µm) taken as physically plausible for a film scan: photogrammetric
 /// scanners work at 4–25 µm, office scanners down to 127 dpi (200 µm). A value outside is

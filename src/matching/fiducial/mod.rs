@@ -14,7 +14,7 @@ mod solve;
 
 pub use camera::{
     check_scan_pixel_um, scan_pixel_um_from_dpi, CameraDefinition, DataStrip, DistortionDef,
-    FiducialDef, SCAN_PIXEL_UM,
+    FiducialDef, MAX_FORMAT_MM, MAX_MARK_FRACTION, SCAN_PIXEL_UM,
 };
 pub use orientation::{
     epoch_orientation, interior_orientation_epoch, majority_orientation, OrientationScore,
