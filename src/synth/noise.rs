@@ -13,7 +13,18 @@ pub fn mix(mut z: u64) -> u64 {
 
 #[inline]
 pub fn hash3(seed: u64, a: i64, b: i64) -> u64 {
-    mix(mix(seed ^ (a as u64).wrapping_mul(0x9E37_79B9)) ^ (b as u64).wrapping_mul(0x85EB_CA6B))
+    row(column(seed, a), b)
+}
+
+/// The two rounds of [`hash3`], apart so a lattice can reuse a column's first round.
+#[inline]
+fn column(seed: u64, a: i64) -> u64 {
+    mix(seed ^ (a as u64).wrapping_mul(0x9E37_79B9))
+}
+
+#[inline]
+fn row(column: u64, b: i64) -> u64 {
+    mix(column ^ (b as u64).wrapping_mul(0x85EB_CA6B))
 }
 
 /// Uniform in [0, 1) from a hash.
@@ -57,10 +68,12 @@ pub fn value(seed: u64, x: f64, y: f64, cell: f64) -> f64 {
     let j = ffloor(v);
     let fu = smooth(u - i as f64);
     let fv = smooth(v - j as f64);
-    let a = unit(hash3(seed, i, j));
-    let b = unit(hash3(seed, i + 1, j));
-    let c = unit(hash3(seed, i, j + 1));
-    let d = unit(hash3(seed, i + 1, j + 1));
+    // hash3 of the four corners, sharing each column's first round (6 mixes, not 8).
+    let (ci, ci1) = (column(seed, i), column(seed, i + 1));
+    let a = unit(row(ci, j));
+    let b = unit(row(ci1, j));
+    let c = unit(row(ci, j + 1));
+    let d = unit(row(ci1, j + 1));
     let ab = a + (b - a) * fu;
     let cd = c + (d - c) * fu;
     ab + (cd - ab) * fv
@@ -75,7 +88,11 @@ pub fn fractal(seed: u64, x: f64, y: f64, coarsest: f64, octaves: u32, fp: f64) 
     let mut amp = 1.0;
     for o in 0..octaves {
         let w = attenuation(cell, fp);
-        sum += amp * w * (value(seed.wrapping_add(o as u64 * 7919), x, y, cell) - 0.5);
+        // Octaves beyond Nyquist weigh exactly 0: skipping their lattice hashes leaves the
+        // sum bit-identical and saves a third of the noise on a 0.5 m film footprint.
+        if w > 0.0 {
+            sum += amp * w * (value(seed.wrapping_add(o as u64 * 7919), x, y, cell) - 0.5);
+        }
         norm += amp;
         cell *= 0.5;
         amp *= 0.6;
@@ -103,19 +120,23 @@ pub fn coverage(d: f64, fp: f64) -> f64 {
 /// are bit-identical on every platform.
 #[inline]
 pub fn fast_sin(x: f64) -> f64 {
-    use std::f64::consts::{FRAC_PI_2, PI, TAU};
+    use std::f64::consts::{PI, TAU};
+    // Branch-free: round to the nearest period by the 1.5·2⁵² trick (no SSE4.1 round in
+    // the baseline target) and fold |r| into [0, π/2] with sin(a) = sin(π − a). The
+    // terrain's phases are random, so the former sign branches were mispredicted half
+    // the time, in a function evaluated a dozen times per rendered pixel.
+    const ROUND: f64 = 6_755_399_441_055_744.0;
     let q = x * (1.0 / TAU);
-    // Native truncation instead of libm round (no SSE4.1 in the baseline target).
-    let k = (q + if q >= 0.0 { 0.5 } else { -0.5 }) as i64;
-    let mut r = x - TAU * k as f64;
-    if r > FRAC_PI_2 {
-        r = PI - r;
-    } else if r < -FRAC_PI_2 {
-        r = -PI - r;
-    }
-    let r2 = r * r;
-    r * (1.0
-        + r2 * (-1.0 / 6.0 + r2 * (1.0 / 120.0 + r2 * (-1.0 / 5040.0 + r2 * (1.0 / 362_880.0)))))
+    let k = (q + ROUND) - ROUND;
+    let r = x - TAU * k;
+    let a = r.abs();
+    let f = a.min(PI - a);
+    let f2 = f * f;
+    let s = f
+        * (1.0
+            + f2 * (-1.0 / 6.0
+                + f2 * (1.0 / 120.0 + f2 * (-1.0 / 5040.0 + f2 * (1.0 / 362_880.0)))));
+    s.copysign(r)
 }
 
 #[cfg(test)]

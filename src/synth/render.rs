@@ -199,7 +199,7 @@ impl<'a> RayCaster<'a> {
                             return Some(self.hit(o, d, a));
                         }
                         for _ in 0..64 {
-                            if g < 1e-4 {
+                            if g < GAP_TOLERANCE {
                                 return Some(self.hit(o, d, a));
                             }
                             a += g / closing;
@@ -259,6 +259,21 @@ impl<'a> RayCaster<'a> {
     fn terrain_hit_near(&self, o: &Vector3<f64>, d: &Vector3<f64>, t0: f64) -> Hit {
         let h = horizontal(d);
         let (fast, slow) = (-d.z + self.lipschitz * h, -d.z - self.lipschitz * h);
+        // The region is terrain-only, so the gap is to the bare earth; each evaluation
+        // keeps its ground height for the hit's surface sample.
+        let gap = |t: f64| {
+            let p = o + d * t;
+            let ground = self.scene.ground(p.x, p.y);
+            (p.z - ground, ground)
+        };
+        let hit = |t: f64, ground: f64| {
+            let point = o + d * t;
+            Hit {
+                t,
+                point,
+                surface: self.scene.sample_on_ground(point.x, point.y, ground),
+            }
+        };
         // Every evaluated point narrows the bracket [lo, hi] of the root by the bounds of
         // the gap's rate; secant steps from the nearby start, kept inside the bracket.
         let (mut lo, mut hi) = (f64::NEG_INFINITY, f64::INFINITY);
@@ -272,18 +287,18 @@ impl<'a> RayCaster<'a> {
             }
             (lo, hi)
         };
-        let (mut ta, mut ga) = (t0, self.gap(o, d, t0));
-        if ga.abs() < 1e-5 {
-            return self.hit(o, d, ta);
+        let (mut ta, (mut ga, ground)) = (t0, gap(t0));
+        if ga.abs() < GAP_TOLERANCE {
+            return hit(ta, ground);
         }
         narrow(ta, ga);
         // First step as over flat ground.
         let mut tb = ta + ga / -d.z;
         for _ in 0..40 {
-            let gb = self.gap(o, d, tb);
+            let (gb, ground) = gap(tb);
             let (l, u) = narrow(tb, gb);
-            if gb.abs() < 1e-5 || u - l < 1e-6 {
-                break;
+            if gb.abs() < GAP_TOLERANCE || u - l < 1e-6 {
+                return hit(tb, ground);
             }
             let secant = if gb != ga {
                 tb - gb * (tb - ta) / (gb - ga)
@@ -297,7 +312,7 @@ impl<'a> RayCaster<'a> {
                 0.5 * (l + u)
             };
         }
-        self.hit(o, d, tb)
+        hit(tb, gap(tb).1)
     }
 
     fn refine(&self, o: &Vector3<f64>, d: &Vector3<f64>, mut a: f64, mut b: f64) -> Hit {
@@ -326,6 +341,10 @@ impl<'a> RayCaster<'a> {
         self.scene
     }
 }
+
+/// A ray meets the terrain where its height above it is below this (m): 0.1 mm, under a
+/// thousandth of the finest synthetic GSD even along a ray 40° off nadir.
+const GAP_TOLERANCE: f64 = 1e-4;
 
 /// Horizontal length of a direction (no overflow is possible here, unlike `hypot`'s
 /// general case, and libm's `hypot` was a tenth of a film frame's render time).
@@ -364,7 +383,10 @@ pub fn render(
     // pixel's hit is the single root of its monotone gap, found from the interpolated
     // ray parameter in two or three evaluations instead of a full march. Same surface,
     // same tolerance, a quarter of the time on a film frame that is mostly open land.
-    const LATTICE: u32 = 4;
+    // 16 px (8 m on film, 1.6 m on the reference) rather than 4: the exact casts cost
+    // more than the better starting guess saves (small preset synthesis 119 CPU s at
+    // 4 px, 108 at 16; the images agree within 1 DN but for a few pixels on edges).
+    const LATTICE: u32 = 16;
     let lattice = |v: u32, len: u32| (v / LATTICE * LATTICE).min(len.saturating_sub(1));
     let (lw, lh) = (w.div_ceil(LATTICE) + 1, h.div_ceil(LATTICE) + 1);
     let lattice_hits: Vec<Option<(f64, Vector3<f64>)>> = if n == 1 {

@@ -142,14 +142,15 @@ pub struct Scene {
     /// Area holding buildings, trees, roads and targets: [xmin, ymin, xmax, ymax] (m);
     /// outside it the world continues as open fields on the same terrain.
     pub extent: [f64; 4],
-    waves: Vec<[f64; 4]>,
+    waves: [[f64; 4]; 4],
     base_height: f64,
     pub buildings: Vec<Building>,
     pub trees: Vec<Tree>,
     pub roads: Vec<Road>,
     pub ponds: Vec<Pond>,
     pub targets: Vec<Target>,
-    field_angle: f64,
+    /// Sine and cosine of the field parcels' azimuth (evaluated once, not per pixel).
+    field_axes: (f64, f64),
     field_salt: u64,
     /// Re-texturing of each change step back in time, youngest first: (salt, fraction).
     retexture: Vec<(u64, f64)>,
@@ -163,12 +164,13 @@ impl Scene {
         let mut rng = ChaCha8Rng::seed_from_u64(seed ^ 0x5CE4E);
         let area = (extent[2] - extent[0]) * (extent[3] - extent[1]);
         // Relief: long waves for hills, short ones for undulation (Lipschitz ≤ 0.6).
-        let mut waves = Vec::new();
-        for (amp, wavelength) in [(9.0, 420.0), (3.0, 170.0), (0.8, 65.0), (0.2, 23.0)] {
-            let az: f64 = rng.gen_range(0.0..std::f64::consts::TAU);
-            let k = std::f64::consts::TAU / wavelength;
-            waves.push([k * az.cos(), k * az.sin(), rng.gen_range(0.0..6.3), amp]);
-        }
+        // A fixed array: the terrain loop unrolls.
+        let waves =
+            [(9.0, 420.0), (3.0, 170.0), (0.8, 65.0), (0.2, 23.0)].map(|(amp, wavelength)| {
+                let az: f64 = rng.gen_range(0.0..std::f64::consts::TAU);
+                let k = std::f64::consts::TAU / wavelength;
+                [k * az.cos(), k * az.sin(), rng.gen_range(0.0..6.3), amp]
+            });
         let mut scene = Scene {
             seed,
             extent,
@@ -179,7 +181,7 @@ impl Scene {
             roads: Vec::new(),
             ponds: Vec::new(),
             targets: Vec::new(),
-            field_angle: rng.gen_range(-0.6..0.6),
+            field_axes: rng.gen_range(-0.6f64..0.6).sin_cos(),
             field_salt: rng.gen(),
             retexture: {
                 // The stream keeps the draw of a former field, so every seed's scene

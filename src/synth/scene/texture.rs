@@ -104,7 +104,7 @@ impl Scene {
     }
 
     fn field_albedo(&self, x: f64, y: f64, fp: f64) -> f64 {
-        let (sa, ca) = self.field_angle.sin_cos();
+        let (sa, ca) = self.field_axes;
         let u = ca * x + sa * y;
         let v = -sa * x + ca * y;
         let (pw, ph) = (70.0, 38.0);
