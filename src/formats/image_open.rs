@@ -48,6 +48,7 @@ pub fn open_raster(path: &Path) -> Result<Dataset> {
     if !path.is_file() {
         return Err(FormatError::invalid(path, "is not a file"));
     }
+    super::gdal_env::init();
     Dataset::open_ex(
         path,
         DatasetOptions {
