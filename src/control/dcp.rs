@@ -231,9 +231,10 @@ impl DcpPackage {
         if m.version == 0 {
             return Err(invalid(package, "package version 0 does not exist"));
         }
-        let crs = Crs::parse(&m.crs).map_err(|e| invalid(package, e.to_string()))?;
-        crs.require_projected(None)
-            .map_err(|e| invalid(package, e.to_string()))?;
+        let crs_err =
+            |e: crate::formats::FormatError| invalid(package, format!("{MANIFEST}: crs: {e}"));
+        let crs = Crs::parse(&m.crs).map_err(crs_err)?;
+        crs.require_projected(None).map_err(crs_err)?;
         if !(m.gsd_m.is_finite() && m.gsd_m > 0.0) {
             return Err(invalid(
                 package,
