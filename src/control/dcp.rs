@@ -6,6 +6,7 @@
 //! listed with its SHA-256 in the manifest, so a package is verified on import and is
 //! readable without this library.
 
+use super::dcp_files::{read_member, MemberError, MAX_CHIP_BYTES, MAX_MANIFEST_BYTES};
 use crate::formats::crs::Crs;
 use crate::geometry::{Camera, Pose};
 use image::DynamicImage;
@@ -197,6 +198,34 @@ fn sha256_hex(bytes: &[u8]) -> String {
     d.iter().map(|b| format!("{b:02x}")).collect()
 }
 
+/// A listed file of the package (a chip), read only as a regular file inside it.
+fn member(dir: &Path, file: &str) -> Result<Vec<u8>> {
+    read_member(dir, file, MAX_CHIP_BYTES).map_err(|e| DcpError::Chip {
+        package: dir.into(),
+        file: file.into(),
+        message: e.to_string(),
+    })
+}
+
+/// The manifest's bytes, read only as a regular file inside the package.
+fn manifest_bytes(dir: &Path) -> Result<Vec<u8>> {
+    read_member(dir, MANIFEST, MAX_MANIFEST_BYTES).map_err(|e| match e {
+        MemberError::Missing => invalid(dir, format!("has no {MANIFEST}: not a DCP package")),
+        MemberError::Io(source) => DcpError::Io {
+            path: dir.join(MANIFEST),
+            source,
+        },
+        e => invalid(dir, format!("{MANIFEST} {e}")),
+    })
+}
+
+/// The size (width, height) the manifest gives each chip file.
+fn chip_sizes(m: &Manifest) -> BTreeMap<&str, (u32, u32)> {
+    let ms = m.points.iter().flat_map(|p| &p.measurements);
+    ms.map(|ms| (ms.chip.file.as_str(), (ms.chip.width, ms.chip.height)))
+        .collect()
+}
+
 fn finite(v: &[f64]) -> bool {
     v.iter().all(|x| x.is_finite())
 }
@@ -231,9 +260,10 @@ impl DcpPackage {
         if m.version == 0 {
             return Err(invalid(package, "package version 0 does not exist"));
         }
-        let crs = Crs::parse(&m.crs).map_err(|e| invalid(package, e.to_string()))?;
-        crs.require_projected(None)
-            .map_err(|e| invalid(package, e.to_string()))?;
+        let crs_err =
+            |e: crate::formats::FormatError| invalid(package, format!("{MANIFEST}: crs: {e}"));
+        let crs = Crs::parse(&m.crs).map_err(crs_err)?;
+        crs.require_projected(None).map_err(crs_err)?;
         if !(m.gsd_m.is_finite() && m.gsd_m > 0.0) {
             return Err(invalid(
                 package,
@@ -259,7 +289,7 @@ impl DcpPackage {
                 .map_err(|e| invalid(package, format!("photo {} ({}): {e}", p.id, p.name)))?;
         }
         let mut point_ids = BTreeSet::new();
-        let mut referenced = BTreeSet::new();
+        let mut referenced = BTreeMap::new();
         for pt in &m.points {
             if !point_ids.insert(pt.id) {
                 return Err(invalid(
@@ -317,31 +347,37 @@ impl DcpPackage {
                         message: format!("does not contain its point's pixel {:?}", ms.pixel),
                     });
                 }
-                referenced.insert(c.file.clone());
+                let size = (c.width, c.height);
+                if let Some(other) = referenced
+                    .insert(c.file.clone(), size)
+                    .filter(|o| *o != size)
+                {
+                    return Err(DcpError::Chip {
+                        package: package.into(),
+                        file: c.file.clone(),
+                        message: format!(
+                            "is given two sizes, {}×{} and {}×{}",
+                            other.0, other.1, size.0, size.1
+                        ),
+                    });
+                }
             }
         }
         Ok(())
     }
 
-    /// Opens and fully verifies a package: manifest schema and consistency, CRS, presence
-    /// and checksum of every listed file. Nothing is written.
+    /// Opens and fully verifies a package: manifest schema and consistency, CRS, presence,
+    /// checksum and type (a regular file inside the package: `dcp_files`) of every listed
+    /// file, and each chip's size from its image header. Nothing is written.
     pub fn open(dir: &Path) -> Result<Self> {
-        let mpath = dir.join(MANIFEST);
         if !dir.is_dir() {
             return Err(invalid(dir, "is not a folder"));
         }
-        let bytes = std::fs::read(&mpath).map_err(|e| match e.kind() {
-            std::io::ErrorKind::NotFound => {
-                invalid(dir, format!("has no {MANIFEST}: not a DCP package"))
-            }
-            _ => DcpError::Io {
-                path: mpath.clone(),
-                source: e,
-            },
-        })?;
+        let bytes = manifest_bytes(dir)?;
         let manifest: Manifest =
             serde_json::from_slice(&bytes).map_err(|e| invalid(dir, format!("{MANIFEST}: {e}")))?;
         Self::validate_manifest(&manifest, dir)?;
+        let sizes = chip_sizes(&manifest);
         for (file, sum) in &manifest.files {
             if !safe_relative(file) {
                 return Err(invalid(
@@ -349,12 +385,7 @@ impl DcpPackage {
                     format!("listed file {file:?} leaves the package"),
                 ));
             }
-            let path = dir.join(file);
-            let data = std::fs::read(&path).map_err(|e| DcpError::Chip {
-                package: dir.into(),
-                file: file.clone(),
-                message: format!("cannot be read ({e})"),
-            })?;
+            let data = member(dir, file)?;
             let actual = sha256_hex(&data);
             if !actual.eq_ignore_ascii_case(sum) {
                 return Err(DcpError::Chip {
@@ -362,6 +393,21 @@ impl DcpPackage {
                     file: file.clone(),
                     message: format!("checksum mismatch (manifest {sum}, file {actual}): the chip was changed or damaged"),
                 });
+            }
+            if let Some(&(w, h)) = sizes.get(file.as_str()) {
+                let chip_err = |message: String| DcpError::Chip {
+                    package: dir.into(),
+                    file: file.clone(),
+                    message,
+                };
+                // The header only: the pixels are decoded when a chip is matched.
+                let (iw, ih) = crate::formats::image_open::image_size_bytes(Path::new(file), &data)
+                    .map_err(|e| chip_err(e.detail()))?;
+                if (iw, ih) != (w, h) {
+                    return Err(chip_err(format!(
+                        "is {iw}×{ih} pixels, the manifest says {w}×{h}"
+                    )));
+                }
             }
         }
         Ok(Self {
@@ -476,8 +522,7 @@ impl DcpPackage {
             file: chip.file.clone(),
             message,
         };
-        let data = std::fs::read(self.dir.join(&chip.file))
-            .map_err(|e| err(format!("cannot be read ({e})")))?;
+        let data = member(&self.dir, &chip.file)?;
         let want = self
             .manifest
             .files
@@ -633,9 +678,9 @@ impl DcpPackage {
         for (pkg, name) in opened {
             let dest = store.join(&name);
             if dest.exists() {
-                let same = std::fs::read(dest.join(MANIFEST))
+                let same = manifest_bytes(&dest)
                     .ok()
-                    .zip(std::fs::read(pkg.dir.join(MANIFEST)).ok())
+                    .zip(manifest_bytes(&pkg.dir).ok())
                     .is_some_and(|(a, b)| a == b);
                 if !same {
                     return Err(invalid(
@@ -694,11 +739,7 @@ impl DcpPackage {
             }
             std::fs::create_dir_all(&tmp).map_err(|e| io(&tmp, e))?;
             for (file, sum) in &self.manifest.files {
-                let data = std::fs::read(self.dir.join(file)).map_err(|e| DcpError::Chip {
-                    package: self.dir.clone(),
-                    file: file.clone(),
-                    message: format!("cannot be read ({e})"),
-                })?;
+                let data = member(&self.dir, file)?;
                 if !sha256_hex(&data).eq_ignore_ascii_case(sum) {
                     return Err(DcpError::Chip {
                         package: self.dir.clone(),
@@ -713,8 +754,7 @@ impl DcpPackage {
                 std::fs::write(&to, &data).map_err(|e| io(&to, e))?;
             }
             // The manifest as opened, byte for byte, so the copy is the same package.
-            let m = self.dir.join(MANIFEST);
-            let bytes = std::fs::read(&m).map_err(|e| io(&m, e))?;
+            let bytes = manifest_bytes(&self.dir)?;
             let parsed: Manifest = serde_json::from_slice(&bytes)
                 .map_err(|e| invalid(&self.dir, format!("{MANIFEST}: {e}")))?;
             if parsed != self.manifest {
@@ -798,11 +838,7 @@ fn store_crs(store: &Path) -> Result<Option<(String, PathBuf)>> {
     dirs.sort();
     let mut found: Option<(String, PathBuf)> = None;
     for d in dirs {
-        let mpath = d.join(MANIFEST);
-        let bytes = std::fs::read(&mpath).map_err(|e| DcpError::Io {
-            path: mpath.clone(),
-            source: e,
-        })?;
+        let bytes = manifest_bytes(&d)?;
         let m: Manifest = serde_json::from_slice(&bytes)
             .map_err(|e| invalid(&d, format!("stored {MANIFEST}: {e}")))?;
         let label = Crs::parse(&m.crs)

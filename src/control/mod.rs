@@ -16,6 +16,7 @@ pub mod checkpoints;
 pub mod chips;
 pub mod cloud;
 pub mod dcp;
+pub mod dcp_files;
 pub mod epoch;
 pub mod export;
 pub mod orient;

@@ -27,6 +27,7 @@ pub use formats::*;
 pub use lidar::*;
 pub use matching::*;
 pub use orient::*;
+pub use pipeline::*;
 pub use synth::*;
 
 use std::cell::RefCell;

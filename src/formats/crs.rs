@@ -5,10 +5,12 @@
 //! avoids pinning the `proj` crate to the old release that builds against Debian's PROJ.
 //! Axis order is always the traditional GIS one (easting/longitude first).
 
+use super::crs_input::{self, CrsSyntax};
 use super::{FormatError, Result};
 use gdal::spatial_ref::{AxisMappingStrategy, CoordTransform, SpatialRef};
 
-/// A parsed CRS: from `EPSG:n`, WKT, PROJJSON or a PROJ string.
+/// A parsed CRS: from `EPSG:n`, WKT, PROJJSON or a PROJ string (never from a URL or a
+/// file, see [`crs_input`]).
 pub struct Crs {
     definition: String,
     srs: SpatialRef,
@@ -35,8 +37,18 @@ impl Crs {
                 message: "empty CRS definition".into(),
             });
         }
-        let mut srs = SpatialRef::from_definition(trimmed).map_err(|e| FormatError::Crs {
-            crs: trimmed.chars().take(80).collect(),
+        super::gdal_env::init();
+        // Each syntax goes to its own importer: GDAL's catch-all `SetFromUserInput` would
+        // also fetch URLs and read files named by the string.
+        let srs = match crs_input::classify(trimmed)? {
+            CrsSyntax::Wkt => SpatialRef::from_wkt(trimmed),
+            CrsSyntax::ProjString => SpatialRef::from_proj4(trimmed),
+            // Vetted: `EPSG:n[+m]` and a PROJJSON CRS type take SetFromUserInput's
+            // database and PROJJSON branches, which open nothing.
+            CrsSyntax::Epsg | CrsSyntax::ProjJson => SpatialRef::from_definition(trimmed),
+        };
+        let mut srs = srs.map_err(|e| FormatError::Crs {
+            crs: crs_input::excerpt(trimmed),
             message: format!("not a CRS GDAL/PROJ knows ({e})"),
         })?;
         srs.set_axis_mapping_strategy(AxisMappingStrategy::TraditionalGisOrder);

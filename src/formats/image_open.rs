@@ -48,6 +48,7 @@ pub fn open_raster(path: &Path) -> Result<Dataset> {
     if !path.is_file() {
         return Err(FormatError::invalid(path, "is not a file"));
     }
+    super::gdal_env::init();
     Dataset::open_ex(
         path,
         DatasetOptions {
@@ -79,6 +80,16 @@ pub fn image_size(path: &Path) -> Result<(u32, u32)> {
     reader(path)?
         .into_dimensions()
         .map_err(|e| FormatError::invalid(path, format!("cannot read the image header: {e}")))
+}
+
+/// Width and height from the header of an image held in memory (a package member),
+/// without decoding the pixels; `name` labels errors.
+pub fn image_size_bytes(name: &Path, bytes: &[u8]) -> Result<(u32, u32)> {
+    image::ImageReader::new(std::io::Cursor::new(bytes))
+        .with_guessed_format()
+        .map_err(|e| FormatError::io(name, e))?
+        .into_dimensions()
+        .map_err(|e| FormatError::invalid(name, format!("cannot read the image header: {e}")))
 }
 
 /// Decodes an image with the `image` crate after checking its header size against

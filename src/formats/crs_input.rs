@@ -1,0 +1,390 @@
+//! Which CRS definitions reach GDAL/PROJ. CRS strings come from data files (DCP manifests,
+//! BlocksExchange `<Definition>`, LAS WKT VLRs, project files) that travel between
+//! organisations; GDAL's `SetFromUserInput` would fetch an `http://` definition, read a
+//! definition from a file named by the string, and PROJ opens the grid files a definition
+//! names (`+nadgrids`, `+geoidgrids`, `+init`, WKT `PARAMETERFILE`, a PROJ4 `EXTENSION`)
+//! — from PROJ's CDN when its network is on. So a definition is classified here and
+//! handed to the one GDAL importer of its kind, and every reference to a URL or a file is
+//! refused before GDAL sees it.
+//!
+//! Accepted: `EPSG:n` and `EPSG:n+m` (horizontal + vertical), WKT 1 and 2, PROJJSON, and
+//! PROJ strings (`+proj=…`). The only grid a definition may name is PROJ's built-in
+//! `@null` (GDAL writes it into the WKT of Web Mercator).
+
+use super::{FormatError, Result};
+
+/// What a definition is, and so which GDAL importer reads it.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum CrsSyntax {
+    /// `EPSG:n` or `EPSG:n+m`: the PROJ database, nothing else.
+    Epsg,
+    Wkt,
+    ProjJson,
+    ProjString,
+}
+
+/// PROJ string keys whose value names a file (a grid or an init file).
+const FILE_KEYS: &[&str] = &["init", "nadgrids", "geoidgrids", "grids", "file", "catalog"];
+
+/// WKT keywords that start a CRS in GDAL's list of WKT openers (its `importFromWkt` is
+/// only reached for these; anything else would fall through to file and URL lookups).
+const WKT_KEYWORDS: &[&str] = &[
+    "GEOGCS",
+    "PROJCS",
+    "GEOCCS",
+    "COMPD_CS",
+    "VERT_CS",
+    "LOCAL_CS",
+    "FITTED_CS",
+    "GEODCRS",
+    "GEOGCRS",
+    "GEODETICCRS",
+    "GEOGRAPHICCRS",
+    "BASEGEODCRS",
+    "BASEGEOGCRS",
+    "PROJCRS",
+    "PROJECTEDCRS",
+    "BASEPROJCRS",
+    "VERTCRS",
+    "VERTICALCRS",
+    "BASEVERTCRS",
+    "COMPOUNDCRS",
+    "BOUNDCRS",
+    "ENGCRS",
+    "ENGINEERINGCRS",
+    "PARAMETRICCRS",
+    "TIMECRS",
+    "DERIVEDPROJCRS",
+];
+
+/// PROJJSON types GDAL reads as a CRS.
+const PROJJSON_TYPES: &[&str] = &[
+    "GeodeticCRS",
+    "GeographicCRS",
+    "ProjectedCRS",
+    "VerticalCRS",
+    "CompoundCRS",
+    "BoundCRS",
+    "EngineeringCRS",
+    "ParametricCRS",
+    "TemporalCRS",
+    "DerivedGeodeticCRS",
+    "DerivedGeographicCRS",
+    "DerivedProjectedCRS",
+    "DerivedVerticalCRS",
+];
+
+/// Longest definition read (a WKT 2 compound CRS with a bound transformation is ~10 KB).
+pub const MAX_DEFINITION_BYTES: usize = 64 * 1024;
+
+/// The syntax of a trimmed, non-empty definition, or an error naming the definition and
+/// the reference that is refused.
+pub fn classify(definition: &str) -> Result<CrsSyntax> {
+    let refuse = |message: String| FormatError::Crs {
+        crs: excerpt(definition),
+        message,
+    };
+    if definition.len() > MAX_DEFINITION_BYTES {
+        return Err(refuse(format!(
+            "definition of {} bytes exceeds {MAX_DEFINITION_BYTES}, the longest CRS read",
+            definition.len()
+        )));
+    }
+    let syntax = if is_epsg(definition) {
+        CrsSyntax::Epsg
+    } else if definition.starts_with('{') {
+        check_projjson(definition).map_err(refuse)?;
+        CrsSyntax::ProjJson
+    } else if definition.starts_with('+') {
+        check_proj_string(definition).map_err(refuse)?;
+        CrsSyntax::ProjString
+    } else if wkt_keyword(definition).is_some() {
+        check_wkt(definition).map_err(refuse)?;
+        CrsSyntax::Wkt
+    } else {
+        return Err(refuse(format!(
+            "{}; a CRS is given as EPSG:n (or EPSG:n+m), WKT, PROJJSON or a PROJ string \
+             (+proj=…), and definitions are never fetched or read from files",
+            what_it_is(definition)
+        )));
+    };
+    Ok(syntax)
+}
+
+/// The first 80 characters, for messages.
+pub fn excerpt(definition: &str) -> String {
+    let mut s: String = definition.chars().take(80).collect();
+    if s.len() < definition.len() {
+        s.push('…');
+    }
+    s
+}
+
+fn what_it_is(definition: &str) -> &'static str {
+    let lower = definition.to_ascii_lowercase();
+    if lower.contains("://") || lower.starts_with("/vsi") {
+        "a URL is not a CRS definition (CRSs named by data are never fetched)"
+    } else if definition.starts_with('@')
+        || definition.starts_with('/')
+        || definition.starts_with('.')
+        || definition.starts_with('~')
+        || definition.contains('\\')
+        || lower.starts_with("dict:")
+        || lower.starts_with("file:")
+    {
+        "a file name is not a CRS definition (CRSs named by data are never read from files)"
+    } else {
+        "not a CRS definition cloudcontrol reads"
+    }
+}
+
+fn is_epsg(s: &str) -> bool {
+    let Some(rest) = s.get(..5).filter(|p| p.eq_ignore_ascii_case("EPSG:")) else {
+        return false;
+    };
+    let rest = &s[rest.len()..];
+    let code = |c: &str| {
+        let c = c.trim();
+        !c.is_empty() && c.len() <= 9 && c.bytes().all(|b| b.is_ascii_digit())
+    };
+    match rest.split_once('+') {
+        None => code(rest),
+        Some((h, v)) => code(h) && code(v),
+    }
+}
+
+fn wkt_keyword(s: &str) -> Option<&str> {
+    let end = s
+        .find(|c: char| !(c.is_ascii_alphanumeric() || c == '_'))
+        .unwrap_or(s.len());
+    let (word, rest) = s.split_at(end);
+    let opens = rest.trim_start().starts_with(['[', '(']);
+    WKT_KEYWORDS
+        .iter()
+        .any(|k| k.eq_ignore_ascii_case(word))
+        .then_some(word)
+        .filter(|_| opens)
+}
+
+fn has_url(s: &str) -> bool {
+    s.contains("://") || s.to_ascii_lowercase().contains("/vsi")
+}
+
+/// A PROJ string: `+key[=value]` tokens; keys that name files are refused (except the
+/// built-in `@null` grid), and so is any value that looks like a path or a URL.
+fn check_proj_string(s: &str) -> std::result::Result<(), String> {
+    let mut has_proj = false;
+    for token in s.split_whitespace() {
+        let Some(kv) = token.strip_prefix('+') else {
+            return Err(format!(
+                "PROJ string token {token:?} does not start with '+'"
+            ));
+        };
+        let (key, value) = kv.split_once('=').unwrap_or((kv, ""));
+        let key = key.to_ascii_lowercase();
+        has_proj |= key == "proj";
+        let null_grid = key == "nadgrids" && matches!(value, "@null" | "null");
+        if FILE_KEYS.contains(&key.as_str()) && !null_grid {
+            return Err(format!(
+                "+{key} names a file ({value:?}); PROJ strings from data may not name \
+                 grid or init files (give EPSG:n, or a definition without +{key})"
+            ));
+        }
+        if has_url(value)
+            || value.contains(['/', '\\', '~'])
+            || (value.starts_with('@') && !null_grid)
+        {
+            return Err(format!(
+                "+{key}={value} looks like a path or URL; PROJ strings from data may not \
+                 name files or URLs"
+            ));
+        }
+    }
+    if !has_proj {
+        return Err("PROJ string without +proj=".into());
+    }
+    Ok(())
+}
+
+/// WKT: a small scan of keywords and quoted strings (`""` escapes a quote). Refused:
+/// `PARAMETERFILE` (a grid file), `EXTENSION["PROJ4_GRIDS",…]`, an
+/// `EXTENSION["PROJ4",…]` whose PROJ string names a file, and a URL in any string
+/// except a WKT 2 `URI[…]` (an identifier PROJ never dereferences).
+fn check_wkt(s: &str) -> std::result::Result<(), String> {
+    let mut stack: Vec<String> = Vec::new();
+    let mut word = String::new();
+    // Strings of the innermost element so far (EXTENSION's name, then its value).
+    let mut strings: Vec<Vec<String>> = Vec::new();
+    let mut chars = s.chars().peekable();
+    while let Some(c) = chars.next() {
+        match c {
+            '"' => {
+                let mut text = String::new();
+                loop {
+                    match chars.next() {
+                        None => return Err("unterminated quoted string".into()),
+                        Some('"') if chars.peek() == Some(&'"') => {
+                            chars.next();
+                            text.push('"');
+                        }
+                        Some('"') => break,
+                        Some(ch) => text.push(ch),
+                    }
+                }
+                let element = stack.last().map(String::as_str).unwrap_or("");
+                if element != "URI" && has_url(&text) {
+                    return Err(format!(
+                        "{element}[…] holds a URL ({}); CRSs from data never name URLs",
+                        excerpt(&text)
+                    ));
+                }
+                if let Some(list) = strings.last_mut() {
+                    list.push(text);
+                }
+                word.clear();
+            }
+            '[' | '(' => {
+                let element = word.trim().to_ascii_uppercase();
+                if element == "PARAMETERFILE" {
+                    return Err(
+                        "PARAMETERFILE[…] names a grid file; CRSs from data may not name files"
+                            .into(),
+                    );
+                }
+                stack.push(element);
+                strings.push(Vec::new());
+                word.clear();
+            }
+            ']' | ')' => {
+                let element = stack.pop().ok_or("unbalanced brackets")?;
+                let list = strings.pop().unwrap_or_default();
+                if element == "EXTENSION" {
+                    check_extension(&list)?;
+                }
+                word.clear();
+            }
+            ',' => word.clear(),
+            c => word.push(c),
+        }
+    }
+    if !stack.is_empty() {
+        return Err("unbalanced brackets".into());
+    }
+    Ok(())
+}
+
+fn check_extension(strings: &[String]) -> std::result::Result<(), String> {
+    let name = strings.first().map(|n| n.to_ascii_uppercase());
+    match (name.as_deref(), strings.get(1)) {
+        (Some("PROJ4_GRIDS"), _) => {
+            Err("EXTENSION[\"PROJ4_GRIDS\",…] names grid files; CRSs from data may not".into())
+        }
+        (Some("PROJ4"), Some(proj)) => {
+            check_proj_string(proj).map_err(|e| format!("EXTENSION[\"PROJ4\",…]: {e}"))
+        }
+        _ => Ok(()),
+    }
+}
+
+/// PROJJSON: a CRS type at the top; no parameter whose value is a string (PROJ writes grid
+/// file names there), and no URL except the `$schema` and `uri` identifiers.
+fn check_projjson(s: &str) -> std::result::Result<(), String> {
+    let v: serde_json::Value =
+        serde_json::from_str(s).map_err(|e| format!("not valid PROJJSON ({e})"))?;
+    let t = v.get("type").and_then(|t| t.as_str()).unwrap_or("");
+    if !PROJJSON_TYPES.contains(&t) {
+        return Err(format!("PROJJSON of type {t:?} is not a CRS"));
+    }
+    walk_json(&v, "")
+}
+
+fn walk_json(v: &serde_json::Value, key: &str) -> std::result::Result<(), String> {
+    use serde_json::Value;
+    match v {
+        Value::String(s) if key != "$schema" && key != "uri" && has_url(s) => Err(format!(
+            "\"{key}\" holds a URL ({}); CRSs from data never name URLs",
+            excerpt(s)
+        )),
+        Value::Object(o) => {
+            for (k, x) in o {
+                walk_json(x, k)?;
+            }
+            Ok(())
+        }
+        Value::Array(a) => {
+            for x in a {
+                if key == "parameters" {
+                    if let Some(Value::String(f)) = x.get("value") {
+                        return Err(format!(
+                            "parameter {:?} names a file ({f:?}); CRSs from data may not \
+                             name files",
+                            x.get("name").and_then(|n| n.as_str()).unwrap_or("")
+                        ));
+                    }
+                }
+                walk_json(x, key)?;
+            }
+            Ok(())
+        }
+        _ => Ok(()),
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn accepted_forms() {
+        assert_eq!(classify("EPSG:2180").unwrap(), CrsSyntax::Epsg);
+        assert_eq!(classify("epsg:32650+5773").unwrap(), CrsSyntax::Epsg);
+        assert_eq!(
+            classify("+proj=utm +zone=33 +datum=WGS84 +units=m +no_defs").unwrap(),
+            CrsSyntax::ProjString
+        );
+        let merc = "PROJCS[\"WGS 84 / Pseudo-Mercator\",GEOGCS[\"WGS 84\"],\
+                    EXTENSION[\"PROJ4\",\"+proj=merc +a=6378137 +nadgrids=@null +wktext\"]]";
+        assert_eq!(classify(merc).unwrap(), CrsSyntax::Wkt);
+        let uri =
+            "PROJCRS[\"x\",ID[\"EPSG\",2180,URI[\"http://www.opengis.net/def/crs/EPSG/0/2180\"]]]";
+        assert_eq!(classify(uri).unwrap(), CrsSyntax::Wkt);
+        assert_eq!(
+            classify(
+                r#"{"$schema":"https://proj.org/x.json","type":"ProjectedCRS","name":"a / b"}"#
+            )
+            .unwrap(),
+            CrsSyntax::ProjJson
+        );
+    }
+
+    #[test]
+    fn references_refused() {
+        for bad in [
+            "http://127.0.0.1:1/crs",
+            "https://example.org/2180.prj",
+            "/vsicurl/http://127.0.0.1:1/x",
+            "/etc/passwd",
+            "./local.prj",
+            "@list.txt",
+            "DICT:/etc/passwd,1",
+            "file:///etc/passwd",
+            "ESRI::/tmp/x.prj",
+            "+proj=longlat +init=/tmp/epsg:4326",
+            "+init=epsg:4326",
+            "+proj=utm +zone=33 +nadgrids=@http://127.0.0.1:1/g.tif",
+            "+proj=utm +zone=33 +geoidgrids=egm96_15.gtx",
+            "PROJCS[\"x\",EXTENSION[\"PROJ4\",\"+proj=merc +nadgrids=/tmp/g.gsb\"]]",
+            "VERT_CS[\"x\",EXTENSION[\"PROJ4_GRIDS\",\"g.gtx\"]]",
+            "BOUNDCRS[SOURCECRS[],PARAMETERFILE[\"f\",\"/tmp/g.gsb\"]]",
+            "PROJCS[\"http://127.0.0.1:1/x\"]",
+            r#"{"type":"BoundCRS","transformation":{"parameters":[{"name":"f","value":"g.gsb"}]}}"#,
+            r#"{"type":"ProjectedCRS","name":"http://127.0.0.1:1/"}"#,
+            r#"{"type":"Foo"}"#,
+        ] {
+            match classify(bad) {
+                Err(FormatError::Crs { crs, .. }) => assert_eq!(crs, excerpt(bad)),
+                other => panic!("{bad}: {other:?}"),
+            }
+        }
+    }
+}
