@@ -311,3 +311,161 @@ fn write_is_atomic_and_refuses_unwritable_blocks() {
     assert_eq!(std::fs::read_to_string(&out).unwrap(), "previous");
     assert_eq!(std::fs::read_dir(dir.path()).unwrap().count(), 1);
 }
+
+/// A film epoch as its products write it: the frame camera of an RC10 scan resampled into
+/// its fiducial frame (42 µm), with its calibrated distortion, two dated photos and a
+/// checkpoint measured in both.
+fn film_frame_block() -> (Block, f64) {
+    use cloudcontrol::block::{BlockCamera, ObjectPoint, Observation, Photo};
+    use cloudcontrol::geometry::{Brown, Camera, FilmCamera, InteriorOrientation, Pose};
+    use cloudcontrol::matching::fiducial::FiducialFrame;
+    use nalgebra::{Matrix3, Vector3};
+    let p = 0.042;
+    let frame = FiducialFrame::new([230.0, 230.0], p).unwrap();
+    let film = FilmCamera {
+        width: 5714,
+        height: 5714,
+        focal_mm: 152.865,
+        principal_point_mm: [-0.03, -0.001],
+        distortion: Brown {
+            k1: -1.2e-3,
+            k2: 3e-4,
+            k3: 0.0,
+            p1: 1e-6,
+            p2: -2e-6,
+        },
+        interior: InteriorOrientation::ideal(5714, 5714, p),
+    };
+    let mut b = Block::new();
+    b.crs = Some("EPSG:4547".into());
+    b.origin = [499_000.0, 4_399_000.0, 0.0];
+    b.cameras.insert(
+        1,
+        BlockCamera {
+            id: 1,
+            name: "Wild RC10 (film_1978)".into(),
+            model: Camera::Frame(frame.frame_camera(&film)),
+            free_params: Vec::new(),
+        },
+    );
+    let nadir = Matrix3::new(1.0, 0.0, 0.0, 0.0, -1.0, 0.0, 0.0, 0.0, -1.0);
+    for (id, x) in [(1u32, 0.0), (2, 1200.0)] {
+        let mut ph = Photo::new(
+            id,
+            format!("resampled/film_{id}.png"),
+            1,
+            Pose::new(nadir, Vector3::new(x, 30.0, 2000.0)),
+        )
+        .oriented();
+        ph.date = Some("1978-06-06".into());
+        b.photos.insert(id, ph);
+    }
+    let position = Vector3::new(640.0, -120.0, 110.0);
+    let observations = b
+        .photos
+        .values()
+        .map(|ph| {
+            let px = b.cameras[&1]
+                .model
+                .project(&ph.pose.to_camera(&position))
+                .unwrap();
+            Observation {
+                photo: ph.id,
+                pixel: [px.x, px.y],
+                sigma_px: 1.0,
+                provenance: String::new(),
+            }
+        })
+        .collect();
+    b.points.insert(
+        1,
+        ObjectPoint {
+            id: 1,
+            name: "CP001".into(),
+            kind: PointKind::Check,
+            position,
+            sigma: Some([0.05, 0.05, 0.05]),
+            color: [255, 0, 0],
+            observations,
+        },
+    );
+    (b, p)
+}
+
+/// The film photogroup as ContextCapture expects it (formats/blocks-exchange/README.md):
+/// FocalLength and SensorSize of the frame in mm, written in the element order of real
+/// v3.x exports; the photos' resampled images, dates and the check point; read back to
+/// the same camera and projections.
+#[test]
+fn film_photogroup_states_mm_in_the_order_of_real_exports_and_reads_back() {
+    let (b, p) = film_frame_block();
+    let dir = tempfile::tempdir().unwrap();
+    let out = dir.path().join("film.xml");
+    let opts = WriteOptions {
+        pixel_mm: [(1, p)].into_iter().collect(),
+        ..WriteOptions::default()
+    };
+    bx::write(&out, &b, &opts).unwrap();
+    let text = std::fs::read_to_string(&out).unwrap();
+    let value = |tag: &str| -> f64 {
+        let open = format!("<{tag}>");
+        let s = &text[text.find(&open).unwrap_or_else(|| panic!("no {tag}")) + open.len()..];
+        s[..s.find('<').unwrap()].parse().unwrap()
+    };
+    assert!((value("FocalLength") - 152.865).abs() < 1e-9);
+    assert!((value("SensorSize") - 5476.0 * p).abs() < 1e-9);
+    assert!(!text.contains("<FocalLengthPixels>"));
+    // Photogroup children in the order of the real ContextCapture 3.2 export
+    // (formats/blocks-exchange/README.md), then the photo's.
+    let order = [
+        "<Name>",
+        "<ImageDimensions>",
+        "<CameraModelType>Perspective</CameraModelType>",
+        "<CameraModelBand>Visible</CameraModelBand>",
+        "<FocalLength>",
+        "<SensorSize>",
+        "<CameraOrientation>XRightYDown</CameraOrientation>",
+        "<PrincipalPoint>",
+        "<Distortion>",
+        "<AspectRatio>",
+        "<Skew>",
+        "<Photo>",
+        "<Id>1</Id>",
+        "<ImagePath>resampled/film_1.png</ImagePath>",
+        "<Component>1</Component>",
+        "<Pose>",
+        "<ExifData>",
+        "<DateTimeOriginal>1978-06-06</DateTimeOriginal>",
+        "<ControlPoints>",
+        "<Name>CP001</Name>",
+        "<CheckPoint>true</CheckPoint>",
+        "<Measurement>",
+    ];
+    let group = text.find("<Photogroup>").unwrap();
+    let mut at = group;
+    for tag in order {
+        let k = text[at..]
+            .find(tag)
+            .unwrap_or_else(|| panic!("{tag} missing or out of order"));
+        at += k + tag.len();
+    }
+    let back = bx::read(&out).unwrap();
+    let (pa, pb) = (
+        b.cameras[&1].model.params(),
+        back.cameras[&1].model.params(),
+    );
+    for (x, y) in pa.iter().zip(&pb) {
+        assert!(
+            (x - y).abs() <= 1e-12 * x.abs().max(1.0),
+            "{pa:?} vs {pb:?}"
+        );
+    }
+    assert_eq!(back.photos[&2].date.as_deref(), Some("1978-06-06"));
+    assert_eq!(back.points[&1].kind, PointKind::Check);
+    let worst = projections(&b)
+        .iter()
+        .zip(&projections(&back))
+        .map(|(a, c)| (a.1[0] - c.1[0]).abs().max((a.1[1] - c.1[1]).abs()))
+        .fold(0.0, f64::max);
+    assert!(worst < 1e-6, "{worst} px");
+}

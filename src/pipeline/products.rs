@@ -59,6 +59,7 @@ pub fn write_products(
             &formats::blocks_exchange::WriteOptions {
                 base_image_path: base,
                 block_name: Some(project.name.clone()),
+                pixel_mm: BTreeMap::new(),
             },
         ) {
             tracing::warn!("BlocksExchange XML not written: {e}");

@@ -1,5 +1,6 @@
 //! A [`Block`] as BlocksExchange 2.1 XML: cameras as photogroups (XRightYDown, pixels),
-//! poses as `M_ij` rotations and world centres, control/check and tie points.
+//! poses as `M_ij` rotations and world centres, control/check and tie points. Elements
+//! are written in the order of real v3.x exports (formats/blocks-exchange/README.md).
 
 use super::conventions::HALF_PIXEL;
 use super::xml::{
@@ -7,7 +8,7 @@ use super::xml::{
     XImagePoint, XMeasurement, XPhoto, XPhotogroup, XPhotogroups, XPose, XRoot, XRotation, XSrs,
     XSrsList, XTiePoint, XTiePoints, XXyz,
 };
-use crate::block::{Block, Observation, PointKind};
+use crate::block::{Block, CameraId, Observation, PointKind};
 use crate::formats::{frame_equivalent, write_bytes_atomically, FormatError, Result};
 use nalgebra::Vector3;
 use std::collections::BTreeMap;
@@ -20,6 +21,10 @@ pub struct WriteOptions {
     pub base_image_path: Option<String>,
     /// `<Block><Name>`.
     pub block_name: Option<String>,
+    /// Physical pixel size (mm) of a camera's images, where known (a film scan's
+    /// fiducial-frame image): its photogroup then states `FocalLength` and `SensorSize`
+    /// in mm, as ContextCapture shows a metric camera, instead of `FocalLengthPixels`.
+    pub pixel_mm: BTreeMap<CameraId, f64>,
 }
 
 fn xyz(v: Vector3<f64>) -> XXyz {
@@ -49,6 +54,11 @@ pub fn to_string(block: &Block, opts: &WriteOptions) -> std::result::Result<Stri
     for (i, c) in block.cameras.values().enumerate() {
         group_index.insert(c.id, i);
         let f = frame_equivalent(&c.model).map_err(|m| format!("camera {}: {m}", c.id))?;
+        let metric = opts
+            .pixel_mm
+            .get(&c.id)
+            .copied()
+            .filter(|p| p.is_finite() && *p > 0.0);
         groups.push(XPhotogroup {
             name: Some(if c.name.is_empty() {
                 format!("camera {}", c.id)
@@ -60,10 +70,11 @@ pub fn to_string(block: &Block, opts: &WriteOptions) -> std::result::Result<Stri
                 height: f.height,
             }),
             camera_model_type: Some("Perspective".into()),
-            sensor_size: None,
+            camera_model_band: Some("Visible".into()),
+            focal_length: metric.map(|p| f.fx * p),
+            sensor_size: metric.map(|p| f.width.max(f.height) as f64 * p),
             pixel_size: None,
-            focal_length: None,
-            focal_length_pixels: Some(f.fx),
+            focal_length_pixels: metric.is_none().then_some(f.fx),
             camera_orientation: Some("XRightYDown".into()),
             principal_point: Some(XImagePoint {
                 x: Some(f.cx - HALF_PIXEL),

@@ -114,6 +114,20 @@ pub(super) struct XPhotogroup {
         skip_serializing_if = "Option::is_none"
     )]
     pub camera_model_type: Option<String>,
+    /// Visible or Thermal (CC Orientations, real 3.x exports).
+    #[serde(
+        rename = "CameraModelBand",
+        default,
+        skip_serializing_if = "Option::is_none"
+    )]
+    pub camera_model_band: Option<String>,
+    // FocalLength before SensorSize, as real 3.x exports write them.
+    #[serde(
+        rename = "FocalLength",
+        default,
+        skip_serializing_if = "Option::is_none"
+    )]
+    pub focal_length: Option<f64>,
     #[serde(
         rename = "SensorSize",
         default,
@@ -122,12 +136,6 @@ pub(super) struct XPhotogroup {
     pub sensor_size: Option<f64>,
     #[serde(rename = "PixelSize", default, skip_serializing_if = "Option::is_none")]
     pub pixel_size: Option<f64>,
-    #[serde(
-        rename = "FocalLength",
-        default,
-        skip_serializing_if = "Option::is_none"
-    )]
-    pub focal_length: Option<f64>,
     #[serde(
         rename = "FocalLengthPixels",
         default,

@@ -5,9 +5,11 @@
 //! pixel → fiducial mm estimated with residuals in µm. The scan orientation (rotated by
 //! 90°/180°/270° or mirrored) is found, not guessed: all eight orientations of the
 //! square's symmetry group are measured and compared ([`orientation`]), and a decision
-//! below the confidence margin is an error naming the scan.
+//! below the confidence margin is an error naming the scan. An oriented scan is resampled
+//! into a fiducial-frame image with a plain frame camera ([`frame_image`]).
 
 mod camera;
+pub mod frame_image;
 mod orientation;
 mod shape;
 mod solve;
@@ -15,6 +17,9 @@ mod solve;
 pub use camera::{
     check_scan_pixel_um, scan_pixel_um_from_dpi, CameraDefinition, DataStrip, DistortionDef,
     FiducialDef, MAX_FORMAT_MM, MAX_MARK_FRACTION, SCAN_PIXEL_UM,
+};
+pub use frame_image::{
+    mean_scan_pixel_mm, resample_scan, write_frame_image, FiducialFrame, FrameImageReport,
 };
 pub use orientation::{
     epoch_orientation, interior_orientation_epoch, majority_orientation, OrientationScore,
