@@ -8,7 +8,14 @@
 #include <stdbool.h>
 
 // Status of every fallible call. On anything but `CCP_STATUS_OK`, `ccp_last_error`
-// returns a message naming the argument or input and the problem.
+// returns a message naming the argument or input and the problem (the message is kept
+// per thread, so threads do not see each other's errors).
+//
+// Handles (`CcpCamera`, `CcpBlock`, `CcpDcp`, `CcpLidarSource`, `CcpPhotoOrientation`)
+// are checked before use: a freed handle, one of another type, a double free, or a
+// pointer that never was a handle returns `CCP_STATUS_INVALID_HANDLE`. Every handle may
+// be used from several threads at once; freeing one while another thread is inside a
+// call on it is safe (the object lives until that call returns).
 typedef enum CcpStatus {
   CCP_STATUS_OK = 0,
   CCP_STATUS_NULL_POINTER = 1,
@@ -22,23 +29,38 @@ typedef enum CcpStatus {
   // The photo could not be oriented (the last error says why: too few matches, no
   // control in view, failed interior orientation, …).
   CCP_STATUS_NOT_ORIENTED = 9,
+  // A handle (or a string to free) that is not live: freed already, of another handle
+  // type, or never made by this library. Nothing was done with it.
+  CCP_STATUS_INVALID_HANDLE = 10,
   CCP_STATUS_PANIC = 99,
 } CcpStatus;
 
 // Opaque block handle: `ccp_block_new`, `ccp_block_free`.
+// Thread safety: a block may be used from several threads at once. Calls that change it
+// (`ccp_block_add_*`, `ccp_block_set_pos_prior`, `ccp_block_adjust`) take it exclusively
+// and run one after the other; reading calls (`ccp_block_get_*`, `ccp_block_report_json`)
+// run together.
 typedef struct CcpBlock CcpBlock;
 
 // Opaque camera handle; create with `ccp_camera_new_frame`, release with `ccp_camera_free`.
+// Thread safety: never changed after creation, so any number of threads may use one
+// camera at once.
 typedef struct CcpCamera CcpCamera;
 
 // Opaque handle of an opened (verified) DCP package with its spatial index.
+// Thread safety: never changed after creation, so any number of threads may use one
+// package at once.
 typedef struct CcpDcp CcpDcp;
 
 // Opaque LiDAR source: the points of a region with their plane index. Create with
 // `ccp_lidar_source_open`, release with `ccp_lidar_source_free`.
+// Thread safety: never changed after creation, so any number of threads may use one
+// source at once.
 typedef struct CcpLidarSource CcpLidarSource;
 
 // Opaque handle of an oriented photo (world coordinates of the packages' CRS).
+// Thread safety: never changed after creation, so any number of threads may use one
+// orientation at once.
 typedef struct CcpPhotoOrientation CcpPhotoOrientation;
 
 // Exterior orientation: `rotation` is the row-major world→camera matrix R and `center`
@@ -167,8 +189,9 @@ size_t ccp_last_error(char *buf, size_t buf_len);
 // values; NULL = 0,0,0). All coordinates passed later are block-local.
 enum CcpStatus ccp_block_new(const double *origin, struct CcpBlock **out_block);
 
-// Releases a block; NULL is ignored.
-void ccp_block_free(struct CcpBlock *block);
+// Releases a block; NULL is ignored. A handle already freed or of another type is
+// refused with `CCP_STATUS_INVALID_HANDLE` (nothing is freed).
+enum CcpStatus ccp_block_free(struct CcpBlock *block);
 
 // Adds a camera (copied from `camera`). `free_params`: comma-separated names of interior
 // parameters to self-calibrate (fx,fy,cx,cy,k1,k2,k3,p1,p2), or NULL for none.
@@ -267,8 +290,9 @@ enum CcpStatus ccp_camera_new_frame(uint32_t width,
                                     size_t n_params,
                                     struct CcpCamera **out_camera);
 
-// Releases a camera handle; NULL is ignored.
-void ccp_camera_free(struct CcpCamera *camera);
+// Releases a camera handle; NULL is ignored. A handle already freed or of another type
+// is refused with `CCP_STATUS_INVALID_HANDLE` (nothing is freed).
+enum CcpStatus ccp_camera_free(struct CcpCamera *camera);
 
 // Builds a pose from photogrammetric omega, phi, kappa (radians) and the projection centre.
 enum CcpStatus ccp_pose_from_opk(double omega,
@@ -327,8 +351,9 @@ enum CcpStatus ccp_dcp_import(const char *package, const char *store_dir, struct
 // by the library: release it with `ccp_string_free`.
 enum CcpStatus ccp_dcp_path(const struct CcpDcp *dcp, char **out_path);
 
-// Releases a DCP handle; NULL is ignored.
-void ccp_dcp_free(struct CcpDcp *dcp);
+// Releases a DCP handle; NULL is ignored. A handle already freed or of another type is
+// refused with `CCP_STATUS_INVALID_HANDLE` (nothing is freed).
+enum CcpStatus ccp_dcp_free(struct CcpDcp *dcp);
 
 // Number of control points of the package.
 enum CcpStatus ccp_dcp_point_count(const struct CcpDcp *dcp, size_t *out_count);
@@ -432,8 +457,9 @@ enum CcpStatus ccp_lidar_catalogue_json(const char *const *paths_ptr,
                                         const char *assume_crs,
                                         char **out_json);
 
-// Frees a string returned by the library (NULL is ignored).
-void ccp_string_free(char *s);
+// Frees a string returned by the library (NULL is ignored). A pointer the library did not
+// return, or has freed already, is refused with `CCP_STATUS_INVALID_HANDLE`.
+enum CcpStatus ccp_string_free(char *s);
 
 // Evaluates LiDAR ground heights against `n_points` checkpoints `xyz` (X, Y, Z per
 // checkpoint, in the LiDAR CRS). `ground_class` < 0 takes every point, else that ASPRS
@@ -465,8 +491,9 @@ enum CcpStatus ccp_lidar_source_open(const char *const *paths_ptr,
                                      uint64_t max_points,
                                      struct CcpLidarSource **out_source);
 
-// Releases a source (NULL is ignored).
-void ccp_lidar_source_free(struct CcpLidarSource *source);
+// Releases a source (NULL is ignored). A handle already freed or of another type is
+// refused with `CCP_STATUS_INVALID_HANDLE` (nothing is freed).
+enum CcpStatus ccp_lidar_source_free(struct CcpLidarSource *source);
 
 // Number of LiDAR points held by a source.
 enum CcpStatus ccp_lidar_source_len(const struct CcpLidarSource *source, uint64_t *out_len);
@@ -619,8 +646,9 @@ enum CcpStatus ccp_photo_orientation_matches(const struct CcpPhotoOrientation *o
 enum CcpStatus ccp_photo_orientation_report_json(const struct CcpPhotoOrientation *orientation,
                                                  char **json_out);
 
-// Releases a handle from `ccp_orient_photo` (NULL is ignored).
-void ccp_photo_orientation_free(struct CcpPhotoOrientation *orientation);
+// Releases a handle from `ccp_orient_photo` (NULL is ignored). A handle already freed or
+// of another type is refused with `CCP_STATUS_INVALID_HANDLE` (nothing is freed).
+enum CcpStatus ccp_photo_orientation_free(struct CcpPhotoOrientation *orientation);
 
 // Runs the project file `project_path` (TOML, formats/project/) — restartable: finished
 // stages whose inputs did not change are skipped — and returns in `*out_json` a

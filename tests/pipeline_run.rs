@@ -142,6 +142,9 @@ fn demo_runs_the_workflow_and_a_killed_run_resumes_identically() {
         !run2.join("report").exists(),
         "the killed run got to its end"
     );
+    // Temporary outputs of the killed run (and one of an older killed run) are removed
+    // when the next run takes the folder.
+    std::fs::create_dir_all(run2.join(".epoch-old.part-1/sub")).unwrap();
     let resumed = json_of(
         &Command::new(exe())
             .args(["--json", "run"])
@@ -149,6 +152,12 @@ fn demo_runs_the_workflow_and_a_killed_run_resumes_identically() {
             .output()
             .unwrap(),
     );
+    let leftovers: Vec<_> = std::fs::read_dir(&run2)
+        .unwrap()
+        .map(|e| e.unwrap().file_name().to_string_lossy().into_owned())
+        .filter(|n| n.contains(".part-"))
+        .collect();
+    assert!(leftovers.is_empty(), "left behind: {leftovers:?}");
     let skipped: Vec<&str> = resumed["skipped"]
         .as_array()
         .unwrap()

@@ -427,9 +427,10 @@ impl DcpPackage {
             .parent()
             .filter(|p| !p.as_os_str().is_empty())
             .unwrap_or(Path::new("."));
-        std::fs::create_dir_all(parent).map_err(|e| DcpError::Io {
-            path: parent.into(),
-            source: e,
+        // Made here, removed again if the package cannot be written.
+        let created = crate::formats::create_folders(parent).map_err(|e| match e {
+            crate::formats::FormatError::Io { path, source } => DcpError::Io { path, source },
+            e => invalid(parent, e.to_string()),
         })?;
         let name = dir
             .file_name()
@@ -484,6 +485,7 @@ impl DcpPackage {
         })();
         if let Err(e) = result {
             let _ = std::fs::remove_dir_all(&tmp);
+            created.undo(false);
             return Err(e);
         }
         // Swap in: move an old package aside first so a failure leaves it intact.

@@ -8,9 +8,9 @@
 //! `ccp_block_new` / `ccp_camera_new_frame` and are not used after being freed.
 #![allow(clippy::missing_safety_doc)]
 
-use super::{
-    finite, guard, handle, input, output, CcpCamera, CcpPose, CcpStatus, FfiError, FfiResult,
-};
+use super::camera::camera_arg;
+use super::handles::{free, get, new_handle, read, write, Handle};
+use super::{finite, guard, handle, input, output, CcpCamera, CcpPose, CcpStatus, FfiError};
 use crate::adjust::{
     self, AdjustError, AdjustOptions, AdjustReport, Loss, PlaneConstraint, Rejection,
     ResectionOptions,
@@ -32,10 +32,19 @@ impl From<AdjustError> for FfiError {
 }
 
 /// Opaque block handle: `ccp_block_new`, `ccp_block_free`.
+/// Thread safety: a block may be used from several threads at once. Calls that change it
+/// (`ccp_block_add_*`, `ccp_block_set_pos_prior`, `ccp_block_adjust`) take it exclusively
+/// and run one after the other; reading calls (`ccp_block_get_*`, `ccp_block_report_json`)
+/// run together.
 pub struct CcpBlock {
     block: Block,
     planes: Vec<PlaneConstraint>,
     report: Option<AdjustReport>,
+}
+
+impl Handle for CcpBlock {
+    const TAG: usize = 2;
+    const NAME: &'static str = "CcpBlock";
 }
 
 /// Options of `ccp_block_adjust`. `loss`: 0 none, 1 Huber, 2 Cauchy (scale `loss_scale`
@@ -72,11 +81,6 @@ pub struct CcpAdjustSummary {
     pub check_max_m: f64,
 }
 
-unsafe fn block_mut<'a>(b: *mut CcpBlock) -> FfiResult<&'a mut CcpBlock> {
-    b.as_mut()
-        .ok_or_else(|| FfiError::new(CcpStatus::NullPointer, "block is a null handle"))
-}
-
 /// Creates an empty block with the world coordinates of its local origin (`origin`: 3
 /// values; NULL = 0,0,0). All coordinates passed later are block-local.
 #[no_mangle]
@@ -98,21 +102,20 @@ pub unsafe extern "C" fn ccp_block_new(
             finite(o, "origin")?;
             block.origin = [o[0], o[1], o[2]];
         }
-        *out_block = Box::into_raw(Box::new(CcpBlock {
+        *out_block = new_handle(CcpBlock {
             block,
             planes: Vec::new(),
             report: None,
-        }));
+        });
         Ok(())
     })
 }
 
-/// Releases a block; NULL is ignored.
+/// Releases a block; NULL is ignored. A handle already freed or of another type is
+/// refused with `CCP_STATUS_INVALID_HANDLE` (nothing is freed).
 #[no_mangle]
-pub unsafe extern "C" fn ccp_block_free(block: *mut CcpBlock) {
-    if !block.is_null() {
-        let _ = std::panic::catch_unwind(|| drop(Box::from_raw(block)));
-    }
+pub unsafe extern "C" fn ccp_block_free(block: *mut CcpBlock) -> CcpStatus {
+    free(block, "block")
 }
 
 /// Adds a camera (copied from `camera`). `free_params`: comma-separated names of interior
@@ -125,8 +128,9 @@ pub unsafe extern "C" fn ccp_block_add_camera(
     free_params: *const c_char,
 ) -> CcpStatus {
     guard(|| {
-        let b = block_mut(block)?;
-        let cam = handle(camera, "camera")?.0.clone();
+        let held = get(block, "block")?;
+        let mut b = write(&held, "block")?;
+        let cam = camera_arg(camera, "camera")?;
         let free: Vec<String> = if free_params.is_null() {
             Vec::new()
         } else {
@@ -168,7 +172,8 @@ pub unsafe extern "C" fn ccp_block_add_photo(
     pose: *const CcpPose,
 ) -> CcpStatus {
     guard(|| {
-        let b = block_mut(block)?;
+        let held = get(block, "block")?;
+        let mut b = write(&held, "block")?;
         if !b.block.cameras.contains_key(&camera_id) {
             return Err(FfiError::new(
                 CcpStatus::NotFound,
@@ -196,7 +201,8 @@ pub unsafe extern "C" fn ccp_block_set_pos_prior(
     rotation_sigma_rad: f64,
 ) -> CcpStatus {
     guard(|| {
-        let b = block_mut(block)?;
+        let held = get(block, "block")?;
+        let mut b = write(&held, "block")?;
         let c = input(center, 3, "center", false)?;
         let s = input(center_sigma, 3, "center_sigma", false)?;
         finite(c, "center")?;
@@ -241,7 +247,8 @@ pub unsafe extern "C" fn ccp_block_add_points(
     sigmas: *const f64,
 ) -> CcpStatus {
     guard(|| {
-        let b = block_mut(block)?;
+        let held = get(block, "block")?;
+        let mut b = write(&held, "block")?;
         let ids = input(ids, n, "ids", false)?;
         let kinds = input(kinds, n, "kinds", false)?;
         let x = input(xyz, 3 * n, "xyz", false)?;
@@ -301,7 +308,8 @@ pub unsafe extern "C" fn ccp_block_add_observations(
     sigma_px: *const f64,
 ) -> CcpStatus {
     guard(|| {
-        let b = block_mut(block)?;
+        let held = get(block, "block")?;
+        let mut b = write(&held, "block")?;
         let pid = input(point_ids, n, "point_ids", false)?;
         let ph = input(photo_ids, n, "photo_ids", false)?;
         let px = input(pixels, 2 * n, "pixels", false)?;
@@ -346,7 +354,8 @@ pub unsafe extern "C" fn ccp_block_add_planes(
     weights: *const f64,
 ) -> CcpStatus {
     guard(|| {
-        let b = block_mut(block)?;
+        let held = get(block, "block")?;
+        let mut b = write(&held, "block")?;
         let pid = input(point_ids, n, "point_ids", false)?;
         let nr = input(normals, 3 * n, "normals", false)?;
         let d = input(d, n, "d", false)?;
@@ -374,7 +383,8 @@ pub unsafe extern "C" fn ccp_block_adjust(
     out_summary: *mut CcpAdjustSummary,
 ) -> CcpStatus {
     guard(|| {
-        let b = block_mut(block)?;
+        let held = get(block, "block")?;
+        let mut b = write(&held, "block")?;
         let mut o = AdjustOptions::default();
         if let Some(c) = options.as_ref() {
             finite(&[c.loss_scale, c.k], "options")?;
@@ -436,7 +446,8 @@ pub unsafe extern "C" fn ccp_block_get_photo(
     out_sigma: *mut f64,
 ) -> CcpStatus {
     guard(|| {
-        let b = handle(block, "block")?;
+        let held = get(block, "block")?;
+        let b = read(&held, "block")?;
         let ph = b.block.photos.get(&photo_id).ok_or_else(|| {
             FfiError::new(CcpStatus::NotFound, format!("unknown photo {photo_id}"))
         })?;
@@ -467,7 +478,8 @@ pub unsafe extern "C" fn ccp_block_get_point(
     out_xyz: *mut f64,
 ) -> CcpStatus {
     guard(|| {
-        let b = handle(block, "block")?;
+        let held = get(block, "block")?;
+        let b = read(&held, "block")?;
         let p = b.block.points.get(&point_id).ok_or_else(|| {
             FfiError::new(CcpStatus::NotFound, format!("unknown point {point_id}"))
         })?;
@@ -486,7 +498,8 @@ pub unsafe extern "C" fn ccp_block_report_json(
     out_needed: *mut usize,
 ) -> CcpStatus {
     guard(|| {
-        let b = handle(block, "block")?;
+        let held = get(block, "block")?;
+        let b = read(&held, "block")?;
         let rep = b
             .report
             .as_ref()
@@ -522,7 +535,7 @@ pub unsafe extern "C" fn ccp_resect(
     out_covariance: *mut f64,
 ) -> CcpStatus {
     guard(|| {
-        let cam = &handle(camera, "camera")?.0;
+        let cam = &camera_arg(camera, "camera")?;
         let px = input(pixels, 2 * n, "pixels", false)?;
         let xs = input(points, 3 * n, "points", false)?;
         finite(px, "pixels")?;

@@ -1,11 +1,26 @@
 //! Camera handles, projection and back-projection.
 
+use super::handles::{free, get, new_handle, read, Handle};
 use super::{finite, finite_rows, guard, handle, input, output, CcpStatus, FfiError, FfiResult};
 use crate::geometry::{self, Brown, Camera, FrameCamera, Pose};
 use nalgebra::{Matrix3, Vector3};
 
 /// Opaque camera handle; create with `ccp_camera_new_frame`, release with `ccp_camera_free`.
+/// Thread safety: never changed after creation, so any number of threads may use one
+/// camera at once.
 pub struct CcpCamera(pub(crate) Camera);
+
+impl Handle for CcpCamera {
+    const TAG: usize = 1;
+    const NAME: &'static str = "CcpCamera";
+}
+
+/// The camera of a handle (a copy: the handle's lock is not held beyond this).
+pub(crate) fn camera_arg(h: *const CcpCamera, name: &str) -> FfiResult<Camera> {
+    let held = get(h, name)?;
+    let camera = read(&held, name)?.0.clone();
+    Ok(camera)
+}
 
 /// Exterior orientation: `rotation` is the row-major world→camera matrix R and `center`
 /// the projection centre C, so that X_cam = R·(X − C) (x right, y down, z forward).
@@ -83,17 +98,16 @@ pub unsafe extern "C" fn ccp_camera_new_frame(
             distortion,
         });
         cam.validate()?;
-        *out_camera = Box::into_raw(Box::new(CcpCamera(cam)));
+        *out_camera = new_handle(CcpCamera(cam));
         Ok(())
     })
 }
 
-/// Releases a camera handle; NULL is ignored.
+/// Releases a camera handle; NULL is ignored. A handle already freed or of another type
+/// is refused with `CCP_STATUS_INVALID_HANDLE` (nothing is freed).
 #[no_mangle]
-pub unsafe extern "C" fn ccp_camera_free(camera: *mut CcpCamera) {
-    if !camera.is_null() {
-        let _ = std::panic::catch_unwind(|| drop(Box::from_raw(camera)));
-    }
+pub unsafe extern "C" fn ccp_camera_free(camera: *mut CcpCamera) -> CcpStatus {
+    free(camera, "camera")
 }
 
 /// Builds a pose from photogrammetric omega, phi, kappa (radians) and the projection centre.
@@ -133,7 +147,7 @@ pub unsafe extern "C" fn ccp_project(
     out_len: usize,
 ) -> CcpStatus {
     guard(|| {
-        let cam = &handle(camera, "camera")?.0;
+        let cam = &camera_arg(camera, "camera")?;
         let pose = handle(pose, "pose")?.to_pose()?;
         let n3 = n_points
             .checked_mul(3)
@@ -164,7 +178,7 @@ pub unsafe extern "C" fn ccp_back_project(
     out_len: usize,
 ) -> CcpStatus {
     guard(|| {
-        let cam = &handle(camera, "camera")?.0;
+        let cam = &camera_arg(camera, "camera")?;
         let pose = handle(pose, "pose")?.to_pose()?;
         let n2 = n_pixels
             .checked_mul(2)

@@ -1,7 +1,9 @@
 //! DCP packages and patch prediction through the C ABI: open, export from an oriented
 //! block, import into a store, query. Strings returned are freed with `ccp_string_free`.
 
+use super::camera::camera_arg;
 use super::camera::{CcpCamera, CcpPose};
+use super::handles::{free, get, hand_out_string, new_handle, read, Handle};
 use super::{
     finite, finite_rows, guard, handle, input, opt_str, output, CcpStatus, FfiError, FfiResult,
 };
@@ -15,9 +17,16 @@ use std::ffi::{c_char, CStr, CString};
 use std::path::{Path, PathBuf};
 
 /// Opaque handle of an opened (verified) DCP package with its spatial index.
+/// Thread safety: never changed after creation, so any number of threads may use one
+/// package at once.
 pub struct CcpDcp {
     pub(crate) package: DcpPackage,
     index: DcpIndex,
+}
+
+impl Handle for CcpDcp {
+    const TAG: usize = 3;
+    const NAME: &'static str = "CcpDcp";
 }
 
 pub(crate) fn path_arg<'a>(p: *const c_char, name: &str) -> Result<&'a str, FfiError> {
@@ -72,7 +81,7 @@ impl From<EpochError> for FfiError {
 /// Wraps an opened package in a new handle written to `*out_dcp`.
 unsafe fn hand_out(package: DcpPackage, out_dcp: *mut *mut CcpDcp) {
     let index = DcpIndex::new(std::slice::from_ref(&package));
-    *out_dcp = Box::into_raw(Box::new(CcpDcp { package, index }));
+    *out_dcp = new_handle(CcpDcp { package, index });
 }
 
 /// Clears `*out_dcp`, refusing a null `out_dcp`.
@@ -277,7 +286,8 @@ pub unsafe extern "C" fn ccp_dcp_path(dcp: *const CcpDcp, out_path: *mut *mut c_
             ));
         }
         *out_path = std::ptr::null_mut();
-        let d = handle(dcp, "dcp")?;
+        let held = get(dcp, "dcp")?;
+        let d = read(&held, "dcp")?;
         let s = d
             .package
             .dir
@@ -285,17 +295,16 @@ pub unsafe extern "C" fn ccp_dcp_path(dcp: *const CcpDcp, out_path: *mut *mut c_
             .ok_or_else(|| FfiError::invalid("the package path is not UTF-8"))?;
         let c =
             CString::new(s).map_err(|_| FfiError::invalid("the package path holds a NUL byte"))?;
-        *out_path = c.into_raw();
+        *out_path = hand_out_string(c);
         Ok(())
     })
 }
 
-/// Releases a DCP handle; NULL is ignored.
+/// Releases a DCP handle; NULL is ignored. A handle already freed or of another type is
+/// refused with `CCP_STATUS_INVALID_HANDLE` (nothing is freed).
 #[no_mangle]
-pub unsafe extern "C" fn ccp_dcp_free(dcp: *mut CcpDcp) {
-    if !dcp.is_null() {
-        let _ = std::panic::catch_unwind(|| drop(Box::from_raw(dcp)));
-    }
+pub unsafe extern "C" fn ccp_dcp_free(dcp: *mut CcpDcp) -> CcpStatus {
+    free(dcp, "dcp")
 }
 
 /// Number of control points of the package.
@@ -305,7 +314,8 @@ pub unsafe extern "C" fn ccp_dcp_point_count(
     out_count: *mut usize,
 ) -> CcpStatus {
     guard(|| {
-        let d = handle(dcp, "dcp")?;
+        let held = get(dcp, "dcp")?;
+        let d = read(&held, "dcp")?;
         output(out_count, 1, 1, "out_count")?[0] = d.package.manifest.points.len();
         Ok(())
     })
@@ -321,7 +331,8 @@ pub unsafe extern "C" fn ccp_dcp_points(
     out_len: usize,
 ) -> CcpStatus {
     guard(|| {
-        let d = handle(dcp, "dcp")?;
+        let held = get(dcp, "dcp")?;
+        let d = read(&held, "dcp")?;
         let pts = &d.package.manifest.points;
         let xyz = output(out_xyz, out_len, 3 * pts.len(), "out_xyz")?;
         for (o, p) in xyz.chunks_exact_mut(3).zip(pts) {
@@ -350,7 +361,8 @@ pub unsafe extern "C" fn ccp_dcp_query_polygon(
     out_count: *mut usize,
 ) -> CcpStatus {
     guard(|| {
-        let d = handle(dcp, "dcp")?;
+        let held = get(dcp, "dcp")?;
+        let d = read(&held, "dcp")?;
         if n_vertices < 3 {
             return Err(FfiError::invalid(format!(
                 "polygon needs at least 3 vertices, got {n_vertices}"
@@ -387,7 +399,7 @@ pub unsafe extern "C" fn ccp_predict(
     cov_len: usize,
 ) -> CcpStatus {
     guard(|| {
-        let cam = &handle(camera, "camera")?.0;
+        let cam = &camera_arg(camera, "camera")?;
         let pose = handle(pose, "pose")?.to_pose()?;
         let cov = input(eo_covariance, 36, "eo_covariance", false)?;
         finite(cov, "eo_covariance")?;

@@ -1,11 +1,11 @@
 //! LiDAR through the C ABI: the source catalogue as a JSON string and the evaluation of
 //! checkpoints. Strings returned by the library are freed with `ccp_string_free`.
 
+use super::handles::{free, free_string, get, hand_out_string, new_handle, read, Handle};
 use super::{finite, guard, input, opt_str, output, CcpStatus, FfiError, FfiResult};
 use crate::lidar::eval::evaluate_checkpoints_store;
 use crate::lidar::{Catalogue, CheckpointOptions, LidarError, ScanOptions, TileStore};
 use std::ffi::{c_char, CStr, CString};
-use std::panic::AssertUnwindSafe;
 use std::path::PathBuf;
 
 impl From<LidarError> for FfiError {
@@ -87,17 +87,16 @@ pub unsafe extern "C" fn ccp_lidar_catalogue_json(
         let cat = Catalogue::open(&files, &opts)?;
         let c = CString::new(cat.to_json())
             .map_err(|_| FfiError::invalid("catalogue JSON holds a NUL byte"))?;
-        *out_json = c.into_raw();
+        *out_json = hand_out_string(c);
         Ok(())
     })
 }
 
-/// Frees a string returned by the library (NULL is ignored).
+/// Frees a string returned by the library (NULL is ignored). A pointer the library did not
+/// return, or has freed already, is refused with `CCP_STATUS_INVALID_HANDLE`.
 #[no_mangle]
-pub unsafe extern "C" fn ccp_string_free(s: *mut c_char) {
-    if !s.is_null() {
-        let _ = std::panic::catch_unwind(|| drop(CString::from_raw(s)));
-    }
+pub unsafe extern "C" fn ccp_string_free(s: *mut c_char) -> CcpStatus {
+    free_string(s)
 }
 
 /// Evaluates LiDAR ground heights against `n_points` checkpoints `xyz` (X, Y, Z per
@@ -184,8 +183,15 @@ pub unsafe extern "C" fn ccp_lidar_eval_checkpoints(
 
 /// Opaque LiDAR source: the points of a region with their plane index. Create with
 /// `ccp_lidar_source_open`, release with `ccp_lidar_source_free`.
+/// Thread safety: never changed after creation, so any number of threads may use one
+/// source at once.
 pub struct CcpLidarSource {
     index: crate::lidar::PlaneIndex,
+}
+
+impl Handle for CcpLidarSource {
+    const TAG: usize = 4;
+    const NAME: &'static str = "CcpLidarSource";
 }
 
 /// Statistics of an ICP run.
@@ -291,17 +297,16 @@ pub unsafe extern "C" fn ccp_lidar_source_open(
             ..defaults
         };
         let index = PlaneIndex::from_local(local, origin, opts)?;
-        *out_source = Box::into_raw(Box::new(CcpLidarSource { index }));
+        *out_source = new_handle(CcpLidarSource { index });
         Ok(())
     })
 }
 
-/// Releases a source (NULL is ignored).
+/// Releases a source (NULL is ignored). A handle already freed or of another type is
+/// refused with `CCP_STATUS_INVALID_HANDLE` (nothing is freed).
 #[no_mangle]
-pub unsafe extern "C" fn ccp_lidar_source_free(source: *mut CcpLidarSource) {
-    if !source.is_null() {
-        let _ = std::panic::catch_unwind(AssertUnwindSafe(|| drop(Box::from_raw(source))));
-    }
+pub unsafe extern "C" fn ccp_lidar_source_free(source: *mut CcpLidarSource) -> CcpStatus {
+    free(source, "source")
 }
 
 /// Number of LiDAR points held by a source.
@@ -311,7 +316,8 @@ pub unsafe extern "C" fn ccp_lidar_source_len(
     out_len: *mut u64,
 ) -> CcpStatus {
     guard(|| {
-        let s = super::handle(source, "source")?;
+        let held = get(source, "source")?;
+        let s = read(&held, "source")?;
         if out_len.is_null() {
             return Err(FfiError::new(
                 CcpStatus::NullPointer,
@@ -337,7 +343,8 @@ pub unsafe extern "C" fn ccp_lidar_planes(
     out_len: usize,
 ) -> CcpStatus {
     guard(|| {
-        let s = super::handle(source, "source")?;
+        let held = get(source, "source")?;
+        let s = read(&held, "source")?;
         let pts = input(xyz, n_points.saturating_mul(3), "xyz", false)?;
         finite(pts, "xyz")?;
         let out = output(out, out_len, n_points * 8, "out")?;
@@ -390,7 +397,8 @@ pub unsafe extern "C" fn ccp_lidar_icp(
 ) -> CcpStatus {
     guard(|| {
         use crate::lidar::{icp_point_to_plane, IcpModel, IcpOptions};
-        let s = super::handle(source, "source")?;
+        let held = get(source, "source")?;
+        let s = read(&held, "source")?;
         let pts = input(xyz, n_points.saturating_mul(3), "xyz", false)?;
         finite(pts, "xyz")?;
         let m_out = output(out_matrix, 16, 16, "out_matrix")?;

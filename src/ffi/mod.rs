@@ -3,17 +3,23 @@
 //! validates its arguments, calls the library and maps errors to a status. No panic
 //! crosses the boundary (each entry point runs under `catch_unwind`).
 //!
+//! Handles (`handles`) are registered tokens, not addresses: a freed handle, a handle of
+//! another type, a double free or a pointer that never was a handle is refused with
+//! `CCP_STATUS_INVALID_HANDLE`, and every handle may be used from several threads at once
+//! (each type's documentation says which calls share it and which take it exclusively).
+//!
 //! # Safety
-//! One contract holds for every `unsafe extern "C"` function here: pointer arguments are
-//! NULL or valid for the element count passed beside them, handles come from this
-//! library's constructors and are not used after their `_free`. NULL, absurd lengths,
-//! misalignment and non-finite values are detected and reported, not trusted.
+//! One contract holds for every `unsafe extern "C"` function here: pointer arguments that
+//! are not handles are NULL or valid for the element count passed beside them. NULL,
+//! absurd lengths, misalignment and non-finite values are detected and reported, not
+//! trusted.
 #![allow(clippy::missing_safety_doc)] // the contract above applies to every entry point
 
 mod adjust;
 mod camera;
 mod control;
 mod formats;
+mod handles;
 mod lidar;
 mod matching;
 mod orient;
@@ -35,7 +41,14 @@ use std::ffi::{c_char, CString};
 use std::panic::{catch_unwind, AssertUnwindSafe};
 
 /// Status of every fallible call. On anything but `CCP_STATUS_OK`, `ccp_last_error`
-/// returns a message naming the argument or input and the problem.
+/// returns a message naming the argument or input and the problem (the message is kept
+/// per thread, so threads do not see each other's errors).
+///
+/// Handles (`CcpCamera`, `CcpBlock`, `CcpDcp`, `CcpLidarSource`, `CcpPhotoOrientation`)
+/// are checked before use: a freed handle, one of another type, a double free, or a
+/// pointer that never was a handle returns `CCP_STATUS_INVALID_HANDLE`. Every handle may
+/// be used from several threads at once; freeing one while another thread is inside a
+/// call on it is safe (the object lives until that call returns).
 #[repr(C)]
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
 pub enum CcpStatus {
@@ -51,6 +64,9 @@ pub enum CcpStatus {
     /// The photo could not be oriented (the last error says why: too few matches, no
     /// control in view, failed interior orientation, …).
     NotOriented = 9,
+    /// A handle (or a string to free) that is not live: freed already, of another handle
+    /// type, or never made by this library. Nothing was done with it.
+    InvalidHandle = 10,
     Panic = 99,
 }
 
@@ -222,7 +238,8 @@ pub(crate) fn finite_rows(values: &[f64], cols: usize, name: &str) -> FfiResult<
     }
 }
 
-/// Borrows a handle, refusing null.
+/// Borrows a caller-owned struct passed by pointer (a pose, options), refusing null.
+/// Library handles go through `handles::get` instead.
 pub(crate) unsafe fn handle<'a, T>(ptr: *const T, name: &str) -> FfiResult<&'a T> {
     ptr.as_ref()
         .ok_or_else(|| FfiError::new(CcpStatus::NullPointer, format!("{name} is a null handle")))

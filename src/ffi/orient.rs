@@ -5,7 +5,8 @@
 //! `cloudcontrol run` and `cloudcontrol orient`.
 
 use super::control::{path_arg, CcpDcp};
-use super::{finite, guard, handle, input, output, CcpStatus, FfiError, FfiResult};
+use super::handles::{free, get, hand_out_string, new_handle, read, Handle};
+use super::{finite, guard, input, output, CcpStatus, FfiError};
 use crate::block::PosPrior;
 use crate::control::chips::ChipStore;
 use crate::control::epoch::{block_origin, EpochCamera, PhotoInput};
@@ -18,11 +19,18 @@ use std::ffi::{c_char, CString};
 use std::path::Path;
 
 /// Opaque handle of an oriented photo (world coordinates of the packages' CRS).
+/// Thread safety: never changed after creation, so any number of threads may use one
+/// orientation at once.
 pub struct CcpPhotoOrientation {
     origin: Vector3<f64>,
     orientation: PhotoOrientation,
     /// World object coordinates of each match.
     points: Vec<[f64; 3]>,
+}
+
+impl Handle for CcpPhotoOrientation {
+    const TAG: usize = 5;
+    const NAME: &'static str = "CcpPhotoOrientation";
 }
 
 /// Orients one photo from the control points of `n_dcps` packages (all in one CRS).
@@ -58,7 +66,10 @@ pub unsafe extern "C" fn ccp_orient_photo(
         let handles = input(dcps, n_dcps, "dcps", false)?;
         let mut packages = Vec::with_capacity(handles.len());
         for (i, h) in handles.iter().enumerate() {
-            packages.push(handle(*h, &format!("dcps[{i}]"))?.package.clone());
+            let name = format!("dcps[{i}]");
+            let held = get(*h, &name)?;
+            let package = read(&held, &name)?.package.clone();
+            packages.push(package);
         }
         let crs = Crs::parse(&packages[0].manifest.crs)
             .map_err(|e| FfiError::invalid(format!("dcps[0]: {e}")))?;
@@ -131,17 +142,13 @@ pub unsafe extern "C" fn ccp_orient_photo(
             .iter()
             .map(|(i, _, _)| (store.points[*i].position + o).into())
             .collect();
-        *out = Box::into_raw(Box::new(CcpPhotoOrientation {
+        *out = new_handle(CcpPhotoOrientation {
             origin: o,
             orientation,
             points,
-        }));
+        });
         Ok(())
     })
-}
-
-unsafe fn oriented<'a>(h: *const CcpPhotoOrientation) -> FfiResult<&'a CcpPhotoOrientation> {
-    handle(h, "orientation")
 }
 
 /// The pose: world→camera rotation (9, row-major) and projection centre (3, world).
@@ -152,7 +159,8 @@ pub unsafe extern "C" fn ccp_photo_orientation_pose(
     center_out: *mut f64,
 ) -> CcpStatus {
     guard(|| {
-        let h = oriented(orientation)?;
+        let held = get(orientation, "orientation")?;
+        let h = read(&held, "orientation")?;
         let pose = &h.orientation.pose;
         let r = output(rotation_out, 9, 9, "rotation_out")?;
         for i in 0..3 {
@@ -173,7 +181,8 @@ pub unsafe extern "C" fn ccp_photo_orientation_covariance(
     covariance_out: *mut f64,
 ) -> CcpStatus {
     guard(|| {
-        let h = oriented(orientation)?;
+        let held = get(orientation, "orientation")?;
+        let h = read(&held, "orientation")?;
         let out = output(covariance_out, 36, 36, "covariance_out")?;
         for i in 0..6 {
             for j in 0..6 {
@@ -191,7 +200,8 @@ pub unsafe extern "C" fn ccp_photo_orientation_match_count(
     count_out: *mut usize,
 ) -> CcpStatus {
     guard(|| {
-        let h = oriented(orientation)?;
+        let held = get(orientation, "orientation")?;
+        let h = read(&held, "orientation")?;
         output(count_out, 1, 1, "count_out")?[0] = h.points.len();
         Ok(())
     })
@@ -208,7 +218,8 @@ pub unsafe extern "C" fn ccp_photo_orientation_matches(
     len: usize,
 ) -> CcpStatus {
     guard(|| {
-        let h = oriented(orientation)?;
+        let held = get(orientation, "orientation")?;
+        let h = read(&held, "orientation")?;
         let n = h.points.len();
         let xyz = output(xyz_out, len.saturating_mul(3), 3 * n, "xyz_out")?;
         let px = output(pixel_out, len.saturating_mul(2), 2 * n, "pixel_out")?;
@@ -231,21 +242,23 @@ pub unsafe extern "C" fn ccp_photo_orientation_report_json(
     json_out: *mut *mut c_char,
 ) -> CcpStatus {
     guard(|| {
-        let h = oriented(orientation)?;
+        let held = get(orientation, "orientation")?;
+        let h = read(&held, "orientation")?;
         let out = output(json_out, 1, 1, "json_out")?;
         let text = serde_json::to_string(&h.orientation.report)
             .map_err(|e| FfiError::invalid(e.to_string()))?;
-        out[0] = CString::new(text)
-            .map_err(|_| FfiError::invalid("report holds a NUL byte"))?
-            .into_raw();
+        out[0] = hand_out_string(
+            CString::new(text).map_err(|_| FfiError::invalid("report holds a NUL byte"))?,
+        );
         Ok(())
     })
 }
 
-/// Releases a handle from `ccp_orient_photo` (NULL is ignored).
+/// Releases a handle from `ccp_orient_photo` (NULL is ignored). A handle already freed or
+/// of another type is refused with `CCP_STATUS_INVALID_HANDLE` (nothing is freed).
 #[no_mangle]
-pub unsafe extern "C" fn ccp_photo_orientation_free(orientation: *mut CcpPhotoOrientation) {
-    if !orientation.is_null() {
-        let _ = std::panic::catch_unwind(|| drop(Box::from_raw(orientation)));
-    }
+pub unsafe extern "C" fn ccp_photo_orientation_free(
+    orientation: *mut CcpPhotoOrientation,
+) -> CcpStatus {
+    free(orientation, "orientation")
 }

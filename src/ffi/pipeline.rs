@@ -43,7 +43,7 @@ pub unsafe extern "C" fn ccp_project_run(
         let s = run_project(&project, &mut |_| {}, None)?;
         let c = CString::new(s.to_json().to_string())
             .map_err(|_| FfiError::invalid("report JSON holds a NUL byte"))?;
-        *out_json = c.into_raw();
+        *out_json = super::handles::hand_out_string(c);
         Ok(())
     })
 }

@@ -8,8 +8,10 @@
 //! refused before GDAL sees it.
 //!
 //! Accepted: `EPSG:n` and `EPSG:n+m` (horizontal + vertical), WKT 1 and 2, PROJJSON, and
-//! PROJ strings (`+proj=…`). The only grid a definition may name is PROJ's built-in
-//! `@null` (GDAL writes it into the WKT of Web Mercator).
+//! PROJ strings (`+proj=…`). A grid may be named only by its bare file name
+//! (`egm96_15.gtx`, `@null`; GDAL 2 wrote such names into the WKT of vertical CRSs), which
+//! PROJ looks up in its own resource directories; a grid named by a path or a URL is
+//! refused, and so are init files (`+init`).
 
 use super::{FormatError, Result};
 
@@ -23,8 +25,31 @@ pub enum CrsSyntax {
     ProjString,
 }
 
-/// PROJ string keys whose value names a file (a grid or an init file).
-const FILE_KEYS: &[&str] = &["init", "nadgrids", "geoidgrids", "grids", "file", "catalog"];
+/// PROJ string keys whose value names a file other than a grid.
+const FILE_KEYS: &[&str] = &["init", "file", "catalog"];
+
+/// PROJ string keys whose value is a list of grids.
+const GRID_KEYS: &[&str] = &["nadgrids", "geoidgrids", "grids"];
+
+/// Whether `value` names grids by bare file names only (`a.gtx,@b.tif`): no folder, no
+/// URL, nothing hidden or relative, so PROJ can only find them in its resource folders.
+fn bare_grid_names(value: &str) -> bool {
+    value.split(',').all(|g| {
+        let g = g.strip_prefix('@').unwrap_or(g);
+        !g.is_empty()
+            && !g.starts_with('.')
+            && g.bytes()
+                .all(|b| b.is_ascii_alphanumeric() || b"_.-".contains(&b))
+    })
+}
+
+fn grid_error(what: &str, value: &str) -> String {
+    format!(
+        "{what} names a grid by path or URL ({}); a grid in a CRS from data may only be \
+         named by its bare file name, found in PROJ's resource folders",
+        excerpt(value)
+    )
+}
 
 /// WKT keywords that start a CRS in GDAL's list of WKT openers (its `importFromWkt` is
 /// only reached for these; anything else would fall through to file and URL lookups).
@@ -183,17 +208,19 @@ fn check_proj_string(s: &str) -> std::result::Result<(), String> {
         let (key, value) = kv.split_once('=').unwrap_or((kv, ""));
         let key = key.to_ascii_lowercase();
         has_proj |= key == "proj";
-        let null_grid = key == "nadgrids" && matches!(value, "@null" | "null");
-        if FILE_KEYS.contains(&key.as_str()) && !null_grid {
+        if FILE_KEYS.contains(&key.as_str()) {
             return Err(format!(
                 "+{key} names a file ({value:?}); PROJ strings from data may not name \
-                 grid or init files (give EPSG:n, or a definition without +{key})"
+                 init or other files (give EPSG:n, or a definition without +{key})"
             ));
         }
-        if has_url(value)
-            || value.contains(['/', '\\', '~'])
-            || (value.starts_with('@') && !null_grid)
-        {
+        if GRID_KEYS.contains(&key.as_str()) {
+            if !bare_grid_names(value) {
+                return Err(grid_error(&format!("+{key}"), value));
+            }
+            continue;
+        }
+        if has_url(value) || value.contains(['/', '\\', '~', '@']) {
             return Err(format!(
                 "+{key}={value} looks like a path or URL; PROJ strings from data may not \
                  name files or URLs"
@@ -206,10 +233,10 @@ fn check_proj_string(s: &str) -> std::result::Result<(), String> {
     Ok(())
 }
 
-/// WKT: a small scan of keywords and quoted strings (`""` escapes a quote). Refused:
-/// `PARAMETERFILE` (a grid file), `EXTENSION["PROJ4_GRIDS",…]`, an
-/// `EXTENSION["PROJ4",…]` whose PROJ string names a file, and a URL in any string
-/// except a WKT 2 `URI[…]` (an identifier PROJ never dereferences).
+/// WKT: a small scan of keywords and quoted strings (`""` escapes a quote). Refused: a
+/// grid named by path or URL (`PARAMETERFILE`, `EXTENSION["PROJ4_GRIDS",…]`, a PROJ
+/// string in `EXTENSION["PROJ4",…]`), and a URL in any string except a WKT 2 `URI[…]`
+/// (an identifier PROJ never dereferences).
 fn check_wkt(s: &str) -> std::result::Result<(), String> {
     let mut stack: Vec<String> = Vec::new();
     let mut word = String::new();
@@ -245,12 +272,6 @@ fn check_wkt(s: &str) -> std::result::Result<(), String> {
             }
             '[' | '(' => {
                 let element = word.trim().to_ascii_uppercase();
-                if element == "PARAMETERFILE" {
-                    return Err(
-                        "PARAMETERFILE[…] names a grid file; CRSs from data may not name files"
-                            .into(),
-                    );
-                }
                 stack.push(element);
                 strings.push(Vec::new());
                 word.clear();
@@ -260,6 +281,11 @@ fn check_wkt(s: &str) -> std::result::Result<(), String> {
                 let list = strings.pop().unwrap_or_default();
                 if element == "EXTENSION" {
                     check_extension(&list)?;
+                }
+                if let Some(file) = list.get(1).filter(|_| element == "PARAMETERFILE") {
+                    if !bare_grid_names(file) {
+                        return Err(grid_error("PARAMETERFILE[…]", file));
+                    }
                 }
                 word.clear();
             }
@@ -276,8 +302,8 @@ fn check_wkt(s: &str) -> std::result::Result<(), String> {
 fn check_extension(strings: &[String]) -> std::result::Result<(), String> {
     let name = strings.first().map(|n| n.to_ascii_uppercase());
     match (name.as_deref(), strings.get(1)) {
-        (Some("PROJ4_GRIDS"), _) => {
-            Err("EXTENSION[\"PROJ4_GRIDS\",…] names grid files; CRSs from data may not".into())
+        (Some("PROJ4_GRIDS"), Some(grids)) if !bare_grid_names(grids) => {
+            Err(grid_error("EXTENSION[\"PROJ4_GRIDS\",…]", grids))
         }
         (Some("PROJ4"), Some(proj)) => {
             check_proj_string(proj).map_err(|e| format!("EXTENSION[\"PROJ4\",…]: {e}"))
@@ -286,8 +312,9 @@ fn check_extension(strings: &[String]) -> std::result::Result<(), String> {
     }
 }
 
-/// PROJJSON: a CRS type at the top; no parameter whose value is a string (PROJ writes grid
-/// file names there), and no URL except the `$schema` and `uri` identifiers.
+/// PROJJSON: a CRS type at the top; a parameter whose value is a string (PROJ writes grid
+/// file names there) holds bare file names only, and no URL except in the `$schema` and
+/// `uri` identifiers.
 fn check_projjson(s: &str) -> std::result::Result<(), String> {
     let v: serde_json::Value =
         serde_json::from_str(s).map_err(|e| format!("not valid PROJJSON ({e})"))?;
@@ -314,12 +341,12 @@ fn walk_json(v: &serde_json::Value, key: &str) -> std::result::Result<(), String
         Value::Array(a) => {
             for x in a {
                 if key == "parameters" {
-                    if let Some(Value::String(f)) = x.get("value") {
-                        return Err(format!(
-                            "parameter {:?} names a file ({f:?}); CRSs from data may not \
-                             name files",
-                            x.get("name").and_then(|n| n.as_str()).unwrap_or("")
-                        ));
+                    if let Some(Value::String(f)) = x
+                        .get("value")
+                        .filter(|f| f.as_str().is_some_and(|f| !bare_grid_names(f)))
+                    {
+                        let name = x.get("name").and_then(|n| n.as_str()).unwrap_or("");
+                        return Err(grid_error(&format!("parameter {name:?}"), f));
                     }
                 }
                 walk_json(x, key)?;
@@ -348,6 +375,15 @@ mod tests {
         let uri =
             "PROJCRS[\"x\",ID[\"EPSG\",2180,URI[\"http://www.opengis.net/def/crs/EPSG/0/2180\"]]]";
         assert_eq!(classify(uri).unwrap(), CrsSyntax::Wkt);
+        // Grids by bare name, as GDAL 2 wrote them: PROJ looks in its own folders.
+        for ok in [
+            "+proj=longlat +ellps=WGS84 +geoidgrids=egm96_15.gtx,@us_nga_egm08_25.tif",
+            "VERT_CS[\"EGM96\",VERT_DATUM[\"EGM96\",2005,EXTENSION[\"PROJ4_GRIDS\",\"egm96_15.gtx\"]]]",
+            "BOUNDCRS[SOURCECRS[],ABRIDGEDTRANSFORMATION[PARAMETERFILE[\"f\",\"ntv2_0.gsb\"]]]",
+            r#"{"type":"BoundCRS","transformation":{"parameters":[{"name":"f","value":"ntv2_0.gsb"}]}}"#,
+        ] {
+            assert!(classify(ok).is_ok(), "{ok}: {:?}", classify(ok));
+        }
         assert_eq!(
             classify(
                 r#"{"$schema":"https://proj.org/x.json","type":"ProjectedCRS","name":"a / b"}"#
@@ -372,12 +408,14 @@ mod tests {
             "+proj=longlat +init=/tmp/epsg:4326",
             "+init=epsg:4326",
             "+proj=utm +zone=33 +nadgrids=@http://127.0.0.1:1/g.tif",
-            "+proj=utm +zone=33 +geoidgrids=egm96_15.gtx",
+            "+proj=utm +zone=33 +geoidgrids=../egm96_15.gtx",
+            "+proj=utm +zone=33 +geoidgrids=.egm96_15.gtx",
+            "+proj=utm +zone=33 +nadgrids=a.gsb,/etc/passwd",
             "PROJCS[\"x\",EXTENSION[\"PROJ4\",\"+proj=merc +nadgrids=/tmp/g.gsb\"]]",
-            "VERT_CS[\"x\",EXTENSION[\"PROJ4_GRIDS\",\"g.gtx\"]]",
+            "VERT_CS[\"x\",EXTENSION[\"PROJ4_GRIDS\",\"/tmp/g.gtx\"]]",
             "BOUNDCRS[SOURCECRS[],PARAMETERFILE[\"f\",\"/tmp/g.gsb\"]]",
             "PROJCS[\"http://127.0.0.1:1/x\"]",
-            r#"{"type":"BoundCRS","transformation":{"parameters":[{"name":"f","value":"g.gsb"}]}}"#,
+            r#"{"type":"BoundCRS","transformation":{"parameters":[{"name":"f","value":"/tmp/g.gsb"}]}}"#,
             r#"{"type":"ProjectedCRS","name":"http://127.0.0.1:1/"}"#,
             r#"{"type":"Foo"}"#,
         ] {

@@ -132,26 +132,61 @@ pub fn temporary_sibling(path: &Path) -> PathBuf {
     path.with_file_name(name)
 }
 
-/// Writes a file atomically: the closure writes into a temporary sibling which is renamed
-/// over `path` only when it succeeded; on failure the temporary file is removed.
-pub fn write_atomically<T>(path: &Path, write: impl FnOnce(&Path) -> Result<T>) -> Result<T> {
-    if let Some(dir) = path.parent().filter(|d| !d.as_os_str().is_empty()) {
-        std::fs::create_dir_all(dir).map_err(|e| FormatError::io(dir, e))?;
+/// Folders created by [`create_folders`], removed again by [`CreatedFolders::undo`] when
+/// the output that needed them failed, so that a failed command leaves no empty output
+/// folder behind.
+#[derive(Debug, Default)]
+pub struct CreatedFolders(Vec<PathBuf>);
+
+/// Creates `dir` and its missing ancestors, remembering which were missing.
+pub fn create_folders(dir: &Path) -> Result<CreatedFolders> {
+    let mut missing = Vec::new();
+    let mut d = Some(dir);
+    while let Some(p) = d.filter(|p| !p.as_os_str().is_empty() && !p.exists()) {
+        missing.push(p.to_path_buf());
+        d = p.parent();
     }
-    let tmp = temporary_sibling(path);
-    match write(&tmp) {
-        Ok(v) => match std::fs::rename(&tmp, path) {
-            Ok(()) => Ok(v),
-            Err(e) => {
-                let _ = std::fs::remove_file(&tmp);
-                Err(FormatError::io(path, e))
+    std::fs::create_dir_all(dir).map_err(|e| FormatError::io(dir, e))?;
+    Ok(CreatedFolders(missing))
+}
+
+impl CreatedFolders {
+    /// Removes the created folders, innermost first; with `contents`, the outermost one
+    /// is removed with whatever it holds (everything in it was written by the failed
+    /// output, as it did not exist before), else only folders that are empty.
+    pub fn undo(self, contents: bool) {
+        if contents {
+            if let Some(top) = self.0.last() {
+                let _ = std::fs::remove_dir_all(top);
             }
-        },
-        Err(e) => {
-            let _ = std::fs::remove_file(&tmp);
-            Err(e)
+            return;
+        }
+        for d in &self.0 {
+            let _ = std::fs::remove_dir(d);
         }
     }
+}
+
+/// Writes a file atomically: the closure writes into a temporary sibling which is renamed
+/// over `path` only when it succeeded; on failure the temporary file is removed, and so
+/// are the folders created for it.
+pub fn write_atomically<T>(path: &Path, write: impl FnOnce(&Path) -> Result<T>) -> Result<T> {
+    let created = match path.parent().filter(|d| !d.as_os_str().is_empty()) {
+        Some(dir) => create_folders(dir)?,
+        None => CreatedFolders::default(),
+    };
+    let tmp = temporary_sibling(path);
+    let result = match write(&tmp) {
+        Ok(v) => std::fs::rename(&tmp, path)
+            .map(|()| v)
+            .map_err(|e| FormatError::io(path, e)),
+        Err(e) => Err(e),
+    };
+    if result.is_err() {
+        let _ = std::fs::remove_file(&tmp);
+        created.undo(false);
+    }
+    result
 }
 
 /// Writes bytes atomically (text formats, JSON reports).

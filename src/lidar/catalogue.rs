@@ -13,12 +13,16 @@ use serde::{Deserialize, Serialize};
 use std::collections::BTreeMap;
 use std::path::{Path, PathBuf};
 
-/// Version of the catalogue JSON layout.
-pub const CATALOGUE_SCHEMA: u32 = 1;
+/// Version of the catalogue JSON layout. Schema 2: a relative tile `file` is relative to
+/// the catalogue's folder. Schema 1 (read too): relative to the working directory of the
+/// scan that wrote it.
+pub const CATALOGUE_SCHEMA: u32 = 2;
 
 /// One tile (file) of the catalogue. Bounds and counts come from the points, not the header.
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 pub struct TileEntry {
+    /// The tile, absolute in memory; in the JSON relative to the catalogue's folder when the
+    /// tile lies below it ([`Catalogue::save`]).
     pub file: PathBuf,
     pub version: String,
     pub point_format: u8,
@@ -260,7 +264,8 @@ fn scan_file(path: &Path) -> Result<Scanned> {
         _ => None,
     };
     let entry = TileEntry {
-        file: path.to_path_buf(),
+        // Absolute: a catalogue is used from other working directories than the scan's.
+        file: std::path::absolute(path).map_err(|e| LidarError::io(path, e))?,
         version: info.version.clone(),
         point_format: info.point_format,
         compressed: info.compressed,
@@ -292,6 +297,12 @@ fn scan_file(path: &Path) -> Result<Scanned> {
         entry,
         crs_wkt: info.crs_wkt,
     })
+}
+
+/// The absolute folder of a catalogue file.
+fn catalogue_folder(path: &Path) -> Result<PathBuf> {
+    let abs = std::path::absolute(path).map_err(|e| LidarError::io(path, e))?;
+    Ok(abs.parent().map(Path::to_path_buf).unwrap_or(abs))
 }
 
 impl Catalogue {
@@ -421,26 +432,50 @@ impl Catalogue {
         serde_json::to_string_pretty(self).expect("catalogue serialises")
     }
 
-    /// Writes the catalogue JSON atomically.
+    /// Writes the catalogue JSON atomically. Tiles below the catalogue's folder are
+    /// written relative to it (the folder can move with its catalogue), the others with
+    /// their absolute path.
     pub fn save(&self, path: &Path) -> Result<()> {
-        Ok(write_bytes_atomically(path, self.to_json().as_bytes())?)
+        let folder = catalogue_folder(path)?;
+        let mut c = self.clone();
+        for t in &mut c.tiles {
+            let abs = std::path::absolute(&t.file).map_err(|e| LidarError::io(&t.file, e))?;
+            t.file = match abs.strip_prefix(&folder) {
+                Ok(rel) if !rel.as_os_str().is_empty() => rel.to_path_buf(),
+                _ => abs,
+            };
+        }
+        Ok(write_bytes_atomically(path, c.to_json().as_bytes())?)
     }
 
+    /// Reads a catalogue JSON; relative tile paths are resolved (schema 2: against the
+    /// catalogue's folder; schema 1: against the working directory when the tile is there,
+    /// else the catalogue's folder), so the tiles are found from any working directory.
     pub fn load(path: &Path) -> Result<Self> {
         let text = std::fs::read_to_string(path).map_err(|e| LidarError::io(path, e))?;
-        let c: Catalogue = serde_json::from_str(&text).map_err(|e| LidarError::Las {
+        let mut c: Catalogue = serde_json::from_str(&text).map_err(|e| LidarError::Las {
             path: path.to_path_buf(),
             message: format!("not a catalogue JSON: {e}"),
         })?;
-        if c.schema != CATALOGUE_SCHEMA {
+        if !(1..=CATALOGUE_SCHEMA).contains(&c.schema) {
             return Err(LidarError::Las {
                 path: path.to_path_buf(),
                 message: format!(
-                    "catalogue schema {} (this build reads {CATALOGUE_SCHEMA})",
+                    "catalogue schema {} (this build reads 1 to {CATALOGUE_SCHEMA})",
                     c.schema
                 ),
             });
         }
+        let folder = catalogue_folder(path)?;
+        for t in c.tiles.iter_mut().filter(|t| t.file.is_relative()) {
+            let old_meaning = c.schema == 1 && t.file.exists();
+            t.file = if old_meaning {
+                std::path::absolute(&t.file).map_err(|e| LidarError::io(&t.file, e))?
+            } else {
+                folder.join(&t.file)
+            };
+        }
+        c.schema = CATALOGUE_SCHEMA;
         Ok(c)
     }
 

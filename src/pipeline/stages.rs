@@ -3,6 +3,11 @@
 //! succeeded. A ledger records each finished stage's input fingerprint, so a rerun skips a
 //! stage whose inputs did not change and whose outputs are intact, and redoes it otherwise.
 //! Killing a run mid-way therefore loses at most the stage that was running.
+//!
+//! A run holds a lock on its output folder (`flock` on the folder itself, released by the
+//! system when the process ends, killed or not), so two runs never write one folder; the
+//! temporary folders and files a killed run left behind (`.STAGE.part-PID`,
+//! `.stages.part-PID.json`) are removed when the next run takes the lock.
 
 use crate::formats::{write_bytes_atomically, FormatError};
 use serde::{Deserialize, Serialize};
@@ -119,6 +124,8 @@ struct Ledger {
 /// Runs stages under one output folder.
 pub struct Runner {
     root: PathBuf,
+    /// The open output folder whose lock this run holds (released on drop).
+    _lock: std::fs::File,
     ledger: Ledger,
     /// Names of the stages skipped in this run (for logs and tests).
     pub skipped: Vec<String>,
@@ -130,12 +137,15 @@ const LEDGER: &str = "stages.json";
 impl Runner {
     pub fn new(root: &Path) -> Result<Self, FormatError> {
         std::fs::create_dir_all(root).map_err(|e| FormatError::io(root, e))?;
+        let lock = lock_folder(root)?;
+        remove_leftovers(root)?;
         let ledger = match std::fs::read(root.join(LEDGER)) {
             Ok(b) => serde_json::from_slice(&b).unwrap_or_default(),
             Err(_) => Ledger::default(),
         };
         Ok(Self {
             root: root.to_path_buf(),
+            _lock: lock,
             ledger,
             skipped: Vec::new(),
             ran: Vec::new(),
@@ -197,6 +207,60 @@ impl Runner {
     }
 }
 
+/// Takes the run lock of an output folder, refusing a folder another run holds.
+fn lock_folder(root: &Path) -> Result<std::fs::File, FormatError> {
+    let dir = std::fs::File::open(root).map_err(|e| FormatError::io(root, e))?;
+    #[cfg(unix)]
+    {
+        use std::os::unix::io::AsRawFd;
+        // SAFETY: flock on a descriptor this function owns.
+        if unsafe { libc::flock(dir.as_raw_fd(), libc::LOCK_EX | libc::LOCK_NB) } != 0 {
+            let e = std::io::Error::last_os_error();
+            if e.raw_os_error() == Some(libc::EWOULDBLOCK) {
+                return Err(FormatError::invalid(
+                    root,
+                    "another cloudcontrol run is writing this output folder; wait for it to \
+                     end or give another output",
+                ));
+            }
+            return Err(FormatError::io(root, e));
+        }
+    }
+    Ok(dir)
+}
+
+/// Whether `name` is a temporary output of a run (`.NAME.part-PID[.EXT]`).
+fn is_leftover(name: &str) -> bool {
+    let Some(rest) = name.strip_prefix('.') else {
+        return false;
+    };
+    rest.rsplit_once(".part-").is_some_and(|(stem, tail)| {
+        let pid = tail.split('.').next().unwrap_or("");
+        !stem.is_empty() && !pid.is_empty() && pid.bytes().all(|b| b.is_ascii_digit())
+    })
+}
+
+/// Removes the temporary outputs of runs that ended without cleaning up (killed): under
+/// the run lock, no other run can be writing them.
+fn remove_leftovers(root: &Path) -> Result<(), FormatError> {
+    for e in std::fs::read_dir(root).map_err(|e| FormatError::io(root, e))? {
+        let e = e.map_err(|e| FormatError::io(root, e))?;
+        if !is_leftover(&e.file_name().to_string_lossy()) {
+            continue;
+        }
+        let path = e.path();
+        let is_dir = e.file_type().is_ok_and(|t| t.is_dir());
+        let removed = if is_dir {
+            std::fs::remove_dir_all(&path)
+        } else {
+            std::fs::remove_file(&path)
+        };
+        removed.map_err(|e| FormatError::io(&path, e))?;
+        tracing::info!(path = %path.display(), "removed the leftover of an interrupted run");
+    }
+    Ok(())
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
@@ -247,5 +311,36 @@ mod tests {
         // Tampered outputs are redone.
         std::fs::write(out.join("two/y.txt"), "tampered").unwrap();
         assert_eq!(run(false).0, vec!["two".to_string()]);
+    }
+
+    #[test]
+    fn leftovers_of_a_killed_run_are_removed_and_a_busy_folder_is_refused() {
+        let d = tempfile::tempdir().unwrap();
+        let out = d.path().join("out");
+        let stale = out.join(".epoch-reference.part-999999");
+        std::fs::create_dir_all(stale.join("sub")).unwrap();
+        std::fs::write(stale.join("sub/x.bin"), [0u8; 16]).unwrap();
+        std::fs::write(out.join(".stages.part-4242.json"), "{").unwrap();
+        let keep = [".hidden", "sources", "notes.part-1", ".x.part-", ".part-12"];
+        for k in keep {
+            std::fs::create_dir_all(out.join(k)).unwrap();
+        }
+        let r = Runner::new(&out).unwrap();
+        let mut left: Vec<String> = std::fs::read_dir(&out)
+            .unwrap()
+            .map(|e| e.unwrap().file_name().to_string_lossy().into_owned())
+            .collect();
+        left.sort();
+        let mut want: Vec<String> = keep.iter().map(|k| k.to_string()).collect();
+        want.sort();
+        assert_eq!(left, want);
+        // A second run on the same folder while the first holds it.
+        let e = Runner::new(&out).err().expect("refused").to_string();
+        assert!(
+            e.contains(&out.display().to_string()) && e.contains("another cloudcontrol run"),
+            "{e}"
+        );
+        drop(r);
+        Runner::new(&out).unwrap();
     }
 }

@@ -55,7 +55,7 @@ for _n, _a in _sig.items():
     getattr(lib, _n).argtypes = _a
     getattr(lib, _n).restype = ctypes.c_int
 lib.ccp_block_free.argtypes = [_BlockP]
-lib.ccp_block_free.restype = None
+lib.ccp_block_free.restype = ctypes.c_int
 
 TIE, CONTROL, CHECK = 0, 1, 2
 LOSS = {"none": 0, "huber": 1, "cauchy": 2}

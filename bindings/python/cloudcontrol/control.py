@@ -34,7 +34,7 @@ _sz = ctypes.c_size_t
 lib.ccp_dcp_open.argtypes = [ctypes.c_char_p, ctypes.POINTER(_DcpP)]
 lib.ccp_dcp_open.restype = ctypes.c_int
 lib.ccp_dcp_free.argtypes = [_DcpP]
-lib.ccp_dcp_free.restype = None
+lib.ccp_dcp_free.restype = ctypes.c_int
 lib.ccp_dcp_point_count.argtypes = [_DcpP, ctypes.POINTER(_sz)]
 lib.ccp_dcp_point_count.restype = ctypes.c_int
 lib.ccp_dcp_points.argtypes = [_DcpP, _dp, _dp, _sz]
@@ -51,7 +51,7 @@ lib.ccp_dcp_import.restype = ctypes.c_int
 lib.ccp_dcp_path.argtypes = [_DcpP, ctypes.POINTER(ctypes.c_void_p)]
 lib.ccp_dcp_path.restype = ctypes.c_int
 lib.ccp_string_free.argtypes = [ctypes.c_void_p]
-lib.ccp_string_free.restype = None
+lib.ccp_string_free.restype = ctypes.c_int
 lib.ccp_predict.argtypes = [ctypes.c_void_p, ctypes.POINTER(CcpPose), _dp, _dp, _dp, _sz, _dp, _sz, _dp, _sz]
 lib.ccp_predict.restype = ctypes.c_int
 

@@ -22,7 +22,7 @@ _dp = ctypes.POINTER(ctypes.c_double)
 lib.ccp_camera_new_frame.argtypes = [ctypes.c_uint32, ctypes.c_uint32, _dp, ctypes.c_size_t, ctypes.POINTER(_CameraP)]
 lib.ccp_camera_new_frame.restype = ctypes.c_int
 lib.ccp_camera_free.argtypes = [_CameraP]
-lib.ccp_camera_free.restype = None
+lib.ccp_camera_free.restype = ctypes.c_int
 lib.ccp_pose_from_opk.argtypes = [ctypes.c_double, ctypes.c_double, ctypes.c_double, _dp, ctypes.POINTER(CcpPose)]
 lib.ccp_pose_from_opk.restype = ctypes.c_int
 for _f in (lib.ccp_project, lib.ccp_back_project):

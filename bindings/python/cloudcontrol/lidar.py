@@ -32,7 +32,7 @@ _cpp = ctypes.POINTER(ctypes.c_char_p)
 lib.ccp_lidar_catalogue_json.argtypes = [_cpp, ctypes.c_size_t, ctypes.c_char_p, ctypes.POINTER(ctypes.c_void_p)]
 lib.ccp_lidar_catalogue_json.restype = ctypes.c_int
 lib.ccp_string_free.argtypes = [ctypes.c_void_p]
-lib.ccp_string_free.restype = None
+lib.ccp_string_free.restype = ctypes.c_int
 lib.ccp_lidar_eval_checkpoints.argtypes = [
     _cpp, ctypes.c_size_t, ctypes.c_char_p, _dp, ctypes.c_size_t, ctypes.c_int32, ctypes.c_double,
     ctypes.c_uint64, _dp, ctypes.c_size_t, ctypes.POINTER(CheckpointStats),
@@ -106,7 +106,7 @@ lib.ccp_lidar_source_open.argtypes = [_cpp, ctypes.c_size_t, ctypes.c_char_p, _d
                                       ctypes.c_uint64, ctypes.POINTER(_SourceP)]
 lib.ccp_lidar_source_open.restype = ctypes.c_int
 lib.ccp_lidar_source_free.argtypes = [_SourceP]
-lib.ccp_lidar_source_free.restype = None
+lib.ccp_lidar_source_free.restype = ctypes.c_int
 lib.ccp_lidar_source_len.argtypes = [_SourceP, ctypes.POINTER(ctypes.c_uint64)]
 lib.ccp_lidar_source_len.restype = ctypes.c_int
 lib.ccp_lidar_planes.argtypes = [_SourceP, _dp, ctypes.c_size_t, _dp, ctypes.c_size_t]

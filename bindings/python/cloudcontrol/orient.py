@@ -59,9 +59,9 @@ lib.ccp_photo_orientation_matches.restype = ctypes.c_int
 lib.ccp_photo_orientation_report_json.argtypes = [_OrientP, ctypes.POINTER(ctypes.c_void_p)]
 lib.ccp_photo_orientation_report_json.restype = ctypes.c_int
 lib.ccp_photo_orientation_free.argtypes = [_OrientP]
-lib.ccp_photo_orientation_free.restype = None
+lib.ccp_photo_orientation_free.restype = ctypes.c_int
 lib.ccp_string_free.argtypes = [ctypes.c_void_p]
-lib.ccp_string_free.restype = None
+lib.ccp_string_free.restype = ctypes.c_int
 
 
 @dataclass(frozen=True)

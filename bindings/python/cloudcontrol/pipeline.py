@@ -11,7 +11,7 @@ from ._ffi import check, lib
 lib.ccp_project_run.argtypes = [ctypes.c_char_p, ctypes.POINTER(ctypes.c_void_p)]
 lib.ccp_project_run.restype = ctypes.c_int
 lib.ccp_string_free.argtypes = [ctypes.c_void_p]
-lib.ccp_string_free.restype = None
+lib.ccp_string_free.restype = ctypes.c_int
 
 
 def run(project: str | os.PathLike) -> dict:

@@ -5,7 +5,7 @@
 use super::records::{qt_from_pose, Cameras, ImageRow, Points2d, PointsTable};
 use super::{binary, side_file, text, Encoding, Layout, WriteOptions, INVALID_POINT3D};
 use crate::block::{Block, CameraId, ObjectPoint, PhotoId};
-use crate::formats::{frame_equivalent, write_atomically, FormatError, Result};
+use crate::formats::{create_folders, frame_equivalent, write_atomically, FormatError, Result};
 use crate::geometry::Camera;
 use std::collections::BTreeMap;
 use std::fs::File;
@@ -120,7 +120,6 @@ pub fn write(dir: &Path, block: &Block, opts: &WriteOptions) -> Result<()> {
         FormatError::Invalid { message, .. } => FormatError::invalid(dir, message),
         e => e,
     })?;
-    std::fs::create_dir_all(dir).map_err(|e| FormatError::io(dir, e))?;
     let text = opts.encoding == Encoding::Text;
     if text {
         if let Some(p) = block
@@ -138,12 +137,31 @@ pub fn write(dir: &Path, block: &Block, opts: &WriteOptions) -> Result<()> {
             ));
         }
     }
+    // Everything is checked: only now is the folder made (and removed again, with what
+    // was written into it, if writing fails).
+    let created = create_folders(dir)?;
+    let result = write_model(dir, block, opts, &cams, &models, &l2d);
+    if result.is_err() {
+        created.undo(true);
+    }
+    result
+}
+
+fn write_model(
+    dir: &Path,
+    block: &Block,
+    opts: &WriteOptions,
+    cams: &Cameras,
+    models: &BTreeMap<CameraId, Camera>,
+    l2d: &Layout2d,
+) -> Result<()> {
+    let text = opts.encoding == Encoding::Text;
     let ext = if text { "txt" } else { "bin" };
     let file = |stem: &str| dir.join(format!("{stem}.{ext}"));
 
     write_file(&file("cameras"), |w| match opts.encoding {
-        Encoding::Text => text::write_cameras(w, &cams),
-        Encoding::Binary => binary::write_cameras(w, &cams),
+        Encoding::Text => text::write_cameras(w, cams),
+        Encoding::Binary => binary::write_cameras(w, cams),
     })?;
     let images: Vec<ImageRow> = block
         .photos
@@ -171,7 +189,7 @@ pub fn write(dir: &Path, block: &Block, opts: &WriteOptions) -> Result<()> {
         use rayon::prelude::*;
         points
             .par_iter()
-            .map(|p| mean_error(p, block, &models))
+            .map(|p| mean_error(p, block, models))
             .collect()
     };
     let table = PointsTable {
@@ -207,8 +225,8 @@ pub fn write(dir: &Path, block: &Block, opts: &WriteOptions) -> Result<()> {
     // photo in its camera's rig: rig_from_world = cam_from_world.
     if opts.layout == Layout::Rigs {
         write_file(&file("rigs"), |w| match opts.encoding {
-            Encoding::Text => text::write_rigs(w, &cams),
-            Encoding::Binary => binary::write_rigs(w, &cams),
+            Encoding::Text => text::write_rigs(w, cams),
+            Encoding::Binary => binary::write_rigs(w, cams),
         })?;
         write_file(&file("frames"), |w| match opts.encoding {
             Encoding::Text => text::write_frames(w, &images),
