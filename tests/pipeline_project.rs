@@ -58,6 +58,14 @@ fn documented_example_loads_with_paths_resolved() {
     )
     .unwrap();
     assert!((dpi.archive[1].scan_pixel_mm().unwrap() - 0.02).abs() < 1e-15);
+    // The fiducial-frame pixel of the film products: the mean scan pixel unless given.
+    assert_eq!(p.outputs.film_pixel_um, None);
+    let given = load(
+        dir.path(),
+        &text.replace("# film_pixel_um = 21.0", "film_pixel_um = 21.0"),
+    )
+    .unwrap();
+    assert_eq!(given.outputs.film_pixel_um, Some(21.0));
     assert_eq!(
         p.control.checkpoint_images.as_deref(),
         Some(dir.path().join("checkpoint_images.csv").as_path())
@@ -128,6 +136,10 @@ fn mistakes_fail_naming_the_key() {
         (
             text.replace("control_interval_px = 250", "control_interval_px = 2500"),
             "control_interval_px",
+        ),
+        (
+            text.replace("ortho_gsd_factor = 1.0", "ortho_gsd_factor = 1.0\nfilm_pixel_um = 0.021"),
+            "key `outputs.film_pixel_um`: scan pixel size 0.021 µm is not a plausible",
         ),
         (
             text.replace("name = \"film-1985\"", "name = \"digital-2010\""),

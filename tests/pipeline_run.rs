@@ -1,5 +1,6 @@
 //! `cloudcontrol demo` / `run` end to end on the small synthetic block (issue 10): the
-//! summary's numbers against the checkpoints, products read by GDAL, a run killed after
+//! summary's numbers against the checkpoints, products read by GDAL, the film epoch's
+//! COLMAP and BlocksExchange from its fiducial-frame images (issue 18), a run killed after
 //! its reference stage and rerun skips the finished stages and gives identical products.
 
 use serde_json::Value;
@@ -84,6 +85,57 @@ fn demo_runs_the_workflow_and_a_killed_run_resumes_identically() {
         "pixel {pixel}"
     );
     assert!(run.join("outputs-reference_2024/colmap").is_dir());
+
+    // The film epoch: COLMAP and BlocksExchange of its frame images, listed by the demo,
+    // nothing skipped; its orthophoto (from the frame images) and the LiDAR DEM read by
+    // GDAL.
+    let listed: Vec<&str> = v["products"]["film_1978"]
+        .as_array()
+        .unwrap()
+        .iter()
+        .filter_map(|p| p.as_str())
+        .collect();
+    for f in [
+        "colmap",
+        "blocks_exchange.xml",
+        "orthophoto.tif",
+        "lidar_dem.tif",
+        "resampled",
+    ] {
+        assert!(
+            listed
+                .iter()
+                .any(|p| p.ends_with(&format!("outputs-film_1978/{f}"))),
+            "{f} not listed: {listed:?}"
+        );
+    }
+    let film = run.join("outputs-film_1978");
+    assert_eq!(
+        std::fs::read_to_string(film.join("skipped.json")).unwrap(),
+        "{}"
+    );
+    let xml = std::fs::read_to_string(film.join("blocks_exchange.xml")).unwrap();
+    let photos = xml.matches("<ImagePath>resampled/").count();
+    assert!(photos as f64 >= 0.9 * f["photos_total"].as_f64().unwrap());
+    assert!(xml.contains("<FocalLength>152.865</FocalLength>"));
+    assert!(xml.contains("<CheckPoint>true</CheckPoint>"));
+    for (tif, bands) in [("orthophoto.tif", 4), ("lidar_dem.tif", 1)] {
+        let info = Command::new("gdalinfo")
+            .arg("-json")
+            .arg(film.join(tif))
+            .output()
+            .unwrap();
+        let info: Value = serde_json::from_slice(&info.stdout).expect("gdalinfo JSON");
+        let wkt = info["coordinateSystem"]["wkt"].as_str().unwrap_or("");
+        assert!(wkt.contains("4547"), "{tif} CRS: {wkt}");
+        assert_eq!(info["bands"].as_array().unwrap().len(), bands, "{tif}");
+    }
+    let ortho: Value =
+        serde_json::from_slice(&std::fs::read(film.join("orthophoto.json")).unwrap()).unwrap();
+    assert!(
+        ortho["filled"].as_f64().unwrap()
+            > 0.5 * ortho["width"].as_f64().unwrap() * ortho["height"].as_f64().unwrap()
+    );
     // The LiDAR of the demo covers just the block: every tile lies under the photos.
     let sel: Value =
         serde_json::from_slice(&std::fs::read(run.join("sources/selection.json")).unwrap())

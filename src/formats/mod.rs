@@ -199,7 +199,8 @@ pub fn write_bytes_atomically(path: &Path, bytes: &[u8]) -> Result<()> {
 /// The pixel-unit frame camera equivalent to a camera, for formats that only know frame
 /// cameras (COLMAP, BlocksExchange in pixels). A film camera converts exactly when its
 /// scan interior orientation is a pure scale with y up (axis-aligned scan, no shear);
-/// any other scan needs resampling first, which is refused here rather than approximated.
+/// any other scan needs resampling first (`matching::fiducial::frame_image`, which the
+/// run's products do), which is refused here rather than approximated.
 pub fn frame_equivalent(
     camera: &crate::geometry::Camera,
 ) -> std::result::Result<crate::geometry::FrameCamera, String> {
@@ -220,7 +221,8 @@ pub fn frame_equivalent(
             {
                 return Err(
                     "film camera whose scan interior orientation is not an axis-aligned scale \
-                     (x right, y up) has no exact frame-camera equivalent; resample the scan first"
+                     (x right, y up) has no exact frame-camera equivalent; resample the scan \
+                     into its fiducial frame first (the products of `cloudcontrol run` do)"
                         .into(),
                 );
             }

@@ -4,6 +4,7 @@
 pub mod bench;
 pub mod demo;
 pub mod epoch_files;
+pub mod film_frames;
 pub mod products;
 pub mod project;
 pub mod report;

@@ -1,19 +1,91 @@
 //! The products of an oriented epoch (`outputs-<epoch>/`): COLMAP model, BlocksExchange
-//! XML, orthophoto and the LiDAR ground DEM as GeoTIFFs, and the report's preview.
+//! XML, orthophoto and the LiDAR ground DEM as GeoTIFFs, and the report's preview. A film
+//! epoch's products are made from its scans resampled into fiducial-frame images
+//! (`resampled/`, [`super::film_frames`]), whose frame cameras every format takes exactly.
 
 use super::epoch_files::{load_block, write_json};
-use super::project::Project;
+use super::film_frames::{self, RESAMPLED_DIR};
+use super::project::{Epoch, Project};
+use super::run::Checkpoints;
 use super::stages::WorkError;
+use crate::block::{Block, ObjectPoint, Observation, PointKind};
+use crate::control::epoch::EpochCamera;
+use crate::control::EpochError;
+use crate::formats::control_points::read_checkpoint_measurements;
 use crate::formats::crs::Crs;
+use crate::formats::pos::photo_key;
 use crate::formats::{self, FormatError};
+use crate::geometry::Camera;
 use crate::lidar::GroundSurface;
+use nalgebra::Vector3;
 use std::collections::BTreeMap;
 use std::path::Path;
 
-/// COLMAP model, BlocksExchange XML, orthophoto and DEM of the oriented epoch in `edir`,
-/// written into `dir`; `surface` is the LiDAR ground (block-local with `origin`).
-pub fn write_products(
+/// File name of the per-epoch DEM: until an epoch has a surface of its own, it is the
+/// LiDAR ground DEM, and named so.
+pub const LIDAR_DEM: &str = "lidar_dem.tif";
+
+/// The files and folders of `outputs-<epoch>/` that are products (listed in the run
+/// summary when written).
+pub const PRODUCT_FILES: [&str; 5] = [
+    "colmap",
+    "blocks_exchange.xml",
+    "orthophoto.tif",
+    LIDAR_DEM,
+    RESAMPLED_DIR,
+];
+
+/// Adds the project's checkpoints measured in the block's photos as check points: the
+/// surveyed position (block-local) and σ, with the epoch's image measurements (the
+/// checkpoint image file's rows of `epoch`) in the photos the block holds.
+fn add_checkpoints(block: &mut Block, cps: &Checkpoints, epoch: &str) -> Result<(), WorkError> {
+    let meas = read_checkpoint_measurements(&cps.images, epoch)?;
+    let by_key: BTreeMap<&str, u32> = block
+        .photos
+        .values()
+        .map(|p| (photo_key(&p.name), p.id))
+        .collect();
+    let mut next = block.next_point_id();
+    for ((id, xyz), sigma) in cps.surveyed.iter().zip(&cps.sigma) {
+        let observations: Vec<Observation> = meas
+            .iter()
+            .filter(|m| &m.id == id)
+            .filter_map(|m| {
+                Some(Observation {
+                    photo: *by_key.get(photo_key(&m.photo))?,
+                    pixel: m.pixel,
+                    sigma_px: 1.0,
+                    provenance: "checkpoint measurement".into(),
+                })
+            })
+            .collect();
+        if observations.is_empty() {
+            continue;
+        }
+        block.points.insert(
+            next,
+            ObjectPoint {
+                id: next,
+                name: id.clone(),
+                kind: PointKind::Check,
+                position: block.to_local(&Vector3::from(*xyz)),
+                sigma: Some(*sigma),
+                color: [255, 0, 0],
+                observations,
+            },
+        );
+        next += 1;
+    }
+    Ok(())
+}
+
+/// COLMAP model, BlocksExchange XML, orthophoto and LiDAR DEM of the oriented epoch
+/// `epoch` in `edir`, written into `dir`; `surface` is the LiDAR ground (block-local with
+/// `origin`), `checkpoints` the project's, added to the models as check points.
+pub(crate) fn write_products(
     project: &Project,
+    epoch: &Epoch,
+    checkpoints: Option<&Checkpoints>,
     surface: &GroundSurface,
     origin: [f64; 3],
     edir: &Path,
@@ -21,17 +93,49 @@ pub fn write_products(
 ) -> Result<(), WorkError> {
     let block = load_block(edir)?;
     let o = &project.outputs;
-    // Products hold the oriented photos, named by their image file as COLMAP and
-    // ContextCapture expect.
     let mut named = block.oriented_only();
+    if let Some(c) = checkpoints {
+        add_checkpoints(&mut named, c, &epoch.name)?;
+    }
+    // Film: the scans resampled into their fiducial frames, and the block moved there.
+    let film = named
+        .photos
+        .values()
+        .any(|p| matches!(named.camera_of(p).map(|c| &c.model), Some(Camera::Film(_))));
+    let mut pixel_mm = BTreeMap::new();
+    if film && (o.colmap || o.blocks_exchange || o.orthophoto) {
+        let def = match EpochCamera::load(&epoch.camera)? {
+            EpochCamera::Film(d) => d,
+            EpochCamera::Frame(_) => {
+                return Err(EpochError::Epoch {
+                    epoch: epoch.name.clone(),
+                    message: format!(
+                        "{}: a frame camera, but the epoch's block has film cameras",
+                        epoch.camera.display()
+                    ),
+                }
+                .into())
+            }
+        };
+        let frames = film_frames::to_frame_images(
+            &named,
+            def.format_mm,
+            o.film_pixel_um.map(|um| um / 1000.0),
+            &format!("{} ({})", def.name, epoch.name),
+            &dir.join(RESAMPLED_DIR),
+        )?;
+        write_json(&dir.join(RESAMPLED_DIR).join("frames.json"), &frames.report)?;
+        named = frames.block;
+        pixel_mm = frames.pixel_mm;
+    }
+    // Products name the photos by their image file, as COLMAP and ContextCapture expect.
     for p in named.photos.values_mut() {
         if let Some(f) = p.image.as_ref().and_then(|i| i.file_name()) {
             p.name = f.to_string_lossy().into_owned();
         }
     }
-    // A film camera whose scan affine is not a pure scale has no exact COLMAP or
-    // BlocksExchange camera: such products are skipped with the reason recorded (the
-    // orthophoto and the block JSON hold the epoch in full).
+    // A product a camera cannot be written to (none today: film is resampled first) is
+    // skipped with the reason recorded; the orthophoto and block JSON hold the epoch.
     let mut skipped: BTreeMap<&str, String> = BTreeMap::new();
     // Reasons name files relative to the stage folder (its temporary name is per process).
     let reason =
@@ -48,18 +152,28 @@ pub fn write_products(
         }
     }
     if o.blocks_exchange {
-        let base = named
-            .photos
-            .values()
-            .find_map(|p| p.image.as_ref()?.parent())
-            .map(|p| p.display().to_string());
+        let mut bx = named.clone();
+        // Frame images lie beside the XML (ImagePath relative to its folder, as the
+        // format defaults); scans and photos where they are (BaseImagePath).
+        let base = if film {
+            for p in bx.photos.values_mut() {
+                p.name = format!("{RESAMPLED_DIR}/{}", p.name);
+            }
+            None
+        } else {
+            named
+                .photos
+                .values()
+                .find_map(|p| p.image.as_ref()?.parent())
+                .map(|p| p.display().to_string())
+        };
         if let Err(e) = formats::blocks_exchange::write(
             &dir.join("blocks_exchange.xml"),
-            &named,
+            &bx,
             &formats::blocks_exchange::WriteOptions {
                 base_image_path: base,
                 block_name: Some(project.name.clone()),
-                pixel_mm: BTreeMap::new(),
+                pixel_mm,
             },
         ) {
             tracing::warn!("BlocksExchange XML not written: {e}");
@@ -76,7 +190,7 @@ pub fn write_products(
             .map_err(FormatError::Geometry)?;
         if o.dem {
             formats::raster::write_dem(
-                &dir.join("dem.tif"),
+                &dir.join(LIDAR_DEM),
                 &dem,
                 &crs,
                 &formats::raster::GeoTiffOptions::default(),

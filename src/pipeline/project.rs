@@ -134,6 +134,9 @@ pub struct Outputs {
     pub html_report: bool,
     /// Ground pixel of orthophotos, as a multiple of the epoch's GSD.
     pub ortho_gsd_factor: f64,
+    /// Pixel size (µm) of the fiducial-frame images film scans are resampled into for
+    /// the products; by default the mean scan pixel of the epoch's interior orientations.
+    pub film_pixel_um: Option<f64>,
 }
 
 impl Default for Outputs {
@@ -145,6 +148,7 @@ impl Default for Outputs {
             dem: true,
             html_report: true,
             ortho_gsd_factor: 1.0,
+            film_pixel_um: None,
         }
     }
 }
@@ -373,6 +377,9 @@ impl Project {
                 "outputs.ortho_gsd_factor",
                 "must be positive".into(),
             ));
+        }
+        if let Some(um) = self.outputs.film_pixel_um {
+            check_scan_pixel_um(um).map_err(|m| key_err("outputs.film_pixel_um", m))?;
         }
         Ok(())
     }

@@ -217,8 +217,10 @@ fn archive_options(project: &Project) -> ArchiveOptions {
 /// Surveyed checkpoints converted to the project CRS, with the file of their image
 /// measurements.
 pub(crate) struct Checkpoints {
-    surveyed: Vec<(String, [f64; 3])>,
-    images: PathBuf,
+    pub(crate) surveyed: Vec<(String, [f64; 3])>,
+    /// σ of each surveyed point (m): x, y, z, in the order of `surveyed`.
+    pub(crate) sigma: Vec<[f64; 3]>,
+    pub(crate) images: PathBuf,
 }
 
 pub(crate) fn read_checkpoints(project: &Project) -> Result<Option<Checkpoints>, WorkError> {
@@ -241,6 +243,10 @@ pub(crate) fn read_checkpoints(project: &Project) -> Result<Option<Checkpoints>,
         .collect::<Result<_, crate::formats::FormatError>>()?;
     Ok(Some(Checkpoints {
         surveyed,
+        sigma: points
+            .iter()
+            .map(|p| [p.sigma_xy, p.sigma_xy, p.sigma_z])
+            .collect(),
         images: i.clone(),
     }))
 }
@@ -553,15 +559,21 @@ pub fn run_project(
     if want_outputs {
         for (k, e) in epochs.iter().enumerate() {
             let edir = epoch_dirs[k].clone();
+            // The camera definition gives a film epoch's format (its frame images).
             let odir = stage!(
                 format!("outputs-{}", e.name),
-                Inputs::new()
-                    .file(&sources)
-                    .file(&edir)
-                    .param("outputs", &project.outputs),
+                cp_inputs(
+                    Inputs::new()
+                        .file(&sources)
+                        .file(&edir)
+                        .file(&e.camera)
+                        .param("outputs", &project.outputs)
+                ),
                 |dir: &Path| {
                     super::products::write_products(
                         project,
+                        e,
+                        checkpoints.as_ref(),
                         lidar.surface()?,
                         lidar.origin,
                         &edir,
@@ -570,7 +582,7 @@ pub fn run_project(
                 }
             );
             let files = products.entry(e.name.clone()).or_default();
-            for f in ["colmap", "blocks_exchange.xml", "orthophoto.tif", "dem.tif"] {
+            for f in super::products::PRODUCT_FILES {
                 if odir.join(f).exists() {
                     files.push(odir.join(f));
                 }

@@ -1,15 +1,19 @@
 """The workflow from Python: a project on the small synthetic block is run through the C
 ABI, its report meets the checkpoint targets, pycolmap reads the reference epoch's COLMAP
-model with the orientations of our block, and a bad project file fails naming the key."""
+model with the orientations of our block, the film epoch's model in its fiducial-frame
+images projects the true checkpoints onto their measurements, its BlocksExchange converts
+back to the same projections, and a bad project file fails naming the key."""
+import csv
 import json
 import pathlib
 
+import cv2
 import numpy as np
 import pycolmap
 import pytest
 
 import cloudcontrol
-from cloudcontrol import synth
+from cloudcontrol import formats, synth
 
 PROJECT = """
 name = "python-run"
@@ -75,6 +79,107 @@ def test_run_meets_the_checkpoint_targets_and_pycolmap_reads_the_model(block):
     # A second run skips every finished stage.
     again = cloudcontrol.run(block / "project.toml")
     assert again["ran"] == []
+
+
+def _projections(rec, origin, world):
+    """Pixel of every world point in every image of a COLMAP model (None behind it)."""
+    out = {}
+    for iid, img in rec.images.items():
+        cam, pose = rec.cameras[img.camera_id], img.cam_from_world()
+        for k, x in world.items():
+            p = cam.img_from_cam(pose * (x - origin))
+            out[iid, k] = None if p is None else np.asarray(p)
+    return out
+
+
+def test_film_products_are_in_fiducial_frame_images(block, tmp_path):
+    """Resampled film scans (formats/workflow/README.md, "Resampled film scans"): the true
+    checkpoints projected through pycolmap's reading of the film COLMAP model land on
+    their measurements in the scans moved into the frame images by the epoch's own
+    interior orientation and the documented frame (x_mm = (u - W/2) p, y_mm = (H/2 - v) p)
+    within 0.5 px RMS; the BlocksExchange converts back to COLMAP with the same
+    projections; OpenCV's affine warp of a scan agrees with our frame image."""
+    res = cloudcontrol.run(block / "project.toml")
+    out = pathlib.Path(res["output"])
+    odir = out / "outputs-film_1978"
+    assert json.loads((odir / "skipped.json").read_text()) == {}
+    frames = json.loads((odir / "resampled" / "frames.json").read_text())
+    p, w, h = (frames["frame"][k] for k in ("pixel_mm", "width", "height"))
+    assert frames["format_mm"] == [230.0, 230.0] and (w, h) == (round(230 / p), round(230 / p))
+
+    ours = json.loads((out / "epoch-film_1978" / "block.json").read_text())
+    oriented = {ph["name"]: ph for ph in ours["photos"].values() if ph["status"] == "oriented"}
+    io = {n: np.array(ours["cameras"][str(ph["camera"])]["model"]["interior"]["pixel_to_mm"])
+          for n, ph in oriented.items()}
+    truth = {r["id"]: np.array([float(r["x"]), float(r["y"]), float(r["z"])])
+             for r in csv.DictReader(open(block / "truth" / "checkpoints.csv"))}
+    measured = [r for r in csv.DictReader(open(block / "truth" / "checkpoint_images.csv"))
+                if r["epoch"] == "film_1978"]
+
+    rec = pycolmap.Reconstruction(str(odir / "colmap"))
+    origin = np.array(json.loads((odir / "colmap" / "cloudcontrol_georef.json").read_text())["origin"])
+    assert len(rec.images) == len(oriented)
+    proj = _projections(rec, origin, truth)
+    errors = []
+    for iid, img in rec.images.items():
+        stem = pathlib.Path(img.name).stem
+        assert (rec.cameras[img.camera_id].width, rec.cameras[img.camera_id].height) == (w, h)
+        for m in (m for m in measured if m["photo"] == stem):
+            v = io[stem] @ np.array([float(m["col"]), float(m["row"]), 1.0])
+            want = np.array([w / 2 + v[0] / v[2] / p, h / 2 - v[1] / v[2] / p])
+            errors.append(np.linalg.norm(proj[iid, m["id"]] - want))
+    rms = float(np.sqrt(np.mean(np.square(errors))))
+    print(f"film checkpoints in the frame images: {len(errors)} measurements, RMS {rms:.3f} px")
+    assert len(errors) >= 20 and rms <= 0.5
+
+    # The RMS above is the epoch's orientation error. The chain scan -> frame image ->
+    # frame camera itself is exact: with the true exterior orientation and the true scan
+    # affine (truth/epochs/film_1978/), the film model's camera puts every checkpoint on
+    # its measurement.
+    t = block / "truth" / "epochs" / "film_1978"
+    true_io = {r["photo"]: np.array([[float(r["a11"]), float(r["a12"]), float(r["a13"])],
+                                     [float(r["a21"]), float(r["a22"]), float(r["a23"])],
+                                     [0.0, 0.0, 1.0]])
+               for r in csv.DictReader(open(t / "scan_affine.csv"))}
+    true_eo = {r["photo"]: (np.array([[float(r[f"r{i}{j}"]) for j in "123"] for i in "123"]),
+                            np.array([float(r["x"]), float(r["y"]), float(r["z"])]))
+               for r in csv.DictReader(open(t / "eo.csv"))}
+    worst = 0.0
+    for img in rec.images.values():
+        stem = pathlib.Path(img.name).stem
+        rot, centre = true_eo[stem]
+        for m in (m for m in measured if m["photo"] == stem):
+            v = true_io[stem] @ np.array([float(m["col"]), float(m["row"]), 1.0])
+            want = np.array([w / 2 + v[0] / p, h / 2 - v[1] / p])
+            got = rec.cameras[img.camera_id].img_from_cam(rot @ (truth[m["id"]] - centre))
+            worst = max(worst, float(np.linalg.norm(np.asarray(got) - want)))
+    assert worst < 0.01, f"true orientation through the frame camera: {worst} px"
+
+    # BlocksExchange -> COLMAP (our reader) projects every checkpoint alike.
+    conv = tmp_path / "from_bx"
+    formats.convert(odir / "blocks_exchange.xml", conv)
+    back = pycolmap.Reconstruction(str(conv))
+    origin_b = np.array(json.loads((conv / "cloudcontrol_georef.json").read_text())["origin"])
+    proj_b = _projections(back, origin_b, truth)
+    assert proj.keys() == proj_b.keys()
+    diff = max(np.linalg.norm(a - proj_b[k]) for k, a in proj.items() if a is not None)
+    print(f"BlocksExchange round trip: max {diff:.2e} px")
+    assert diff <= 1e-6
+
+    # The frame image against OpenCV's cubic warp of the scan through the same transform
+    # (OpenCV's pixel centres are integers, ours at +0.5).
+    name = sorted(oriented)[0]
+    scan = cv2.imread(oriented[name]["image"], cv2.IMREAD_GRAYSCALE).astype(np.float32)
+    frame_to_mm = np.array([[p, 0, -p * w / 2], [0, -p, p * h / 2], [0, 0, 1]])
+    shift = lambda d: np.array([[1, 0, d], [0, 1, d], [0, 0, 1]])
+    m = shift(-0.5) @ np.linalg.inv(io[name]) @ frame_to_mm @ shift(0.5)
+    cv = cv2.warpAffine(scan, m[:2], (w, h), flags=cv2.INTER_CUBIC | cv2.WARP_INVERSE_MAP)
+    img = cv2.imread(str(odir / "resampled" / f"{name}.png"), cv2.IMREAD_UNCHANGED)
+    assert img.shape == (h, w) and img.dtype == np.uint8
+    c = slice(h // 8, h - h // 8)
+    mad = float(np.mean(np.abs(img[c, c].astype(np.float32) - cv[c, c])))
+    print(f"frame image vs OpenCV warp: mean |difference| {mad:.2f} grey levels")
+    assert mad < 1.5
 
 
 def test_a_bad_project_fails_naming_the_key(block):
