@@ -4,27 +4,8 @@
 //! by byte, from the format documents (formats/colmap, formats/lidar, ...).
 
 mod common;
-use common::cli;
+use common::{cli_fails, says};
 use std::path::Path;
-
-/// Asserts that `message` names `file` and holds each of `words`.
-fn says(message: &str, file: &Path, words: &[&str]) {
-    assert!(
-        message.contains(&file.display().to_string()),
-        "names the file {}: {message}",
-        file.display()
-    );
-    for w in words {
-        assert!(message.contains(w), "says {w:?}: {message}");
-    }
-}
-
-/// Runs the CLI, which must fail, and returns its stderr.
-fn cli_fails(args: &[&str]) -> String {
-    let (ok, out, err) = cli(args);
-    assert!(!ok, "succeeded: {out}");
-    err
-}
 
 // ---------------------------------------------------------------------------------------
 // COLMAP frames

@@ -7,9 +7,9 @@
 
 mod common;
 use cloudcontrol::control::dcp::DcpPackage;
-use common::cli;
+use common::{cli, last_error};
 use sha2::{Digest, Sha256};
-use std::ffi::{CStr, CString};
+use std::ffi::CString;
 use std::path::{Path, PathBuf};
 use std::time::{Duration, Instant};
 
@@ -27,16 +27,6 @@ fn sample(dir: &Path, name: &str) -> PathBuf {
     std::fs::copy(from.join("manifest.json"), to.join("manifest.json")).unwrap();
     DcpPackage::open(&to).expect("the sample opens");
     to
-}
-
-fn last_error() -> String {
-    use cloudcontrol::ffi::ccp_last_error;
-    unsafe {
-        let n = ccp_last_error(std::ptr::null_mut(), 0);
-        let mut buf = vec![0 as std::ffi::c_char; n];
-        ccp_last_error(buf.as_mut_ptr(), n);
-        CStr::from_ptr(buf.as_ptr()).to_string_lossy().into_owned()
-    }
 }
 
 fn says(message: &str, words: &[&str]) {

@@ -5,8 +5,8 @@
 //! exchange, formats/lidar, formats/project).
 
 mod common;
-use common::cli;
-use std::ffi::{CStr, CString};
+use common::{cli_fails, last_error, says};
+use std::ffi::CString;
 use std::net::TcpListener;
 use std::path::{Path, PathBuf};
 use std::sync::atomic::{AtomicUsize, Ordering};
@@ -43,41 +43,6 @@ impl Listener {
     fn accepted(&self) -> usize {
         std::thread::sleep(Duration::from_millis(100));
         self.accepted.load(Ordering::SeqCst)
-    }
-}
-
-/// Asserts that `message` names `file` and holds each of `words`.
-fn says(message: &str, file: &Path, words: &[&str]) {
-    assert!(
-        message.contains(&file.display().to_string()),
-        "names the file {}: {message}",
-        file.display()
-    );
-    for w in words {
-        assert!(message.contains(w), "says {w:?}: {message}");
-    }
-}
-
-/// Runs the CLI, which must fail within a few seconds, and returns its stderr.
-fn cli_fails(args: &[&str]) -> String {
-    let t = Instant::now();
-    let (ok, out, err) = cli(args);
-    assert!(!ok, "succeeded: {out}");
-    assert!(
-        t.elapsed() < Duration::from_secs(5),
-        "{args:?}: {:?}",
-        t.elapsed()
-    );
-    err
-}
-
-fn last_error() -> String {
-    use cloudcontrol::ffi::ccp_last_error;
-    unsafe {
-        let n = ccp_last_error(std::ptr::null_mut(), 0);
-        let mut buf = vec![0 as std::ffi::c_char; n];
-        ccp_last_error(buf.as_mut_ptr(), n);
-        CStr::from_ptr(buf.as_ptr()).to_string_lossy().into_owned()
     }
 }
 

@@ -70,3 +70,41 @@ pub fn synth_checkpoints(
         .collect();
     (measured, surveyed)
 }
+
+/// Asserts that `message` names `file` and holds each of `words`.
+pub fn says(message: &str, file: &std::path::Path, words: &[&str]) {
+    assert!(
+        message.contains(&file.display().to_string()),
+        "names the file {}: {message}",
+        file.display()
+    );
+    for w in words {
+        assert!(message.contains(w), "says {w:?}: {message}");
+    }
+}
+
+/// Runs the CLI, which must fail within a few seconds, and returns its stderr.
+pub fn cli_fails(args: &[&str]) -> String {
+    let t = std::time::Instant::now();
+    let (ok, out, err) = cli(args);
+    assert!(!ok, "succeeded: {out}");
+    assert!(
+        t.elapsed() < std::time::Duration::from_secs(5),
+        "{args:?}: {:?}",
+        t.elapsed()
+    );
+    err
+}
+
+/// The C ABI's thread-local last-error message.
+pub fn last_error() -> String {
+    use cloudcontrol::ffi::ccp_last_error;
+    unsafe {
+        let n = ccp_last_error(std::ptr::null_mut(), 0);
+        let mut buf = vec![0 as std::ffi::c_char; n];
+        ccp_last_error(buf.as_mut_ptr(), n);
+        std::ffi::CStr::from_ptr(buf.as_ptr())
+            .to_string_lossy()
+            .into_owned()
+    }
+}
