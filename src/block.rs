@@ -92,6 +92,18 @@ pub enum PhotoFailure {
         predicted: usize,
         needed: usize,
     },
+    /// A resected pose that its own predictions did not confirm: matched again in narrow
+    /// windows around where it puts the patches, they no longer support a resection.
+    #[error(
+        "the resected pose was not confirmed: round {round} matched {matched} of \
+         {predicted} patches at its predictions and {message}"
+    )]
+    Unconfirmed {
+        round: usize,
+        matched: usize,
+        predicted: usize,
+        message: String,
+    },
     #[error("{kept} tie observations kept, fewer than {needed}")]
     TooFewTieObservations { kept: usize, needed: usize },
     /// The orientation found lies `sigmas` standard deviations of the navigation from it

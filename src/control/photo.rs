@@ -681,6 +681,14 @@ fn orient_with_camera(
             sigmas,
             limit: opts.max_prior_sigmas,
         })
+    } else if let Some((round, message)) = &o.refuted {
+        let r = &o.iterations[*round];
+        Some(PhotoFailure::Unconfirmed {
+            round: *round,
+            matched: r.matched,
+            predicted: r.predicted,
+            message: message.clone(),
+        })
     } else if predicted == 0 {
         Some(PhotoFailure::NoControlInView {
             in_footprint: patches.len(),
