@@ -681,6 +681,7 @@ fn finish(
                     max_correlation: corr,
                     correlated_with: with,
                     determinable,
+                    fixed: false,
                 });
             }
         }
