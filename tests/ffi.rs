@@ -1,18 +1,11 @@
 //! The C ABI refuses bad arguments with a status and a message, never a crash.
 
+mod common;
 use cloudcontrol::ffi::*;
+use common::last_error;
 use std::ffi::CStr;
 use std::path::Path;
 use std::ptr::{null, null_mut};
-
-fn last_error() -> String {
-    unsafe {
-        let n = ccp_last_error(null_mut(), 0);
-        let mut buf = vec![0 as std::ffi::c_char; n];
-        ccp_last_error(buf.as_mut_ptr(), n);
-        CStr::from_ptr(buf.as_ptr()).to_string_lossy().into_owned()
-    }
-}
 
 fn camera() -> *mut CcpCamera {
     let params = [1000.0, 1000.0, 500.0, 400.0, -0.1, 0.01, 0.0, 1e-4, -1e-4];

@@ -4,18 +4,10 @@
 //! threads at once gives the single-threaded result; freeing a block while other threads
 //! adjust it is safe.
 
+mod common;
 use cloudcontrol::ffi::*;
-use std::ffi::CStr;
+use common::last_error;
 use std::ptr::{null, null_mut};
-
-fn last_error() -> String {
-    unsafe {
-        let n = ccp_last_error(null_mut(), 0);
-        let mut buf = vec![0 as std::ffi::c_char; n];
-        ccp_last_error(buf.as_mut_ptr(), n);
-        CStr::from_ptr(buf.as_ptr()).to_string_lossy().into_owned()
-    }
-}
 
 const W: u32 = 4000;
 const H: u32 = 3000;

@@ -4,7 +4,7 @@
 //! by byte, from the format documents (formats/colmap, formats/lidar, ...).
 
 mod common;
-use common::{cli_fails, says};
+use common::{cli_fails, last_error, says};
 use std::path::Path;
 
 // ---------------------------------------------------------------------------------------
@@ -517,14 +517,7 @@ fn dem_size_query_reads_the_header_only() {
     let (mut w, mut h, mut gt) = (0usize, 0usize, [0f64; 6]);
     let st = unsafe { ccp_dem_read(p.as_ptr(), &mut w, &mut h, gt.as_mut_ptr(), null_mut(), 0) };
     assert_eq!(st, CcpStatus::Format);
-    let e = unsafe {
-        let n = ccp_last_error(null_mut(), 0);
-        let mut buf = vec![0 as std::ffi::c_char; n];
-        ccp_last_error(buf.as_mut_ptr(), n);
-        std::ffi::CStr::from_ptr(buf.as_ptr())
-            .to_string_lossy()
-            .into_owned()
-    };
+    let e = last_error();
     says(&e, &big, &["100000×100000", "1073741824"]);
     let _ = null::<u8>();
 
@@ -641,14 +634,7 @@ fn scan_pixel_size_outside_film_scanning_is_refused_at_every_entry() {
         )
     };
     assert_eq!(st, CcpStatus::InvalidArgument);
-    let e = unsafe {
-        let n = ccp_last_error(std::ptr::null_mut(), 0);
-        let mut buf = vec![0 as std::ffi::c_char; n];
-        ccp_last_error(buf.as_mut_ptr(), n);
-        std::ffi::CStr::from_ptr(buf.as_ptr())
-            .to_string_lossy()
-            .into_owned()
-    };
+    let e = last_error();
     assert!(e.contains("pixel_mm") && e.contains("3–200 µm"), "{e}");
 }
 

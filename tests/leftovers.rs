@@ -6,33 +6,9 @@
 
 mod common;
 use cloudcontrol::lidar::{Catalogue, CrsSource};
-use common::exe;
+use common::{cli_in as run_in, last_error};
 use std::ffi::{CStr, CString};
 use std::path::{Path, PathBuf};
-use std::process::Command;
-
-fn run_in(dir: &Path, args: &[&str]) -> (bool, String, String) {
-    let out = Command::new(exe())
-        .current_dir(dir)
-        .args(args)
-        .output()
-        .unwrap();
-    (
-        out.status.success(),
-        String::from_utf8_lossy(&out.stdout).into_owned(),
-        String::from_utf8_lossy(&out.stderr).into_owned(),
-    )
-}
-
-fn last_error() -> String {
-    use cloudcontrol::ffi::ccp_last_error;
-    unsafe {
-        let n = ccp_last_error(std::ptr::null_mut(), 0);
-        let mut buf = vec![0 as std::ffi::c_char; n];
-        ccp_last_error(buf.as_mut_ptr(), n);
-        CStr::from_ptr(buf.as_ptr()).to_string_lossy().into_owned()
-    }
-}
 
 #[test]
 fn convert_to_colmap_text_refused_leaves_no_output_folder() {

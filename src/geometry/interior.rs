@@ -77,6 +77,17 @@ impl InteriorOrientation {
         Ok(io)
     }
 
+    /// The affine interior orientation x_mm = `a`·pixel + `t`.
+    pub fn affine(a: &Matrix2<f64>, t: &Vector2<f64>) -> Result<Self> {
+        #[rustfmt::skip]
+        let m = Matrix3::new(
+            a[(0, 0)], a[(0, 1)], t.x,
+            a[(1, 0)], a[(1, 1)], t.y,
+            0.0, 0.0, 1.0,
+        );
+        Self::new(InteriorTransformKind::Affine, m)
+    }
+
     /// Affine transform for a scan whose pixel size is `pixel_mm`, with the fiducial centre
     /// at the scan centre and y up (the ideal scan, for tests and synthetic data).
     pub fn ideal(width: u32, height: u32, pixel_mm: f64) -> Self {

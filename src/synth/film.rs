@@ -3,8 +3,8 @@
 //! the scan, and the film look (grain, vignetting, dust, gamma and contrast).
 
 use super::noise::{gauss, hash3, unit};
-use crate::geometry::{Brown, FilmCamera, InteriorOrientation, InteriorTransformKind};
-use nalgebra::{Matrix3, Vector2};
+use crate::geometry::{Brown, FilmCamera, InteriorOrientation};
+use nalgebra::Vector2;
 use rand::Rng;
 use rand_chacha::ChaCha8Rng;
 use serde::{Deserialize, Serialize};
@@ -120,18 +120,7 @@ pub fn random_scan_affine(
     let centre = Vector2::new(width as f64 / 2.0, height as f64 / 2.0);
     let shift = Vector2::new(rng.gen_range(-1.5..1.5), rng.gen_range(-1.5..1.5));
     let t = shift - a * centre;
-    let m = Matrix3::new(
-        a[(0, 0)],
-        a[(0, 1)],
-        t.x,
-        a[(1, 0)],
-        a[(1, 1)],
-        t.y,
-        0.0,
-        0.0,
-        1.0,
-    );
-    InteriorOrientation::new(InteriorTransformKind::Affine, m).expect("scan affine is regular")
+    InteriorOrientation::affine(&a, &t).expect("scan affine is regular")
 }
 
 /// Coverage of a fiducial mark at a point `(dx, dy)` mm from its centre (0/1 test; the

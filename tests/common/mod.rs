@@ -36,7 +36,13 @@ pub fn px(e: &Value, key: &str) -> f64 {
 
 /// Runs the binary with `args`: success, stdout, stderr.
 pub fn cli(args: &[&str]) -> (bool, String, String) {
+    cli_in(std::path::Path::new("."), args)
+}
+
+/// [`cli`] run from the folder `dir`.
+pub fn cli_in(dir: &std::path::Path, args: &[&str]) -> (bool, String, String) {
     let out = std::process::Command::new(exe())
+        .current_dir(dir)
         .args(args)
         .output()
         .unwrap();

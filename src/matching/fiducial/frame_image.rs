@@ -331,18 +331,7 @@ mod tests {
             * Matrix2::new(m, 0.0, 0.0, 1.0)
             * Matrix2::new(s, shear * s, 0.0, -s * 1.003);
         let t = Vector2::from(centre_mm) - a * Vector2::new(w / 2.0, h / 2.0);
-        let h = Matrix3::new(
-            a[(0, 0)],
-            a[(0, 1)],
-            t.x,
-            a[(1, 0)],
-            a[(1, 1)],
-            t.y,
-            0.0,
-            0.0,
-            1.0,
-        );
-        InteriorOrientation::new(InteriorTransformKind::Affine, h).unwrap()
+        InteriorOrientation::affine(&a, &t).unwrap()
     }
 
     /// Marks as Gaussian blobs (σ in mm) at known fiducial coordinates on a grey
