@@ -293,9 +293,11 @@ pub fn orient_epoch(
             max_rounds: 20,
             ..AdjustOptions::default()
         };
-        let rep = adjust::adjust_determinable(&mut block, &aopts).map_err(|source| EpochError::Adjust {
-            epoch: input.name.clone(),
-            source,
+        let rep = adjust::adjust_determinable(&mut block, &aopts).map_err(|source| {
+            EpochError::Adjust {
+                epoch: input.name.clone(),
+                source,
+            }
         })?;
         for pr in &rep.photo_precision {
             if let Some(r) = photos.iter_mut().find(|r| r.name == pr.name) {
@@ -644,4 +646,3 @@ pub fn mean_gsd(block: &Block, dem: &Dem) -> f64 {
         v.iter().sum::<f64>() / v.len() as f64
     }
 }
-
