@@ -61,9 +61,10 @@ impl EpochCamera {
         let json: serde_json::Value =
             serde_json::from_str(&text).map_err(|e| input_err(path, format!("not JSON: {e}")))?;
         if json.get("fiducials").is_some() {
-            return CameraDefinition::load(path)
+            let dir = path.parent().unwrap_or(Path::new("."));
+            return CameraDefinition::from_json(json, dir)
                 .map(Self::Film)
-                .map_err(|e| input_err(path, e.to_string()));
+                .map_err(|e| input_err(path, e));
         }
         match serde_json::from_value::<Camera>(json).map_err(|e| input_err(path, e.to_string()))? {
             Camera::Frame(f) => {

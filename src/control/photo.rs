@@ -308,9 +308,13 @@ pub fn orient_photo(
                 pose0,
                 PhotoFailure::Image {
                     path: photo.image.display().to_string(),
-                    message: e.to_string(),
+                    // The reason names the path once, itself.
+                    message: match e {
+                        crate::matching::MatchingError::Read { message, .. } => message,
+                        other => other.to_string(),
+                    },
                 },
-            )
+            );
         }
     };
     // Candidate cameras: one for a frame photo; for a film scan the fiducial interior

@@ -64,15 +64,18 @@ impl CameraDefinition {
     /// Reads a camera definition; template marks' image files are read relative to the
     /// folder of `path`.
     pub fn load(path: &Path) -> Result<Self> {
-        let text = std::fs::read_to_string(path)
-            .map_err(|e| MatchingError::Camera(format!("{}: {e}", path.display())))?;
-        let mut def: Self = serde_json::from_str(&text)
-            .map_err(|e| MatchingError::Camera(format!("{}: {e}", path.display())))?;
-        def.validate()
-            .map_err(|e| MatchingError::Camera(format!("{}: {e}", path.display())))?;
-        let dir = path.parent().unwrap_or(Path::new("."));
-        def.load_templates(dir)
-            .map_err(|e| MatchingError::Camera(format!("{}: {e}", path.display())))?;
+        let in_file = |e: String| MatchingError::Camera(format!("{}: {e}", path.display()));
+        let text = std::fs::read_to_string(path).map_err(|e| in_file(e.to_string()))?;
+        let json = serde_json::from_str(&text).map_err(|e| in_file(e.to_string()))?;
+        Self::from_json(json, path.parent().unwrap_or(Path::new("."))).map_err(in_file)
+    }
+
+    /// A camera definition from its JSON, validated, with template marks' image files read
+    /// from `dir`; the error does not name the file (the caller does).
+    pub fn from_json(json: serde_json::Value, dir: &Path) -> std::result::Result<Self, String> {
+        let mut def: Self = serde_json::from_value(json).map_err(|e| e.to_string())?;
+        def.validate()?;
+        def.load_templates(dir)?;
         Ok(def)
     }
 
