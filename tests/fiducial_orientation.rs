@@ -278,6 +278,9 @@ fn orientations() -> Vec<ScanOrientation> {
         o(180, false),
         o(270, false),
         o(0, true),
+        o(90, true),
+        o(180, true),
+        o(270, true),
     ]
 }
 
