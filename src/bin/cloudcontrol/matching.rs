@@ -7,7 +7,7 @@ use cloudcontrol::formats::raster::read_dem;
 use cloudcontrol::formats::write_bytes_atomically;
 use cloudcontrol::geometry::InteriorTransformKind;
 use cloudcontrol::matching::fiducial::{
-    check_scan_pixel_um, interior_orientation_file, CameraDefinition, IoOptions, ScanOrientation,
+    check_scan_pixel_um, interior_orientation_file, CameraDefinition, IoOptions,
 };
 use cloudcontrol::matching::ncc::Window;
 use cloudcontrol::matching::ties::{coverage, link_tracks, match_pair, predict_shift, TieOptions};
@@ -109,25 +109,9 @@ pub fn io(a: IoArgs, quiet: bool) -> ExitCode {
         Ok(c) => c,
         Err(e) => return fail("io", e),
     };
-    let orientation = match a.orientation.as_deref().map(|s| {
-        let mirrored = s.ends_with('m');
-        s.trim_end_matches('m')
-            .parse::<u16>()
-            .ok()
-            .filter(|r| r % 90 == 0 && *r < 360)
-            .map(|rotation_deg| ScanOrientation {
-                rotation_deg,
-                mirrored,
-            })
-    }) {
-        Some(None) => {
-            return fail(
-                "io",
-                "--orientation: expected 0, 90, 180 or 270, optionally followed by m",
-            )
-        }
-        Some(Some(o)) => Some(o),
-        None => None,
+    let orientation = match a.orientation.as_deref().map(str::parse).transpose() {
+        Ok(o) => o,
+        Err(m) => return fail("io", format!("--orientation: {m}")),
     };
     let opts = IoOptions {
         pixel_mm: a.pixel_um.map(|u| u / 1000.0),

@@ -7,9 +7,11 @@ use cloudcontrol::control::archive::{self, EpochResult};
 use cloudcontrol::control::checkpoints;
 use cloudcontrol::control::cloud::CloudOptions;
 use cloudcontrol::control::dcp::{DcpPackage, EpochInfo};
-use cloudcontrol::control::epoch::{block_origin, EpochInput, EpochSpec, Navigation};
+use cloudcontrol::control::epoch::{block_origin, EpochCamera, EpochInput, EpochSpec, Navigation};
 use cloudcontrol::control::export::{self, DcpExportOptions};
 use cloudcontrol::formats::{self, control_points, write_bytes_atomically};
+use cloudcontrol::matching::ScanOrientation;
+use cloudcontrol::pipeline::film_frames;
 use cloudcontrol::pipeline::project::Thresholds;
 use cloudcontrol::synth::reading::{perturbed_navigation, synth_truth_block};
 use serde_json::json;
@@ -71,6 +73,10 @@ pub struct OrientArgs {
     /// Rejection threshold of the block adjustment in σ0.
     #[arg(long, default_value_t = 2.5)]
     reject_k: f64,
+    /// Film scans: the scan orientation of every scan, e.g. "90" or "180m" (m = mirrored),
+    /// for a camera whose fiducial layout cannot tell; default: found per scan.
+    #[arg(long, value_parser = str::parse::<ScanOrientation>)]
+    scan_orientation: Option<ScanOrientation>,
 }
 
 /// The epoch of the explicit options, through the one epoch builder; its origin is the
@@ -104,12 +110,41 @@ fn explicit_input(a: &OrientArgs, dem_crs: Option<String>) -> Result<EpochInput,
     EpochInput::build(&spec, &crs, origin).map_err(|e| e.to_string())
 }
 
-fn write_outputs(out: &Path, r: &EpochResult) -> Result<serde_json::Value, String> {
+fn write_outputs(
+    out: &Path,
+    r: &EpochResult,
+    camera: &EpochCamera,
+) -> Result<serde_json::Value, String> {
     std::fs::create_dir_all(out).map_err(|e| format!("{}: {e}", out.display()))?;
     let block = serde_json::to_vec_pretty(&r.block).map_err(|e| e.to_string())?;
     write_bytes_atomically(&out.join("block.json"), &block).map_err(|e| e.to_string())?;
     let mut exports = serde_json::Map::new();
-    let oriented = r.block.oriented_only();
+    let mut oriented = r.block.oriented_only();
+    let mut pixel_mm = Default::default();
+    // Film: COLMAP and BlocksExchange of the scans resampled into their fiducial frames,
+    // as `cloudcontrol run` writes them (formats/workflow, "Resampled film scans").
+    // A scan that cannot be resampled leaves the models unwritten, with the reason.
+    let mut unwritable = None;
+    if let (EpochCamera::Film(def), false) = (camera, oriented.photos.is_empty()) {
+        let dir = out.join("resampled");
+        let name = format!("{} ({})", def.name, r.epoch);
+        match film_frames::to_frame_images(&oriented, def.format_mm, None, &name, &dir) {
+            Ok(frames) => {
+                let report =
+                    serde_json::to_vec_pretty(&frames.report).map_err(|e| e.to_string())?;
+                write_bytes_atomically(&dir.join("frames.json"), &report)
+                    .map_err(|e| e.to_string())?;
+                exports.insert("resampled".into(), json!("resampled/"));
+                (oriented, pixel_mm) = (frames.block, frames.pixel_mm);
+            }
+            Err(e) => unwritable = Some(format!("film scans not resampled: {e}")),
+        }
+    }
+    if let Some(reason) = unwritable {
+        exports.insert("colmap".into(), json!({ "skipped": reason }));
+        exports.insert("blocks_exchange".into(), json!({ "skipped": reason }));
+        return finish_report(out, r, exports);
+    }
     let colmap = formats::colmap::write(
         &out.join("colmap"),
         &oriented,
@@ -125,7 +160,11 @@ fn write_outputs(out: &Path, r: &EpochResult) -> Result<serde_json::Value, Strin
             Err(e) => json!({"skipped": e.to_string()}),
         },
     );
-    let bx = formats::blocks_exchange::to_string(&oriented, &Default::default()).and_then(|s| {
+    let bx_opts = formats::blocks_exchange::WriteOptions {
+        pixel_mm,
+        ..Default::default()
+    };
+    let bx = formats::blocks_exchange::to_string(&oriented, &bx_opts).and_then(|s| {
         write_bytes_atomically(&out.join("blocks_exchange.xml"), s.as_bytes())
             .map_err(|e| e.to_string())
     });
@@ -136,6 +175,15 @@ fn write_outputs(out: &Path, r: &EpochResult) -> Result<serde_json::Value, Strin
             Err(e) => json!({"skipped": e}),
         },
     );
+    finish_report(out, r, exports)
+}
+
+/// `report.json`: the epoch's result with what was exported.
+fn finish_report(
+    out: &Path,
+    r: &EpochResult,
+    exports: serde_json::Map<String, serde_json::Value>,
+) -> Result<serde_json::Value, String> {
     let mut report = serde_json::to_value(r).map_err(|e| e.to_string())?;
     if let Some(a) = report.get_mut("adjustment").and_then(|a| a.as_object_mut()) {
         a.remove("residuals");
@@ -169,13 +217,14 @@ pub fn run_orient(a: &OrientArgs, json_out: bool, quiet: bool) -> Result<(), Str
         .shifted(input.origin)
         .map_err(|e| format!("{}: {e}", a.dem.display()))?;
     // The same options as `cloudcontrol run` with default thresholds.
-    let opts = Thresholds {
+    let mut opts = Thresholds {
         reject_k: a.reject_k,
         ..Thresholds::default()
     }
     .archive_options();
+    opts.photo.io.orientation = a.scan_orientation;
     let r = archive::orient_epoch(&input, &packages, &dem, &opts).map_err(|e| e.to_string())?;
-    let report = write_outputs(&a.out, &r)?;
+    let report = write_outputs(&a.out, &r, &input.camera)?;
     if json_out {
         println!(
             "{}",

@@ -41,6 +41,23 @@ impl std::fmt::Display for ScanOrientation {
     }
 }
 
+/// "0", "90", "180" or "270", with "m" appended when mirrored (command lines, files).
+impl std::str::FromStr for ScanOrientation {
+    type Err = String;
+    fn from_str(s: &str) -> std::result::Result<Self, String> {
+        let mirrored = s.ends_with('m');
+        s.trim_end_matches('m')
+            .parse::<u16>()
+            .ok()
+            .filter(|r| r % 90 == 0 && *r < 360)
+            .map(|rotation_deg| ScanOrientation {
+                rotation_deg,
+                mirrored,
+            })
+            .ok_or_else(|| format!("{s:?}: expected 0, 90, 180 or 270, optionally followed by m"))
+    }
+}
+
 impl ScanOrientation {
     pub fn all() -> Vec<Self> {
         let mut v = Vec::new();
