@@ -111,8 +111,9 @@ enum Command {
     /// Film scans get their fiducial interior orientation; approximate orientations come
     /// from a POS or from strip end points; every photo is oriented from the control
     /// patches (predict, align, NCC + LSM, resect, repeat), then all together in a robust
-    /// block adjustment. Writes OUT/block.json, OUT/colmap/, OUT/blocks_exchange.xml (when
-    /// the cameras can be written there) and OUT/report.json.
+    /// block adjustment. Writes OUT/block.json, OUT/colmap/, OUT/blocks_exchange.xml and
+    /// OUT/report.json; for film, the models are of the scans resampled into fiducial-frame
+    /// images in OUT/resampled/.
     ///
     /// Example (a synthetic block):
     ///   cloudcontrol orient --dcp ref.dcp --synth block --epoch film_1978 --dem dem.tif --out film

@@ -28,7 +28,8 @@ use std::time::Instant;
 ///       --crs EPSG:4547 --dem dem.tif --out film
 ///
 /// Writes OUT/block.json (the oriented block, world = local + origin), OUT/colmap/ and
-/// OUT/blocks_exchange.xml when the cameras are representable there, and OUT/report.json
+/// OUT/blocks_exchange.xml (film: of the scans resampled into OUT/resampled/), and
+/// OUT/report.json
 /// (per photo: oriented or why not, per-iteration success ratios; the adjustment report).
 #[derive(Args)]
 pub struct OrientArgs {
