@@ -248,3 +248,48 @@ fn demo_runs_the_workflow_and_a_killed_run_resumes_identically() {
         assert!(other.is_dir());
     }
 }
+
+/// An epoch that orients no photo (here: every scan is a truncated file) does not stop the run:
+/// every photo is reported with its reason, its checkpoints are not evaluated, its
+/// orthophoto is skipped with the reason, its LiDAR DEM is written, and the other epochs
+/// and the report are complete.
+#[test]
+fn an_epoch_without_an_oriented_photo_does_not_stop_the_run() {
+    let tmp = tempfile::tempdir().unwrap();
+    let blk = tmp.path().join("block");
+    let o = Command::new(exe())
+        .args(["synth", "--preset", "tiny", "--seed", "2", "--out"])
+        .arg(&blk)
+        .output()
+        .unwrap();
+    assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+    let images = blk.join("epochs/film_1978/images");
+    for e in std::fs::read_dir(&images).unwrap() {
+        let p = e.unwrap().path();
+        let head = std::fs::read(&p).unwrap()[..64].to_vec();
+        std::fs::write(&p, head).unwrap();
+    }
+    let o = Command::new(exe())
+        .args(["run", "--json"])
+        .arg(blk.join("project.toml"))
+        .output()
+        .unwrap();
+    assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+    let run = tmp.path().join("run");
+    let film: Value =
+        serde_json::from_slice(&std::fs::read(run.join("epoch-film_1978/result.json")).unwrap())
+            .unwrap();
+    let photos = film["photos"].as_array().unwrap();
+    assert!(!photos.is_empty());
+    for p in photos {
+        assert_eq!(p["oriented"], false, "{p}");
+        assert_eq!(p["reason"]["kind"], "image", "{p}");
+    }
+    let out = run.join("outputs-film_1978");
+    let skipped: Value =
+        serde_json::from_slice(&std::fs::read(out.join("skipped.json")).unwrap()).unwrap();
+    assert_eq!(skipped["orthophoto"], "no photo of the epoch was oriented");
+    assert!(!out.join("orthophoto.tif").exists() && out.join("lidar_dem.tif").is_file());
+    assert!(run.join("report/report.html").is_file());
+    assert!(run.join("outputs-reference_2024/orthophoto.tif").is_file());
+}

@@ -180,8 +180,13 @@ pub(crate) fn write_products(
             skipped.insert("blocks_exchange", reason(&e));
         }
     }
+    // An epoch that oriented no photo still has its LiDAR DEM, but nothing to orthorectify.
+    let orthophoto = o.orthophoto && !named.photos.is_empty();
+    if o.orthophoto && !orthophoto {
+        skipped.insert("orthophoto", "no photo of the epoch was oriented".into());
+    }
     write_json(&dir.join("skipped.json"), &skipped)?;
-    if o.orthophoto || o.dem {
+    if orthophoto || o.dem {
         let crs = Crs::parse(&project.crs)?;
         // Back to world coordinates: shifting by the negated origin.
         let dem = surface
@@ -196,7 +201,7 @@ pub(crate) fn write_products(
                 &formats::raster::GeoTiffOptions::default(),
             )?;
         }
-        if o.orthophoto {
+        if orthophoto {
             let mut rgb = BTreeMap::new();
             for (id, p) in &named.photos {
                 if let Some(path) = &p.image {

@@ -264,6 +264,16 @@ pub(crate) fn evaluate(
     if meas.is_empty() {
         return Ok(None);
     }
+    // An epoch that oriented no photo has no ground pixel either: a result, not an error
+    // that would stop the run (the tiny preset's film epoch ended the run this way).
+    if !block
+        .photos
+        .values()
+        .any(|p| p.status == crate::block::PhotoStatus::Oriented)
+    {
+        tracing::warn!(epoch, "checkpoints not evaluated: no photo oriented");
+        return Ok(None);
+    }
     match checkpoints::evaluate_checkpoints(block, &meas, &c.surveyed, gsd_m) {
         Ok(e) => Ok(Some(e)),
         Err(EvaluationError::TooFewRays) => {
