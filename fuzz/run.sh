@@ -4,7 +4,8 @@
 #                        where either is missing, the stable build and corpus replay only
 #   fuzz/run.sh release  the acceptance runs: 1 M executions per target (100 k for LAS/LAZ)
 #   fuzz/run.sh release las csv_points   ... only the named targets
-# Environment: FUZZ_SECONDS (ci: seconds per target, default 15).
+# Environment: FUZZ_SECONDS (ci: seconds per target, default 15); FUZZ_MAX_SECONDS
+# (release: stop a target after this many seconds even short of its count).
 # Exits non-zero when a target crashes, runs out of memory (2 GB) or times out (10 s per
 # input); the reproducer is left in fuzz/artifacts/<target>/.
 set -euo pipefail
@@ -33,7 +34,7 @@ run_target() {
         -rss_limit_mb=2048 -timeout=10 -print_final_stats=1 \
         -artifact_prefix="fuzz/artifacts/$t/" "$@" >"$log" 2>&1 || rc=$?
     local n eps rss
-    n=$(sed -n 's/^stat::number_executed_units: *//p' "$log" | tail -1)
+    n=$(sed -n 's/^stat::number_of_executed_units: *//p' "$log" | tail -1)
     eps=$(sed -n 's/^stat::average_exec_per_sec: *//p' "$log" | tail -1)
     rss=$(sed -n 's/^stat::peak_rss_mb: *//p' "$log" | tail -1)
     if [ "$rc" -eq 0 ]; then
@@ -77,7 +78,7 @@ release)
     for t in "${TARGETS[@]}"; do
         runs=1000000
         [ "$t" = las ] && runs=100000
-        run_target "$t" -runs="$runs" || failed=1
+        run_target "$t" -runs="$runs" ${FUZZ_MAX_SECONDS:+-max_total_time=$FUZZ_MAX_SECONDS} || failed=1
     done
     exit "$failed"
     ;;

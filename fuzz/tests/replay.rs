@@ -42,8 +42,15 @@ fn every_input_replays_and_the_seeds_reach_the_readers() {
                 read.push(f.file_name().unwrap().to_string_lossy().into_owned());
             }
         }
-        eprintln!("{target}: {} of {} seeds read: {read:?}", read.len(), seeds.len());
+        eprintln!(
+            "{target}: {} of {} seeds read: {read:?}",
+            read.len(),
+            seeds.len()
+        );
         // A seed the reader refuses at once teaches the fuzzer nothing about the format.
-        assert!(!read.is_empty(), "no seed of {target} is read by its reader");
+        assert!(
+            !read.is_empty(),
+            "no seed of {target} is read by its reader"
+        );
     }
 }
