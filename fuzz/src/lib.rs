@@ -207,22 +207,25 @@ fn las_reads(data: &[u8]) -> bool {
     let dir = scratch("las");
     let path = dir.join("tile.las");
     put(&path, data);
-    let Ok(mut s) = LasStream::open(&path) else {
-        return false;
-    };
-    if s.crs().is_err() {
-        return false;
-    }
-    let mut batch = PointBatch::default();
-    let points = std::panic::AssertUnwindSafe(|| loop {
-        match s.read_batch(1 << 16, &mut batch) {
-            Ok(0) => return true,
-            Ok(_) => {}
-            Err(_) => return false,
+    // Opening a LAZ file already decompresses its first points.
+    let read = std::panic::AssertUnwindSafe(|| {
+        let Ok(mut s) = LasStream::open(&path) else {
+            return false;
+        };
+        if s.crs().is_err() {
+            return false;
+        }
+        let mut batch = PointBatch::default();
+        loop {
+            match s.read_batch(1 << 16, &mut batch) {
+                Ok(0) => return true,
+                Ok(_) => {}
+                Err(_) => return false,
+            }
         }
     });
     pass_known_laz_assertion();
-    std::panic::catch_unwind(points).unwrap_or(false)
+    std::panic::catch_unwind(read).unwrap_or(false)
 }
 
 /// laz 0.12's arithmetic decoder `debug_assert!`s the width of a decoded symbol
