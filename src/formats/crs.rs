@@ -28,6 +28,26 @@ impl Clone for Crs {
     }
 }
 
+/// Runs a GDAL importer on a spatial reference owned from the start, so one the importer
+/// refuses is freed: gdal 0.19's `from_proj4` and `from_definition` leak it (found by
+/// fuzzing, fuzz/README.md).
+fn import(
+    definition: &str,
+    method_name: &'static str,
+    importer: impl FnOnce(
+        gdal_sys::OGRSpatialReferenceH,
+        *const std::ffi::c_char,
+    ) -> gdal_sys::OGRErr::Type,
+) -> gdal::errors::Result<SpatialRef> {
+    let srs = SpatialRef::new()?;
+    let text = std::ffi::CString::new(definition)?;
+    let err = importer(srs.to_c_hsrs(), text.as_ptr());
+    if err != gdal_sys::OGRErr::OGRERR_NONE {
+        return Err(gdal::errors::GdalError::OgrError { err, method_name });
+    }
+    Ok(srs)
+}
+
 impl Crs {
     pub fn parse(definition: &str) -> Result<Self> {
         let trimmed = definition.trim();
@@ -42,10 +62,16 @@ impl Crs {
         // also fetch URLs and read files named by the string.
         let srs = match crs_input::classify(trimmed)? {
             CrsSyntax::Wkt => SpatialRef::from_wkt(trimmed),
-            CrsSyntax::ProjString => SpatialRef::from_proj4(trimmed),
+            CrsSyntax::ProjString => import(trimmed, "OSRImportFromProj4", |h, c| unsafe {
+                gdal_sys::OSRImportFromProj4(h, c)
+            }),
             // Vetted: `EPSG:n[+m]` and a PROJJSON CRS type take SetFromUserInput's
             // database and PROJJSON branches, which open nothing.
-            CrsSyntax::Epsg | CrsSyntax::ProjJson => SpatialRef::from_definition(trimmed),
+            CrsSyntax::Epsg | CrsSyntax::ProjJson => {
+                import(trimmed, "OSRSetFromUserInput", |h, c| unsafe {
+                    gdal_sys::OSRSetFromUserInput(h, c)
+                })
+            }
         };
         let mut srs = srs.map_err(|e| FormatError::Crs {
             crs: crs_input::excerpt(trimmed),
