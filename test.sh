@@ -19,3 +19,6 @@ echo "header compiles as C++"
 
 echo "== Python binding tests"
 CLOUDCONTROL_LIB="$PWD/target/release/libcloudcontrol.so" .venv/bin/python -m pytest -q -p no:cacheprovider bindings/python/tests
+
+echo "== Fuzz targets (short runs where a fuzz build is kept; else skipped, with the reason)"
+fuzz/run.sh ci

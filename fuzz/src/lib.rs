@@ -1,7 +1,8 @@
 //! Fuzz target bodies: each feeds the input bytes to the library's own reading entry point
 //! for one format. Errors are the expected outcome for most inputs; a panic, abort, OOM or
 //! hang is a bug. The fuzz_targets/*.rs files only wrap these for libFuzzer, and
-//! tests/replay.rs replays fuzz/corpus/ through them on stable, so the glue cannot rot.
+//! the root crate's tests/fuzz_replay.rs replays fuzz/corpus/ through them on stable, so
+//! the glue cannot rot.
 //!
 //! Readers that take a path get the bytes as files in a scratch folder of this process
 //! and thread (reused between inputs, so a run measures the reader, not mkdir). Inputs of

@@ -1,12 +1,20 @@
 //! Replays every committed seed (fuzz/corpus/) and fixed crash reproducer
-//! (fuzz/artifacts-fixed/) through its target on the stable toolchain, so the fuzz glue
-//! keeps building and no input that once crashed a reader crashes it again, without
-//! nightly or cargo-fuzz.
+//! (fuzz/artifacts-fixed/) through its fuzz target's body on the stable toolchain, so the
+//! fuzz glue keeps building and no input that once crashed a reader crashes it again,
+//! without nightly or cargo-fuzz. The bodies are the fuzz crate's own source, compiled
+//! here with the root crate's build (a build of the fuzz crate itself takes minutes).
+
+#[allow(dead_code)] // helpers the corpus tools use
+#[path = "../fuzz/src/lib.rs"]
+mod cloudcontrol_fuzz;
 
 use std::path::{Path, PathBuf};
 
 fn inputs(sub: &str, target: &str) -> Vec<PathBuf> {
-    let dir = Path::new(env!("CARGO_MANIFEST_DIR")).join(sub).join(target);
+    let dir = Path::new(env!("CARGO_MANIFEST_DIR"))
+        .join("fuzz")
+        .join(sub)
+        .join(target);
     let mut files: Vec<PathBuf> = std::fs::read_dir(dir)
         .map(|d| d.filter_map(|e| e.ok().map(|e| e.path())).collect())
         .unwrap_or_default();
