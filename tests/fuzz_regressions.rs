@@ -40,6 +40,77 @@ fn laz_with_corrupt_point_data_is_an_error() {
     );
 }
 
+/// A LAZ whose LASzip VLR describes point records of another size than the header's
+/// record length: laz 0.12's parallel decompressor asserts (also in release builds) that
+/// the buffer las sizes from the header is a whole number of the VLR's records. Opening
+/// it is an error naming the file and both sizes.
+#[test]
+fn laz_whose_items_disagree_with_the_record_length_is_an_error() {
+    // The second file's item sizes add up beyond u16 (laz's own sum overflows).
+    for name in ["laz_items_size_mismatch", "laz_items_size_u16_overflow"] {
+        las_open_fails_naming(name, "point record length");
+    }
+}
+
+/// Opens the `las` reproducer `name` and expects an error naming the file and `what`.
+fn las_open_fails_naming(name: &str, what: &str) {
+    let dir = tempfile::tempdir().unwrap();
+    let path = dir.path().join(format!("{name}.laz"));
+    std::fs::write(&path, reproducer("las", name)).unwrap();
+    let err = match LasStream::open(&path) {
+        Ok(_) => panic!("{name}: opened"),
+        Err(e) => e.to_string(),
+    };
+    assert!(
+        err.contains(&path.display().to_string()) && err.contains(what),
+        "{name}: names the file and {what}: {err}"
+    );
+}
+
+/// A LAZ whose header size field is 0: the `las` crate reads its VLRs after the whole
+/// LAS 1.2 header (227 bytes), where this file's LASzip VLR and a chunk table claiming
+/// two billion chunks lie, while the guard looked at byte 0, found no LASzip VLR and let
+/// the crate allocate 32 GB. The header size is now refused, naming the file.
+#[test]
+fn las_whose_header_size_is_below_its_version_is_an_error() {
+    las_open_fails_naming("las_header_size_zero", "header size 0 bytes");
+}
+
+/// A LAZ whose compressed GPS times make laz 0.12's predictor overflow an i64 (an
+/// overflow-checked add in src/las/gps.rs; the fuzz build panics there). The library
+/// ships without overflow checks: reading every point ends in wrong GPS times or in an
+/// error naming the file, never a panic.
+#[test]
+#[cfg_attr(
+    debug_assertions,
+    ignore = "laz's arithmetic is overflow-checked in debug builds"
+)]
+fn laz_whose_gps_times_overflow_reads_without_a_panic() {
+    let dir = tempfile::tempdir().unwrap();
+    let path = dir.path().join("gps.laz");
+    std::fs::write(&path, reproducer("las", "laz_gps_overflow_debug_only")).unwrap();
+    let result = std::panic::catch_unwind(|| -> Result<usize, String> {
+        let mut s = LasStream::open(&path).map_err(|e| e.to_string())?;
+        let mut batch = PointBatch::default();
+        let mut read = 0;
+        loop {
+            match s.read_batch(1 << 16, &mut batch) {
+                Ok(0) => return Ok(read),
+                Ok(n) => read += n,
+                Err(e) => return Err(e.to_string()),
+            }
+        }
+    });
+    match result {
+        Err(_) => panic!("reading panicked"),
+        Ok(Ok(_)) => {}
+        Ok(Err(e)) => assert!(
+            e.contains(&path.display().to_string()),
+            "names the file: {e}"
+        ),
+    }
+}
+
 /// A project's `crs = "EPSG:7963"` (no such CRS in PROJ's database) leaked the GDAL
 /// spatial reference the import failed on (gdal 0.19 `SpatialRef::from_definition`), as
 /// did a refused PROJ string; LeakSanitizer found it. The error names the definition.

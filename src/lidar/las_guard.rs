@@ -26,6 +26,8 @@ const LASZIP_RECORD_ID: u16 = 22204;
 /// The fields of the public header that locate and size everything else.
 #[derive(Debug, Clone)]
 pub(crate) struct PublicHeader {
+    /// Minor version (1.x).
+    pub minor: u8,
     pub header_size: u64,
     pub offset_to_point_data: u64,
     pub vlr_count: u64,
@@ -105,6 +107,7 @@ pub(crate) fn public_header(f: &mut File, file_len: u64) -> std::io::Result<Opti
         (0, 0, 0)
     };
     Ok(Some(PublicHeader {
+        minor,
         header_size: u64::from(le_u16(&b, 94)),
         offset_to_point_data: u64::from(le_u32(&b, 96)),
         vlr_count: u64::from(le_u32(&b, 100)),
@@ -123,6 +126,22 @@ pub(crate) fn guard(path: &Path, f: &mut File, file_len: u64) -> Result<Option<P
         Some(h) => h,
         None => return Ok(None),
     };
+    // The `las` crate reads the VLRs after the version's whole header however small the
+    // header size field is; a smaller field would have the checks below read elsewhere.
+    let least = match h.minor {
+        0..=2 => 227,
+        3 => 235,
+        _ => 375,
+    };
+    if h.header_size < least {
+        return Err(LidarError::Las {
+            path: path.to_path_buf(),
+            message: format!(
+                "header size {} bytes is smaller than a LAS 1.{} header ({least} bytes)",
+                h.header_size, h.minor
+            ),
+        });
+    }
     for (what, at) in [
         ("header size", h.header_size),
         ("offset to point data", h.offset_to_point_data),
@@ -236,7 +255,19 @@ fn check_chunk_table(
         message: m,
     };
     let vlr = laz::LazVlr::from_buffer(vlr_data).map_err(|e| bad(format!("LASzip VLR: {e}")))?;
-    let point_bytes = vlr.items_size().max(1);
+    // The decompressor fills buffers sized by the header's record length with records of
+    // the VLR's item sizes; laz 0.12 asserts (in release builds too) that they agree. The
+    // sum is taken here in u64: laz's `items_size` adds the u16 sizes in u16, which
+    // overflows on crafted items (a wrapped sum could even match).
+    let items: u64 = vlr.items().iter().map(|i| u64::from(i.size())).sum();
+    if items != h.record_len {
+        return Err(bad(format!(
+            "the LASzip VLR's items make {items}-byte point records but the header's point \
+             record length is {} bytes",
+            h.record_len
+        )));
+    }
+    let point_bytes = items.max(1);
     let chunk_limit = MAX_LAZ_CHUNK_BYTES / point_bytes;
     let variable = vlr.uses_variable_size_chunks();
     if !variable && u64::from(vlr.chunk_size()) > chunk_limit {
