@@ -135,7 +135,8 @@ def test_film_products_are_in_fiducial_frame_images(block, tmp_path):
     # scan pixel, one film GSD, so it is held to the film target of one GSD in plan. It is
     # large for a film block because the small preset's LiDAR area (300 × 220 m) covers
     # 0.3–0.6 % of each 2.7 km film frame and the pose is extrapolated from that corner:
-    # 0.17–0.53 px over seeds 1–10, this seed (7) the worst.
+    # 0.17–0.53 px over seeds 1–10, this seed (7) the worst: its control boxes are the
+    # smallest and 38 of its 60 checkpoint measurements lie outside them.
     assert len(errors) >= 20 and rms <= 1.0
 
     # The model carries our orientation unchanged: every image's projection centre is its
