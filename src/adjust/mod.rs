@@ -9,8 +9,11 @@
 //! Check points never enter the solution: they are intersected afterwards with the
 //! adjusted orientations and compared with their surveyed coordinates.
 
+pub mod chi2;
+pub mod georef;
 mod precision;
 mod problem;
+pub mod rays;
 pub mod resection;
 mod residual;
 mod robust;

@@ -5,6 +5,7 @@
 //! The drivers are deterministic: the random stream comes from the caller's seed.
 
 pub mod similarity2;
+pub mod similarity3;
 
 use rand::seq::index::sample;
 use rand::SeedableRng;

@@ -1,7 +1,7 @@
 //! Control and check points as CSV (formats/control-points/README.md), read with the
 //! project's one CSV reader ([`super::csv`]).
 //!
-//! Points: header `id,x,y,z,sigma_xy,sigma_z[,kind]`, kind `control` (default) or `check`,
+//! Points: header `id,x,y,z[,sigma_xy,sigma_z][,kind]` (σ default [`DEFAULT_SIGMA_M`]), kind `control` (default) or `check`,
 //! coordinates in any CRS PROJ knows (x = easting or longitude, y = northing or latitude:
 //! GIS order), σ in metres. They are converted to the block's CRS, which must be projected:
 //! bundle adjustment needs metric, conformal coordinates, so a geographic block CRS is
@@ -80,21 +80,35 @@ struct PointRow {
     x: f64,
     y: f64,
     z: f64,
-    sigma_xy: f64,
-    sigma_z: f64,
+    sigma_xy: Option<f64>,
+    sigma_z: Option<f64>,
     kind: Option<String>,
 }
+
+/// σ of a surveyed coordinate when the file has no σ column (m): a GNSS-surveyed target.
+pub const DEFAULT_SIGMA_M: f64 = 0.05;
 
 /// Reads a control/check point CSV.
 pub fn read_points(path: &Path) -> Result<Vec<SurveyedPoint>> {
     let table = read_records::<PointRow>(
         path,
         &Layout {
-            required: &["id", "x", "y", "z", "sigma_xy", "sigma_z"],
-            optional: &["kind"],
+            required: &["id", "x", "y", "z"],
+            optional: &["sigma_xy", "sigma_z", "kind"],
             extra: Extra::Refuse,
         },
     )?;
+    // One σ column without the other is a file written for another layout.
+    for (have, missing) in [("sigma_xy", "sigma_z"), ("sigma_z", "sigma_xy")] {
+        if table.has(have) && !table.has(missing) {
+            return Err(FormatError::at(
+                path,
+                table.header_line,
+                None,
+                format!("no column {missing:?} (given with {have:?})"),
+            ));
+        }
+    }
     let mut seen = HashMap::new();
     let mut out = Vec::with_capacity(table.rows.len());
     for (line, r) in table.rows {
@@ -120,8 +134,13 @@ pub fn read_points(path: &Path) -> Result<Vec<SurveyedPoint>> {
             }
         };
         out.push(SurveyedPoint {
-            sigma_xy: require_positive(path, line, "sigma_xy", r.sigma_xy)?,
-            sigma_z: require_positive(path, line, "sigma_z", r.sigma_z)?,
+            sigma_xy: require_positive(
+                path,
+                line,
+                "sigma_xy",
+                r.sigma_xy.unwrap_or(DEFAULT_SIGMA_M),
+            )?,
+            sigma_z: require_positive(path, line, "sigma_z", r.sigma_z.unwrap_or(DEFAULT_SIGMA_M))?,
             id: r.id,
             xyz: [r.x, r.y, r.z],
             kind,
