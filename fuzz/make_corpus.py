@@ -101,6 +101,10 @@ out("ply_points", "binary_le.ply", head.format("binary_little_endian 1.0").encod
 out("csv_points", "xyz_header.csv", b"X,Y,Z,intensity\n500000.5,4400000.25,12.0,7\n500001,4400002,13.5,8\n")
 out("csv_points", "xyz_blanks.txt", b"# comment\n500000.5 4400000.25 12.0\n500001\t4400002\t13.5\n500003;4400001;11.25\n")
 
+# OpenDroneMap GCP files: the hand-written sample and the real COPR subset (CC BY-SA 4.0).
+out("odm_gcp", "sample_gcp_list.txt", read(FMT, "control-points", "sample_gcp_list.txt"))
+out("odm_gcp", "copr_gcp_list_subset.txt", read(DATA, "copr_kap_2009/gcp_list_subset.txt"))
+
 # Project TOML and camera JSON.
 out("project_toml", "example.toml", read(FMT, "project", "example.toml"))
 for f in sorted(os.listdir(os.path.join(FMT, "cameras"))):

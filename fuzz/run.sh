@@ -12,7 +12,7 @@ set -euo pipefail
 cd "$(dirname "$0")/.."
 
 TARGETS=(colmap_bin colmap_txt blocks_exchange dcp_manifest dcp_package las ply_points
-         csv_points project_toml camera_json image_header)
+         csv_points odm_gcp project_toml camera_json image_header)
 mode="${1:-}"
 shift || true
 if [ $# -gt 0 ]; then TARGETS=("$@"); fi

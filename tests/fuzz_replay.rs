@@ -40,6 +40,7 @@ fn every_input_replays_and_the_seeds_reach_the_readers() {
                 "las" => cloudcontrol_fuzz::las,
                 "ply_points" => cloudcontrol_fuzz::ply_points,
                 "csv_points" => cloudcontrol_fuzz::csv_points,
+                "odm_gcp" => cloudcontrol_fuzz::odm_gcp,
                 "project_toml" => cloudcontrol_fuzz::project_toml,
                 "camera_json" => cloudcontrol_fuzz::camera_json,
                 "image_header" => cloudcontrol_fuzz::image_header,

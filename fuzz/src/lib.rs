@@ -10,6 +10,7 @@
 
 use cloudcontrol::control::dcp::DcpPackage;
 use cloudcontrol::control::epoch::EpochCamera;
+use cloudcontrol::formats::odm_gcp::{read_odm_gcp, GcpOptions};
 use cloudcontrol::formats::{blocks_exchange, colmap, image_open};
 use cloudcontrol::lidar::{points_io, LasStream, PointBatch};
 use cloudcontrol::pipeline::project::Project;
@@ -280,6 +281,14 @@ fn csv_points_reads(data: &[u8]) -> bool {
     points_io::read_xyz(&path).is_ok()
 }
 
+/// An OpenDroneMap GCP file (`gcp_list.txt`).
+fn odm_gcp_reads(data: &[u8]) -> bool {
+    let dir = scratch("odm_gcp");
+    let path = dir.join("gcp_list.txt");
+    put(&path, data);
+    read_odm_gcp(&path, &GcpOptions::default()).is_ok()
+}
+
 /// The paths formats/project/example.toml names, so a project can pass the existence
 /// checks and reach the epoch, date and threshold checks behind them.
 const PROJECT_DIRS: [&str; 4] = [
@@ -363,6 +372,7 @@ targets!(
     las => las_reads,
     ply_points => ply_points_reads,
     csv_points => csv_points_reads,
+    odm_gcp => odm_gcp_reads,
     project_toml => project_toml_reads,
     camera_json => camera_json_reads,
     image_header => image_header_reads,

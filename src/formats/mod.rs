@@ -10,6 +10,7 @@ pub mod crs_input;
 pub mod csv;
 pub mod gdal_env;
 pub mod image_open;
+pub mod odm_gcp;
 pub mod ortho;
 pub mod pos;
 pub mod raster;
