@@ -2,14 +2,17 @@
 //! reporting around `cloudcontrol::adjust`.
 
 use clap::Args;
+use cloudcontrol::adjust::georef::{georeference, GeorefOptions, SurveyedInput};
 use cloudcontrol::adjust::{
     adjust, resect, AdjustOptions, Loss, PlaneConstraint, Rejection, ResectionOptions,
 };
-use cloudcontrol::block::{ObjectPoint, Observation, PointKind};
+use cloudcontrol::block::{Block, ObjectPoint, PointId, PointKind};
+use cloudcontrol::formats::control_points::{self, Measurement, SurveyedPoint};
+use cloudcontrol::formats::csv::{read_records, Extra, Layout};
+use cloudcontrol::formats::odm_gcp::{read_odm_gcp, GcpOptions};
 use cloudcontrol::formats::write_bytes_atomically;
-use cloudcontrol::geometry::{Brown, Camera, FrameCamera, Similarity};
+use cloudcontrol::geometry::{Brown, Camera, FrameCamera};
 use nalgebra::Vector3;
-use std::collections::BTreeMap;
 use std::path::{Path, PathBuf};
 
 #[derive(Args, Debug)]
@@ -20,12 +23,20 @@ pub struct AdjustArgs {
     /// Output folder for the adjusted COLMAP text model.
     #[arg(long)]
     pub out: PathBuf,
-    /// Control points CSV: id,x,y,z,sigma_xy,sigma_z (id = POINT3D_ID or a name).
+    /// Control points CSV: id,x,y,z[,sigma_xy,sigma_z] (id = POINT3D_ID or a name).
     #[arg(long)]
     pub control: Option<PathBuf>,
     /// Check points CSV, same columns (sigmas ignored).
     #[arg(long)]
     pub check: Option<PathBuf>,
+    /// Ground control as OpenDroneMap's gcp_list.txt (CRS header, one line per image
+    /// measurement; see formats/control-points/odm.md).
+    #[arg(long)]
+    pub gcp: Option<PathBuf>,
+    /// σ of the --gcp coordinates: σ_xy,σ_z in metres (default 0.05,0.05; heights all 0.0
+    /// are taken as unknown, σ_z 100 m, unless this is given).
+    #[arg(long, value_delimiter = ',')]
+    pub gcp_sigma: Vec<f64>,
     /// Image measurements of named control/check points: id,image_name,x,y (pixels).
     #[arg(long)]
     pub measurements: Option<PathBuf>,
@@ -89,6 +100,12 @@ fn err<T>(m: impl Into<String>) -> Result<T, String> {
     Err(m.into())
 }
 
+fn text<E: std::fmt::Display>(e: E) -> String {
+    e.to_string()
+}
+
+// `resect --points` has columns x,y,X,Y,Z that differ only in case, which the project's
+// CSV reader (case-insensitive names) cannot tell apart: it keeps this positional reader.
 fn read_csv(path: &Path) -> Result<Vec<Vec<String>>, String> {
     let text = std::fs::read_to_string(path).map_err(|e| format!("{}: {e}", path.display()))?;
     let mut rows = Vec::new();
@@ -128,203 +145,150 @@ const F_NAMES: [(&str, &[&str]); 7] = [
     ("p2", &["p2"]),
 ];
 
-/// A control/check row: id, world position, σ (x, y, z).
-type PointRow = (String, Vector3<f64>, [f64; 3]);
+#[derive(serde::Deserialize)]
+struct PlaneRow {
+    point_id: u64,
+    nx: f64,
+    ny: f64,
+    nz: f64,
+    d: f64,
+    weight: f64,
+}
 
-fn read_points(path: &Path) -> Result<Vec<PointRow>, String> {
-    let mut out = Vec::new();
-    for (i, r) in read_csv(path)?.iter().enumerate() {
-        if r.len() < 4 {
-            return err(format!(
-                "{}: row {}: expected id,x,y,z,sigma_xy,sigma_z",
-                path.display(),
-                i + 1
+/// σ_z of a GCP whose height is unknown (m).
+const UNKNOWN_HEIGHT_SIGMA_M: f64 = 100.0;
+
+type Surveyed = (Vec<SurveyedPoint>, Vec<Measurement>, Vec<String>);
+
+/// The surveyed points and their measurements from the command line's files, with notes
+/// on what was assumed.
+fn read_surveyed(a: &AdjustArgs) -> Result<Surveyed, String> {
+    let mut points = Vec::new();
+    let mut measurements = Vec::new();
+    let mut notes = Vec::new();
+    if let Some(p) = &a.control {
+        points.extend(control_points::read_points(p).map_err(text)?);
+    }
+    if let Some(p) = &a.check {
+        points.extend(
+            control_points::read_points(p)
+                .map_err(text)?
+                .into_iter()
+                .map(|q| SurveyedPoint {
+                    kind: PointKind::Check,
+                    ..q
+                }),
+        );
+    }
+    if let Some(p) = &a.measurements {
+        measurements.extend(control_points::read_measurements(p).map_err(text)?);
+    }
+    if let Some(p) = &a.gcp {
+        let mut o = GcpOptions {
+            sigma_px: a.sigma_px,
+            ..GcpOptions::default()
+        };
+        match a.gcp_sigma[..] {
+            [] => {}
+            [xy, z] => (o.sigma_xy, o.sigma_z) = (xy, z),
+            _ => return err("--gcp-sigma: expected two values, σ_xy,σ_z (m)"),
+        }
+        let f = read_odm_gcp(p, &o).map_err(text)?;
+        // The adjustment needs metric, conformal coordinates (the model has no CRS to
+        // convert into): a geographic file is refused with its UTM zone as a suggestion.
+        let lon_lat = f.points.first().map(|g| (g.xyz[0], g.xyz[1]));
+        f.crs
+            .require_projected(lon_lat.filter(|_| f.crs.is_geographic()))
+            .map_err(|e| format!("{}: {e}", p.display()))?;
+        let mut gcps = f.points;
+        if f.heights_all_zero && a.gcp_sigma.is_empty() {
+            // ODM users write 0 where the height is unknown: such heights can only level
+            // the block, so they enter with a σ that leaves everything else to the images.
+            for g in &mut gcps {
+                g.sigma_z = UNKNOWN_HEIGHT_SIGMA_M;
+            }
+            notes.push(format!(
+                "{}: every GCP height is 0.0, taken as unknown (σ_z {UNKNOWN_HEIGHT_SIGMA_M} m: the heights only level the block); give --gcp-sigma to override",
+                p.display()
             ));
         }
-        let x = Vector3::new(
-            num(&r[1], path, i + 1, "x")?,
-            num(&r[2], path, i + 1, "y")?,
-            num(&r[3], path, i + 1, "z")?,
-        );
-        let sxy = r
-            .get(4)
-            .map(|s| num(s, path, i + 1, "sigma_xy"))
-            .transpose()?
-            .unwrap_or(0.05);
-        let sz = r
-            .get(5)
-            .map(|s| num(s, path, i + 1, "sigma_z"))
-            .transpose()?
-            .unwrap_or(0.05);
-        out.push((r[0].clone(), x, [sxy, sxy, sz]));
+        points.extend(gcps);
+        measurements.extend(f.measurements);
     }
-    Ok(out)
+    Ok((points, measurements, notes))
+}
+
+/// The block point of each surveyed row: a POINT3D_ID of the model (its track supplies
+/// the measurements) or a point measured by name.
+fn surveyed_points(
+    block: &mut Block,
+    rows: &[SurveyedPoint],
+    measurements: &[Measurement],
+) -> Result<Vec<PointId>, String> {
+    let measured: std::collections::BTreeSet<&str> =
+        measurements.iter().map(|m| m.id.as_str()).collect();
+    let mut ids = Vec::with_capacity(rows.len());
+    for r in rows {
+        let by_id =
+            r.id.parse::<u64>()
+                .ok()
+                .filter(|k| block.points.contains_key(k) && !measured.contains(r.id.as_str()));
+        let id = match by_id {
+            Some(k) => k,
+            None if measured.contains(r.id.as_str()) => {
+                match block.points.values().find(|p| p.name == r.id) {
+                    Some(p) => p.id,
+                    None => {
+                        let k = block.next_point_id();
+                        block.points.insert(
+                            k,
+                            ObjectPoint {
+                                id: k,
+                                name: r.id.clone(),
+                                kind: PointKind::Tie,
+                                position: Vector3::zeros(),
+                                sigma: None,
+                                color: [255, 0, 0],
+                                observations: Vec::new(),
+                            },
+                        );
+                        k
+                    }
+                }
+            }
+            None => {
+                return err(format!(
+                    "point '{}' is neither a POINT3D_ID of the model nor measured in --measurements/--gcp",
+                    r.id
+                ))
+            }
+        };
+        let p = block.points.get_mut(&id).expect("found or inserted");
+        if p.name.is_empty() {
+            p.name = r.id.clone();
+        }
+        ids.push(id);
+    }
+    Ok(ids)
 }
 
 pub fn run_adjust(a: &AdjustArgs) -> Result<serde_json::Value, String> {
     let t0 = std::time::Instant::now();
-    let mut block = cloudcontrol::formats::colmap::read(&a.model).map_err(|e| e.to_string())?;
+    let mut block = cloudcontrol::formats::colmap::read(&a.model).map_err(text)?;
     // COLMAP measurements carry no precision: the command line gives it.
     for p in block.points.values_mut() {
         for o in &mut p.observations {
             o.sigma_px = a.sigma_px;
         }
     }
-    let by_name: BTreeMap<String, u32> = block
-        .photos
-        .values()
-        .map(|p| (p.name.clone(), p.id))
-        .collect();
-    let mut meas: BTreeMap<String, Vec<Observation>> = BTreeMap::new();
-    if let Some(mp) = &a.measurements {
-        for (i, r) in read_csv(mp)?.iter().enumerate() {
-            if r.len() < 4 {
-                return err(format!(
-                    "{}: row {}: expected id,image_name,x,y",
-                    mp.display(),
-                    i + 1
-                ));
-            }
-            let photo = *by_name.get(&r[1]).ok_or_else(|| {
-                format!("{}: row {}: unknown image '{}'", mp.display(), i + 1, r[1])
-            })?;
-            meas.entry(r[0].clone()).or_default().push(Observation {
-                photo,
-                pixel: [num(&r[2], mp, i + 1, "x")?, num(&r[3], mp, i + 1, "y")?],
-                sigma_px: a.sigma_px,
-                provenance: "measurements".into(),
-            });
-        }
-    }
-    let mut control = Vec::new();
-    for (path, kind) in [
-        (&a.control, PointKind::Control),
-        (&a.check, PointKind::Check),
-    ] {
-        let Some(path) = path else { continue };
-        for (id, x, s) in read_points(path)? {
-            let pid = match id
-                .parse::<u64>()
-                .ok()
-                .filter(|k| block.points.contains_key(k))
-            {
-                Some(k) => k,
-                None => {
-                    let obs = meas.remove(&id).ok_or_else(|| format!("{}: point '{id}' is neither a POINT3D_ID of the model nor measured in --measurements", path.display()))?;
-                    let k = block.next_point_id();
-                    block.points.insert(
-                        k,
-                        ObjectPoint {
-                            id: k,
-                            name: id.clone(),
-                            kind: PointKind::Tie,
-                            position: Vector3::zeros(),
-                            sigma: None,
-                            color: [255, 0, 0],
-                            observations: obs,
-                        },
-                    );
-                    k
-                }
-            };
-            control.push((pid, id, kind, x, s));
-        }
-    }
-    // The model is in its own frame: bring it onto the control with a similarity (the
-    // adjustment then starts close to the solution), in a local frame at the control's mean.
-    if control.iter().filter(|c| c.2 == PointKind::Control).count() >= 3 {
-        let mut src = Vec::new();
-        let mut dst = Vec::new();
-        for (pid, name, kind, x, _) in &control {
-            if *kind != PointKind::Control {
-                continue;
-            }
-            let pt = &block.points[pid];
-            let pos = if pt.position == Vector3::zeros() {
-                let rays: Vec<_> = pt
-                    .observations
-                    .iter()
-                    .map(|o| {
-                        let ph = &block.photos[&o.photo];
-                        (
-                            ph.pose.center,
-                            ph.pose.direction_to_world(
-                                &block.cameras[&ph.camera]
-                                    .model
-                                    .unproject(o.pixel)
-                                    .unwrap_or(Vector3::z()),
-                            ),
-                        )
-                    })
-                    .collect();
-                intersect_rays(&rays).ok_or_else(|| {
-                    format!("control point '{name}' has fewer than two usable rays")
-                })?
-            } else {
-                pt.position
-            };
-            src.push(pos);
-            dst.push(*x);
-        }
-        let origin = dst.iter().sum::<Vector3<f64>>() / dst.len() as f64;
-        let dst_local: Vec<Vector3<f64>> = dst.iter().map(|x| x - origin).collect();
-        let sim = Similarity::estimate(&src, &dst_local, None, true)
-            .map_err(|e| format!("initial similarity onto the control: {e}"))?;
-        for p in block.photos.values_mut() {
-            p.pose = sim.apply_pose(&p.pose);
-        }
-        for p in block.points.values_mut() {
-            p.position = sim.apply(&p.position);
-        }
-        block.origin = [origin.x, origin.y, origin.z];
-    }
-    let origin = Vector3::from(block.origin);
-    for (pid, name, kind, x, s) in &control {
-        let pt = block.points.get_mut(pid).expect("inserted");
-        pt.kind = *kind;
-        pt.position = x - origin;
-        pt.sigma = (*kind == PointKind::Control).then_some(*s);
-        if pt.name.is_empty() {
-            pt.name = name.clone();
-        }
-    }
-    for cam in block.cameras.values_mut() {
-        for n in &a.self_calibrate {
-            let names = F_NAMES.iter().find(|(k, _)| k == n).ok_or_else(|| {
-                format!("--self-calibrate: unknown parameter '{n}' (use f,pp,k1,k2,k3,p1,p2)")
-            })?;
-            cam.free_params
-                .extend(names.1.iter().map(|s| s.to_string()));
-        }
-    }
-    let mut planes = Vec::new();
-    for path in &a.lidar_planes {
-        for (i, r) in read_csv(path)?.iter().enumerate() {
-            if r.len() < 6 {
-                return err(format!(
-                    "{}: row {}: expected point_id,nx,ny,nz,d,weight",
-                    path.display(),
-                    i + 1
-                ));
-            }
-            let point: u64 = r[0].parse().map_err(|_| {
-                format!("{}: row {}: bad point id '{}'", path.display(), i + 1, r[0])
-            })?;
-            let n = [
-                num(&r[1], path, i + 1, "nx")?,
-                num(&r[2], path, i + 1, "ny")?,
-                num(&r[3], path, i + 1, "nz")?,
-            ];
-            // d refers to world coordinates; shift it to the block-local frame.
-            let d = num(&r[4], path, i + 1, "d")? - Vector3::from(n).dot(&origin);
-            planes.push(PlaneConstraint {
-                point,
-                normal: n,
-                d,
-                weight: num(&r[5], path, i + 1, "weight")?,
-            });
-        }
-    }
+    let (rows, measurements, notes) = read_surveyed(a)?;
+    let ids = surveyed_points(&mut block, &rows, &measurements)?;
+    let measurements_path = a
+        .measurements
+        .as_deref()
+        .or(a.gcp.as_deref())
+        .unwrap_or(Path::new("measurements"));
+    control_points::add_measurements(&mut block, &measurements, measurements_path).map_err(text)?;
     let loss = match a.robust.as_str() {
         "huber" => Loss::Huber(2.0),
         "cauchy" => Loss::Cauchy(2.0),
@@ -345,39 +309,108 @@ pub fn run_adjust(a: &AdjustArgs) -> Result<serde_json::Value, String> {
         covariance: !a.no_covariance,
         ..Default::default()
     };
-    let mut rep = adjust(&mut block, &planes, None, &opts).map_err(|e| e.to_string())?;
-    let text = cloudcontrol::formats::colmap::WriteOptions {
+    // The model is in its own frame: the adjustment runs in a local frame at the
+    // control's mean, where the georeferencing brings the model.
+    let control: Vec<&SurveyedPoint> = rows
+        .iter()
+        .filter(|r| r.kind == PointKind::Control)
+        .collect();
+    let origin = if control.is_empty() {
+        Vector3::from(block.origin)
+    } else {
+        control
+            .iter()
+            .map(|r| Vector3::from(r.xyz))
+            .sum::<Vector3<f64>>()
+            / control.len() as f64
+    };
+    let surveyed: Vec<SurveyedInput> = rows
+        .iter()
+        .zip(&ids)
+        .map(|(r, &point)| SurveyedInput {
+            point,
+            position: Vector3::from(r.xyz) - origin,
+            sigma: [r.sigma_xy, r.sigma_xy, r.sigma_z],
+            kind: r.kind,
+        })
+        .collect();
+    let georef = if control.is_empty() {
+        for s in &surveyed {
+            let p = block.points.get_mut(&s.point).expect("listed");
+            (p.kind, p.position, p.sigma) = (s.kind, s.position, None);
+        }
+        None
+    } else {
+        let g = georeference(
+            &mut block,
+            &surveyed,
+            &GeorefOptions {
+                adjust: AdjustOptions {
+                    covariance: false,
+                    ..opts.clone()
+                },
+                ..GeorefOptions::default()
+            },
+        )
+        .map_err(|e| format!("georeferencing the model onto the control: {e}"))?;
+        block.origin = [origin.x, origin.y, origin.z];
+        Some(g)
+    };
+    for cam in block.cameras.values_mut() {
+        for n in &a.self_calibrate {
+            let names = F_NAMES.iter().find(|(k, _)| k == n).ok_or_else(|| {
+                format!("--self-calibrate: unknown parameter '{n}' (use f,pp,k1,k2,k3,p1,p2)")
+            })?;
+            cam.free_params
+                .extend(names.1.iter().map(|s| s.to_string()));
+        }
+    }
+    let mut planes = Vec::new();
+    for path in &a.lidar_planes {
+        let t = read_records::<PlaneRow>(
+            path,
+            &Layout {
+                required: &["point_id", "nx", "ny", "nz", "d", "weight"],
+                optional: &[],
+                extra: Extra::Refuse,
+            },
+        )
+        .map_err(text)?;
+        for (_, r) in t.rows {
+            let n = [r.nx, r.ny, r.nz];
+            // d refers to world coordinates; shift it to the block-local frame.
+            planes.push(PlaneConstraint {
+                point: r.point_id,
+                normal: n,
+                d: r.d - Vector3::from(n).dot(&Vector3::from(block.origin)),
+                weight: r.weight,
+            });
+        }
+    }
+    let mut rep = adjust(&mut block, &planes, None, &opts).map_err(text)?;
+    let colmap_text = cloudcontrol::formats::colmap::WriteOptions {
         encoding: cloudcontrol::formats::colmap::Encoding::Text,
         layout: cloudcontrol::formats::colmap::Layout::Rigs,
     };
-    cloudcontrol::formats::colmap::write(&a.out, &block, &text).map_err(|e| e.to_string())?;
+    cloudcontrol::formats::colmap::write(&a.out, &block, &colmap_text).map_err(text)?;
     if a.no_residuals {
         rep.residuals.clear();
     }
-    let mut v = serde_json::to_value(&rep).map_err(|e| e.to_string())?;
+    let mut v = serde_json::to_value(&rep).map_err(text)?;
     v["time_s"] = serde_json::json!(t0.elapsed().as_secs_f64());
     v["adjust_time_s"] = serde_json::json!(rep.time_s);
     v["origin"] = serde_json::json!(block.origin);
+    if let Some(g) = georef {
+        v["georeference"] = serde_json::to_value(&g).map_err(text)?;
+    }
+    if !notes.is_empty() {
+        v["notes"] = serde_json::json!(notes);
+    }
     if let Some(r) = &a.report {
-        let bytes = serde_json::to_vec_pretty(&v).map_err(|e| e.to_string())?;
-        write_bytes_atomically(r, &bytes).map_err(|e| e.to_string())?;
+        let bytes = serde_json::to_vec_pretty(&v).map_err(text)?;
+        write_bytes_atomically(r, &bytes).map_err(text)?;
     }
     Ok(v)
-}
-
-fn intersect_rays(rays: &[(Vector3<f64>, Vector3<f64>)]) -> Option<Vector3<f64>> {
-    if rays.len() < 2 {
-        return None;
-    }
-    let mut a = nalgebra::Matrix3::zeros();
-    let mut b = Vector3::zeros();
-    for (c, d) in rays {
-        let d = d.normalize();
-        let p = nalgebra::Matrix3::identity() - d * d.transpose();
-        a += p;
-        b += p * c;
-    }
-    a.try_inverse().map(|m| m * b)
 }
 
 pub fn run_resect(a: &ResectArgs) -> Result<serde_json::Value, String> {
