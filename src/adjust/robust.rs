@@ -155,7 +155,8 @@ impl RejectionTest {
 
     /// Observations to reject after a solution. Per object point only the worst goes
     /// (a gross error smears into the other rays of its point, which recover once it is
-    /// removed); `sweep` takes every exceedance at once (the rounds ran out).
+    /// removed). `sweep` (the rounds ran out) takes every exceedance: data snooping per
+    /// failing point by `sweep_point`, the threshold rule all at once.
     pub(super) fn select(
         &self,
         st: &Structure,
