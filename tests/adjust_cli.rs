@@ -129,7 +129,7 @@ fn adjust_a_colmap_model_with_control_measurements_and_check_points() {
         .arg(dir.path().join("meas.csv"))
         .arg("--report")
         .arg(&report)
-        .args(["--robust", "huber", "--reject", "3.0", "--no-residuals"])
+        .arg("--no-residuals")
         .output()
         .unwrap();
     assert!(

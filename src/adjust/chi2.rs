@@ -1,27 +1,11 @@
-//! Critical values of the χ² tests of gross errors: an image measurement is a 2-D
-//! observation, a control point or a POS centre 3-D, a plane distance 1-D, and each is
-//! tested at the same level α0 with its own number of degrees of freedom.
-//!
-//! Hand-written rather than `statrs`: we need three degrees of freedom, whose upper
-//! tails have closed forms in erfc, and statrs would pull a second nalgebra version into
-//! the build (+40 s of compile time on the 2-core CI machine for three formulas).
+//! The χ² distribution with one to three degrees of freedom, as far as data snooping
+//! needs it: the significance level α0 of a one-dimensional test with critical value k
+//! (two-sided normal), and the critical value of a d-dimensional test at the same α0.
+//! Closed forms (d = 1, 3 through erfc; d = 2 exponential), no statistics crate.
 
-/// Upper tail Q(x) = P(χ²_k > x) for k = 1, 2, 3.
-fn upper_tail(dof: u32, x: f64) -> f64 {
-    if x <= 0.0 {
-        return 1.0;
-    }
-    let h = x / 2.0;
-    match dof {
-        1 => erfc(h.sqrt()),
-        2 => (-h).exp(),
-        _ => erfc(h.sqrt()) + (2.0 * x / std::f64::consts::PI).sqrt() * (-h).exp(),
-    }
-}
-
-/// Complementary error function (Numerical Recipes' Chebyshev fit, relative error
-/// below 1.2·10⁻⁷ everywhere: far below what a test level needs).
-fn erfc(x: f64) -> f64 {
+/// Complementary error function (Chebyshev fit, relative error below 1.2·10⁻⁷ for all x;
+/// Press et al., Numerical Recipes, `erfcc`).
+pub(crate) fn erfc(x: f64) -> f64 {
     let z = x.abs();
     let t = 1.0 / (1.0 + 0.5 * z);
     let poly = -z * z - 1.265_512_23
@@ -40,14 +24,31 @@ fn erfc(x: f64) -> f64 {
     }
 }
 
-/// The χ² quantile x with P(χ²_dof > x) = alpha, for dof 1–3 (higher dof are tested
-/// as 3-D: the adjustment has no larger observation).
-pub fn quantile(dof: u32, alpha: f64) -> f64 {
-    let alpha = alpha.clamp(1e-12, 0.5);
-    let (mut lo, mut hi) = (0.0, 200.0);
-    for _ in 0..200 {
+/// Upper tail P(χ²(d) > x) for d = 1, 2, 3.
+pub(crate) fn upper_tail(d: usize, x: f64) -> f64 {
+    if x <= 0.0 {
+        return 1.0;
+    }
+    let h = (0.5 * x).sqrt();
+    match d {
+        1 => erfc(h),
+        2 => (-0.5 * x).exp(),
+        _ => erfc(h) + (2.0 * x / std::f64::consts::PI).sqrt() * (-0.5 * x).exp(),
+    }
+}
+
+/// Critical value c with P(χ²(d) > c) = α (bisection on the monotone tail).
+pub(crate) fn critical(d: usize, alpha: f64) -> f64 {
+    if d == 2 {
+        return -2.0 * alpha.ln();
+    }
+    let (mut lo, mut hi) = (0.0f64, 1.0f64);
+    while upper_tail(d, hi) > alpha && hi < 1e4 {
+        hi *= 2.0;
+    }
+    for _ in 0..100 {
         let mid = 0.5 * (lo + hi);
-        if upper_tail(dof.clamp(1, 3), mid) > alpha {
+        if upper_tail(d, mid) > alpha {
             lo = mid;
         } else {
             hi = mid;
@@ -56,9 +57,14 @@ pub fn quantile(dof: u32, alpha: f64) -> f64 {
     0.5 * (lo + hi)
 }
 
-/// Critical value of the normalised residual w (w² ~ χ²_dof): √quantile.
-pub fn critical(dof: u32, alpha: f64) -> f64 {
-    quantile(dof, alpha).sqrt()
+/// α0 of the two-sided one-dimensional test with critical value `k` (k = 3.29: 0.1 %).
+pub(crate) fn alpha_of_k(k: f64) -> f64 {
+    erfc(k / std::f64::consts::SQRT_2)
+}
+
+/// The one-dimensional critical value of significance level `alpha`.
+pub(crate) fn k_of_alpha(alpha: f64) -> f64 {
+    critical(1, alpha).sqrt()
 }
 
 #[cfg(test)]
@@ -66,16 +72,24 @@ mod tests {
     use super::*;
 
     #[test]
-    fn known_quantiles() {
-        // Tables: χ²(1) 0.999 = 10.828, χ²(2) = 13.816, χ²(3) = 16.266; χ²(3) 0.95 = 7.815.
-        for (dof, alpha, q) in [
+    fn critical_values_match_the_tables() {
+        // χ² tables at α = 0.001: 10.828 (1), 13.816 (2), 16.266 (3); at 0.05: 3.841, 5.991, 7.815.
+        for (d, a, c) in [
             (1, 0.001, 10.828),
             (2, 0.001, 13.816),
             (3, 0.001, 16.266),
+            (1, 0.05, 3.841),
+            (2, 0.05, 5.991),
             (3, 0.05, 7.815),
         ] {
-            assert!((quantile(dof, alpha) - q).abs() < 2e-3, "{dof} {alpha}");
+            assert!(
+                (critical(d, a) - c).abs() < 2e-3,
+                "d {d} α {a}: {}",
+                critical(d, a)
+            );
         }
-        assert!((critical(1, 0.001) - 3.2905).abs() < 1e-3);
+        assert!((alpha_of_k(3.29) - 0.001002).abs() < 1e-6);
+        assert!((k_of_alpha(0.001) - 3.2905).abs() < 1e-3);
+        assert!((erfc(-1.0) - 1.842_700_79).abs() < 1e-6);
     }
 }

@@ -197,7 +197,8 @@ pub fn georeference(
         }
     }
     let (shape, sigma0) = free_network(block, &opts.adjust)?;
-    let ray_critical = chi2::critical(2, opts.alpha);
+    // Rays are tested on w = √(χ²(2)), the normalised length of the 2-D residual.
+    let ray_critical = chi2::critical(2, opts.alpha).sqrt();
     let name = |p: PointId| block.points[&p].name.clone();
     let photo_name = |ph: PhotoId| block.photos[&ph].name.clone();
     let mut rejected_measurements = Vec::new();
@@ -303,7 +304,7 @@ pub fn georeference(
         .collect();
     med.sort_by(f64::total_cmp);
     let factor = (med[med.len() / 2] / 2.366).max(1.0);
-    let point_critical = chi2::critical(3, opts.alpha) * factor.sqrt();
+    let point_critical = (chi2::critical(3, opts.alpha) * factor).sqrt();
     let ransac = RobustMethod::Ransac
         .estimate(
             &Similarity3Estimator,

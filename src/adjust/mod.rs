@@ -3,17 +3,20 @@
 //! [`adjust`] reads a [`Block`], assembles one residual block per observation (image
 //! points of tie and control points, control-point priors, POS centre/attitude priors,
 //! LiDAR point-to-plane constraints), solves by Levenberg–Marquardt on the reduced camera
-//! system, removes gross errors (IRLS with Huber/Cauchy, then elimination of
-//! observations whose standardised residual exceeds k·σ0, or Baarda data snooping),
-//! writes the adjusted orientations back into the block and reports the precision.
+//! system, removes gross errors (IRLS with Huber/Cauchy, then Baarda data snooping
+//! against the a-priori σ, or elimination of observations whose standardised residual
+//! exceeds k·σ0), writes the adjusted orientations back into the block and reports the
+//! precision with variance components per observation group.
 //! Check points never enter the solution: they are intersected afterwards with the
 //! adjusted orientations and compared with their surveyed coordinates.
 
-pub mod chi2;
+mod chi2;
+mod datum;
 pub mod georef;
 mod precision;
 mod problem;
 pub mod rays;
+mod report;
 pub mod resection;
 mod residual;
 mod robust;
@@ -72,13 +75,38 @@ pub trait PlaneRefitter {
 pub enum Rejection {
     /// Keep every observation (IRLS only).
     None,
-    /// Remove every observation whose standardised residual exceeds `k` (in units of
-    /// σ0), re-solve, repeat until none remains (seed 000: k = 2–3).
+    /// Remove every observation whose standardised residual component exceeds `k` (in
+    /// units of the robust σ0, re-estimated each round), re-solve, repeat. The σ0 shrinks
+    /// as the tails go, so on clean data this erodes good observations; kept for the
+    /// archive epochs' few resection rays, not the default.
     Threshold(f64),
-    /// Baarda data snooping: remove, per object point, only the observation with the
-    /// largest normalised residual when it exceeds the critical value `k` (3.29 for
-    /// α0 = 0.1 %), re-solve, repeat.
+    /// Baarda data snooping (the default): each observation is tested with its own
+    /// dimension against the a-priori σ (variance factor 1, never re-normalised), an image
+    /// point as w² = vᵀQ_vv⁻¹v ~ χ²(2), a control prior ~ χ²(d) with d its known axes, a
+    /// LiDAR plane ~ χ²(1). `k` is the critical value of the one-dimensional test and so
+    /// fixes α0 = P(|N(0,1)| > k) for every dimension (k = 3.29: α0 = 0.1 %, χ²(2)
+    /// critical 13.82 — w = 3.72 —, χ²(3) 16.27); [`Rejection::data_snooping`] builds it
+    /// from α0. Per object point and round only the worst observation goes.
     DataSnooping(f64),
+}
+
+impl Rejection {
+    /// Data snooping at significance level `alpha` (α0 of each single test; 0.001 usual).
+    pub fn data_snooping(alpha: f64) -> Self {
+        if alpha > 0.0 && alpha < 1.0 {
+            Rejection::DataSnooping(chi2::k_of_alpha(alpha))
+        } else {
+            Rejection::DataSnooping(f64::NAN)
+        }
+    }
+
+    /// α0 of data snooping (`None` for the other rules).
+    pub fn alpha(&self) -> Option<f64> {
+        match *self {
+            Rejection::DataSnooping(k) => Some(chi2::alpha_of_k(k)),
+            _ => None,
+        }
+    }
 }
 
 /// Options of [`adjust`].
@@ -101,7 +129,7 @@ impl Default for AdjustOptions {
     fn default() -> Self {
         Self {
             loss: Loss::Huber(2.0),
-            rejection: Rejection::Threshold(3.0),
+            rejection: Rejection::data_snooping(0.001),
             max_rounds: 10,
             max_iterations: 50,
             function_tolerance: 1e-6,
@@ -128,6 +156,9 @@ pub enum ObservationRef {
 pub struct Rejected {
     pub observation: ObservationRef,
     pub round: usize,
+    /// The test statistic that failed: data snooping w = √(vᵀQ_vv⁻¹v) against the σ the
+    /// test used (`reason` names the χ² critical value), the threshold rule the largest
+    /// standardised component in units of the round's robust σ0.
     pub standardized_residual: f64,
     pub reason: String,
 }
@@ -136,7 +167,8 @@ pub struct Rejected {
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 pub struct ResidualReport {
     pub observation: ObservationRef,
-    /// Residual in the observation's units (px, m, rad), up to three components.
+    /// Residual in the observation's units (px, m, rad), up to three components; on a
+    /// control axis with σ = ∞ the adjusted minus the given coordinate.
     pub residual: Vec<f64>,
     /// Largest standardised residual component (units of σ0·σ_l·√r).
     pub standardized: f64,
@@ -197,6 +229,28 @@ pub struct CheckSummary {
     pub points: Vec<CheckPointReport>,
 }
 
+/// Variance component of one observation group: σ0_g = √(Σ_g vᵀPv / Σ_g r) over the
+/// group's active observations. Redundancy numbers of image points and LiDAR planes are
+/// local (their point's own normal block, orientations held; see `precision`), slightly
+/// high; those of control priors are exact (the point's full cofactor through the reduced
+/// camera system), those of POS priors exact when EO covariances are computed, else 1.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub struct VarianceComponent {
+    /// "image", "control", "pos_center", "pos_attitude" or "plane".
+    pub group: String,
+    /// Active observations of the group (an image point counts once).
+    pub observations: usize,
+    /// Their scalar observation equations (a control axis with σ = ∞ is none).
+    pub components: usize,
+    /// Σ vᵀPv (weighted with the a-priori σ).
+    pub vtpv: f64,
+    /// Σ r, the group's share of the redundancy.
+    pub redundancy: f64,
+    /// σ0 of the group in units of its a-priori σ (1 when the a-priori σ is right);
+    /// `None` without redundancy.
+    pub sigma0: Option<f64>,
+}
+
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 pub struct RejectedSummary {
     pub count: usize,
@@ -208,13 +262,29 @@ pub struct RejectedSummary {
 pub struct AdjustReport {
     /// A-posteriori standard deviation of unit weight.
     pub sigma0: f64,
+    /// The gross-error test used, e.g. "baarda_data_snooping alpha=0.001 sigma=a_priori",
+    /// "baarda_data_snooping alpha=0.001 sigma=first_round 1.83" (the a-priori image σ was
+    /// too optimistic: the test used the first solution's robust σ0, fixed for all rounds),
+    /// "threshold k=3 sigma=robust_sigma0" or "none"; ", final sweep n" when the rounds
+    /// ran out and n remaining exceedances were rejected at once.
+    #[serde(default)]
+    pub rejection_test: String,
+    /// σ0 per observation group.
+    #[serde(default)]
+    pub variance_components: Vec<VarianceComponent>,
+    /// Tie points removed from the block because fewer than two image observations were
+    /// left to intersect them (their remaining observations are not in `rejected`).
+    #[serde(default)]
+    pub removed_tie_points: usize,
     /// RMS of the image residuals (px), active observations.
     pub rmse_px: f64,
     pub iterations: usize,
     pub rounds: usize,
     pub converged: bool,
-    /// How the datum is defined: "control", "pos", "lidar_planes", combinations, or
-    /// "free_network" (first photo and one centre coordinate of a second held fixed).
+    /// How the datum is defined: "control" (control with plan and height coordinates),
+    /// "control_plan" (only 2-D control, σ_z = ∞), "control_height" (only height
+    /// control), "pos", "lidar_planes", combinations joined by "+", or "free_network"
+    /// (first photo and one centre coordinate of a second held fixed).
     pub datum: String,
     pub photos: usize,
     pub points: usize,

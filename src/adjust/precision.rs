@@ -8,8 +8,14 @@
 //! contribution to an image point's cofactor is small, so this slightly overestimates
 //! r and underestimates the standardised residual (conservative for rejection). POS
 //! priors use r = 1 for the same reason.
+//!
+//! Data snooping tests each observation with its own dimension: w² = vᵀQ_vv⁻¹v over the
+//! components with redundancy (eigenvalues of the local Q_vv = I − J V⁻¹ Jᵀ at least
+//! `MIN_REDUNDANCY`; the others are absorbed by the point and carry no test), against
+//! χ²(d). A two-ray tie point's image observation is thus tested in one dimension (its
+//! along-base component is absorbed by the point's height).
 
-use super::residual::{Kind, ResidualBlock};
+use super::residual::{Eval, Kind, ResidualBlock, State};
 use super::solver::{Evaluated, Factor, PointSys, Structure};
 use crate::geometry::{Camera, Pose};
 use nalgebra::{DMatrix, Matrix3, Vector3};
@@ -18,6 +24,135 @@ use rayon::prelude::*;
 /// Smallest redundancy number used when standardising (guards against r → 0 for
 /// observations that alone determine a parameter).
 const MIN_REDUNDANCY: f64 = 0.05;
+
+/// Data-snooping statistic of one observation (whitened with its a-priori σ).
+#[derive(Debug, Clone, Copy)]
+pub(crate) struct Snoop {
+    /// w² = vᵀQ_vv⁻¹v over the testable components.
+    pub t: f64,
+    /// Testable components (the test's degrees of freedom), 0 when none.
+    pub dof: usize,
+    /// Redundancy of the observation: trace of its local Q_vv over its known components.
+    pub redundancy: f64,
+    /// Decorrelated standardised components uᵀv/√λ (first `dof`), N(0, 1) under H0.
+    pub z: [f64; 3],
+}
+
+/// Data-snooping statistics of every active block; `ev` and `pts` must come from unit
+/// weights. The test is the least-squares one whatever loss the solver used: each object
+/// point is re-intersected by least squares with the solved orientations (one
+/// Gauss–Newton step) and its residuals tested with the matching Q_vv. Testing the robust
+/// solution's residuals against the least-squares Q_vv would not be consistent: Huber
+/// lets a down-weighted observation keep a larger residual, and re-admission (which
+/// tests an observation against the solution without it) would then take back what the
+/// next round rejects again.
+pub(crate) fn snooping(
+    res: &[ResidualBlock],
+    ev: &Evaluated,
+    pts: &[PointSys],
+) -> Vec<Option<Snoop>> {
+    let dx: Vec<Vector3<f64>> = pts.par_iter().map(|ps| -(ps.vinv * ps.g)).collect();
+    res.par_iter()
+        .enumerate()
+        .map(|(i, r)| {
+            let e = ev.evals[i].as_ref()?;
+            let vinv = r.point.map(|p| (pts[p].vinv, dx[p]));
+            Some(snoop_block(r, e, vinv))
+        })
+        .collect()
+}
+
+/// Data snooping within one object point with the orientations held: its active blocks
+/// `idx` are re-intersected by least squares and tested (the final sweep's local loop).
+pub(crate) fn point_snooping(
+    res: &[ResidualBlock],
+    state: &State,
+    idx: &[usize],
+) -> Vec<Option<Snoop>> {
+    let evals: Vec<Option<Eval>> = idx.iter().map(|&i| res[i].evaluate(state)).collect();
+    let mut v = Matrix3::zeros();
+    let mut g = Vector3::zeros();
+    for e in evals.iter().flatten() {
+        v += e.j_point.transpose() * e.j_point;
+        g += e.j_point.transpose() * e.r;
+    }
+    let vinv = v.try_inverse().unwrap_or_else(Matrix3::zeros);
+    let dx = -(vinv * g);
+    idx.iter()
+        .zip(&evals)
+        .map(|(&i, e)| Some(snoop_block(&res[i], e.as_ref()?, Some((vinv, dx)))))
+        .collect()
+}
+
+/// The statistic of one block whose point (if any) has normal-block inverse `vinv` and
+/// least-squares update `dx`.
+fn snoop_block(r: &ResidualBlock, e: &Eval, point: Option<(Matrix3<f64>, Vector3<f64>)>) -> Snoop {
+    let mut e = *e;
+    let mut q = Matrix3::identity();
+    if let Some((vinv, dx)) = point {
+        e.r += e.j_point * dx;
+        q -= e.j_point * vinv * e.j_point.transpose();
+    }
+    let known = r.kind.known();
+    for k in 0..3 {
+        if k >= e.dim || !known[k] {
+            for j in 0..3 {
+                q[(k, j)] = 0.0;
+                q[(j, k)] = 0.0;
+            }
+        }
+    }
+    let eig = nalgebra::SymmetricEigen::new(q);
+    let mut s = Snoop {
+        t: 0.0,
+        dof: 0,
+        redundancy: eig.eigenvalues.iter().map(|l| l.max(0.0)).sum(),
+        z: [0.0; 3],
+    };
+    for k in 0..3 {
+        let l = eig.eigenvalues[k];
+        if l >= MIN_REDUNDANCY {
+            let u = eig.eigenvectors.column(k).dot(&e.r);
+            s.t += u * u / l;
+            s.z[s.dof] = u / l.sqrt();
+            s.dof += 1;
+        }
+    }
+    s
+}
+
+/// Test statistic of an observation that is not in the solution (rejected) against it:
+/// its residual's cofactor is I + J V⁻¹ Jᵀ (its own σ plus its point's uncertainty from
+/// the active observations). `image_var` scales the image part (variance factor of the
+/// test): for an image observation both terms, for a prior or plane only the point's.
+pub(crate) fn predicted(
+    r: &ResidualBlock,
+    e: &Eval,
+    pts: &[PointSys],
+    image_var: f64,
+) -> (f64, usize) {
+    let image = matches!(r.kind, Kind::Image { .. });
+    let mut q = Matrix3::zeros();
+    if let Some(p) = r.point {
+        q = e.j_point * pts[p].vinv * e.j_point.transpose() * image_var;
+    }
+    let own = if image { image_var } else { 1.0 };
+    let known = r.kind.known();
+    let idx: Vec<usize> = (0..e.dim).filter(|&k| known[k]).collect();
+    let n = idx.len();
+    let mut m = nalgebra::DMatrix::zeros(n, n);
+    let mut v = nalgebra::DVector::zeros(n);
+    for (a, &ka) in idx.iter().enumerate() {
+        v[a] = e.r[ka];
+        for (b, &kb) in idx.iter().enumerate() {
+            m[(a, b)] = q[(ka, kb)] + if a == b { own } else { 0.0 };
+        }
+    }
+    match m.cholesky() {
+        Some(c) => (v.dot(&c.solve(&v)), n),
+        None => (f64::INFINITY, n),
+    }
+}
 
 /// Redundancy number and standardised residual (largest component) of every residual
 /// block; `None` for inactive blocks.
@@ -33,7 +168,8 @@ pub(crate) fn standardized(
             let e = ev.evals[i].as_ref()?;
             let mut rmin = 1.0f64;
             let mut w = 0.0f64;
-            for k in 0..e.dim {
+            let known = r.kind.known();
+            for k in (0..e.dim).filter(|&k| known[k]) {
                 let red = match r.point {
                     Some(p) => {
                         let jx = e.j_point.row(k);
@@ -166,7 +302,7 @@ pub(crate) fn sigma0(
     for (i, r) in res.iter().enumerate() {
         if let (true, Some(e)) = (r.active, &ev.evals[i]) {
             sum += e.norm_sq();
-            n_obs += e.dim;
+            n_obs += r.kind.dof();
         }
     }
     let redundancy = n_obs.saturating_sub(n_unknowns);
@@ -197,21 +333,100 @@ pub(crate) fn image_rmse(res: &[ResidualBlock], ev: &Evaluated) -> f64 {
 /// Robust σ0 for the rejection test: 1.4826 × the median of |v|/√r over all active
 /// residual components. Unbiased for Gaussian errors and unaffected by the gross errors
 /// still in the solution, so the k·σ0 threshold neither cascades nor starts too wide.
-pub(crate) fn robust_sigma0(ev: &Evaluated, std_unit: &[Option<(f64, f64)>]) -> f64 {
-    let mut v: Vec<f64> = std_unit
+pub(crate) fn robust_sigma0(
+    res: &[ResidualBlock],
+    ev: &Evaluated,
+    std_unit: &[Option<(f64, f64)>],
+) -> f64 {
+    let v: Vec<f64> = std_unit
         .iter()
         .zip(&ev.evals)
-        .filter_map(|(s, e)| {
+        .zip(res)
+        .filter_map(|((s, e), r)| {
             let (red, _) = (*s)?;
             let e = e.as_ref()?;
-            Some((0..e.dim).map(move |k| e.r[k].abs() / red.sqrt()))
+            let known = r.kind.known();
+            Some(
+                (0..e.dim)
+                    .filter(move |&k| known[k])
+                    .map(move |k| e.r[k].abs() / red.sqrt()),
+            )
         })
         .flatten()
         .collect();
+    robust_scale(v)
+}
+
+/// 1.4826 × the median of absolute values: the σ of normal data, unaffected by a minority
+/// of gross errors; NaN for no data.
+pub(crate) fn robust_scale(mut v: Vec<f64>) -> f64 {
     if v.is_empty() {
         return f64::NAN;
     }
     let mid = v.len() / 2;
     let m = *v.select_nth_unstable_by(mid, |a, b| a.total_cmp(b)).1;
     1.4826 * m
+}
+
+/// Full cofactor matrix of an object point: V⁻¹ + V⁻¹WᵀS⁻¹WV⁻¹ through the factorised
+/// reduced camera system (three right-hand sides).
+pub(crate) fn point_cofactor(st: &Structure, factor: &Factor, ps: &PointSys) -> Matrix3<f64> {
+    let mut x = DMatrix::zeros(st.n, 3);
+    let wv: Vec<(usize, nalgebra::SMatrix<f64, 9, 3>)> =
+        ps.w.iter().map(|(b, w)| (*b, w * ps.vinv)).collect();
+    for (b, m) in &wv {
+        for (i, &k) in st.free[*b].iter().enumerate() {
+            for c in 0..3 {
+                x[(st.offset[*b] + i, c)] = m[(k, c)];
+            }
+        }
+    }
+    let rhs = x.clone();
+    factor.solve_in_place(&mut x);
+    let mut q = ps.vinv;
+    for r in 0..3 {
+        for c in 0..3 {
+            q[(r, c)] += (0..st.n).map(|g| rhs[(g, r)] * x[(g, c)]).sum::<f64>();
+        }
+    }
+    q
+}
+
+/// Variance components per observation group. `snoop` supplies the local redundancy
+/// numbers; `exact` overrides them for single blocks (control and POS priors).
+pub(crate) fn variance_components(
+    res: &[ResidualBlock],
+    ev: &Evaluated,
+    snoop: &[Option<Snoop>],
+    exact: &[(usize, f64)],
+) -> Vec<super::VarianceComponent> {
+    let groups = ["image", "control", "pos_center", "pos_attitude", "plane"];
+    let mut acc = vec![(0usize, 0usize, 0.0f64, 0.0f64); groups.len()];
+    let exact: std::collections::BTreeMap<usize, f64> = exact.iter().copied().collect();
+    for (i, r) in res.iter().enumerate() {
+        let (true, Some(e), Some(s)) = (r.active, &ev.evals[i], &snoop[i]) else {
+            continue;
+        };
+        let g = groups
+            .iter()
+            .position(|g| *g == r.kind.group())
+            .expect("group");
+        acc[g].0 += 1;
+        acc[g].1 += r.kind.dof();
+        acc[g].2 += e.norm_sq();
+        acc[g].3 += exact.get(&i).copied().unwrap_or(s.redundancy);
+    }
+    groups
+        .iter()
+        .zip(acc)
+        .filter(|(_, a)| a.0 > 0)
+        .map(|(g, (n, c, vtpv, red))| super::VarianceComponent {
+            group: g.to_string(),
+            observations: n,
+            components: c,
+            vtpv,
+            redundancy: red,
+            sigma0: (red > 1e-9).then(|| (vtpv / red).sqrt()),
+        })
+        .collect()
 }

@@ -1,21 +1,22 @@
-//! Problem assembly from a [`Block`], the solve–reject rounds and the report.
+//! Problem assembly from a [`Block`] and the solve–reject rounds.
 
-use super::precision::{self, cofactors, intersect};
 use super::residual::{Kind, ResidualBlock, State};
-use super::robust;
+use super::robust::RejectionTest;
 use super::solver::{self, LmOptions, Structure};
 use super::{
-    AdjustError, AdjustOptions, AdjustReport, CalibrationReport, CheckPointReport, CheckSummary,
-    Loss, ObservationRef, PhotoPrecision, PlaneConstraint, PlaneRefitter, Rejected,
-    RejectedSummary, Rejection, ResidualReport,
+    AdjustError, AdjustOptions, AdjustReport, Loss, ObservationRef, PlaneConstraint, PlaneRefitter,
+    Rejected, Rejection,
 };
 use crate::block::{Block, PhotoId, PointId, PointKind};
-use nalgebra::{DMatrix, Vector2, Vector3};
+use nalgebra::{Vector2, Vector3};
 use std::collections::BTreeMap;
 use std::time::Instant;
 
 /// Largest number of times the LiDAR planes are re-fitted.
 const MAX_PLANE_REFITS: usize = 3;
+
+/// Largest number of final sweeps (reject every exceedance, re-solve) after the rounds.
+const MAX_SWEEPS: usize = 3;
 
 pub(super) struct Problem {
     pub(super) photo_ids: Vec<PhotoId>,
@@ -60,10 +61,18 @@ fn check_options(o: &AdjustOptions) -> Result<(), AdjustError> {
         _ => {}
     }
     match o.rejection {
-        Rejection::Threshold(k) | Rejection::DataSnooping(k) if !(k.is_finite() && k >= 1.0) => {
+        Rejection::Threshold(k) if !(k.is_finite() && k >= 1.0) => {
             return bad(
                 "rejection",
                 format!("k must be a finite number ≥ 1 (2–3 is usual), got {k}"),
+            )
+        }
+        Rejection::DataSnooping(k) if !(k.is_finite() && k >= 1.0) => {
+            return bad(
+                "rejection",
+                format!(
+                    "data snooping: the one-dimensional critical value k must be finite and ≥ 1 (3.29 for α0 = 0.1 %; α0 between 0 and 0.32), got {k}"
+                ),
             )
         }
         _ => {}
@@ -179,22 +188,40 @@ fn build(block: &Block, planes: &[PlaneConstraint]) -> Result<Problem, AdjustErr
                     pt.id, pt.name
                 ))
             })?;
-            if !s.iter().all(|v| v.is_finite() && *v > 0.0) {
+            // σ = +∞ on an axis: no prior there (a GCP of unknown height).
+            if !s.iter().all(|v| *v > 0.0 && !v.is_nan()) {
                 return Err(AdjustError::InvalidBlock(format!(
-                    "control point {} ({}): σ {:?} must be positive and finite",
+                    "control point {} ({}): σ {:?} must be positive (finite, or +∞ for an unknown axis)",
                     pt.id, pt.name, s
+                )));
+            }
+            if s.iter().all(|v| v.is_infinite()) {
+                return Err(AdjustError::InvalidBlock(format!(
+                    "control point {} ({}): σ is infinite on every axis, no coordinate is known (make it a tie point)",
+                    pt.id, pt.name
                 )));
             }
             Some(Vector3::from(s))
         } else {
             None
         };
-        // A tie point needs two rays (or one ray and a plane) to be intersected.
+        // A tie point needs two rays (or one ray and a plane) to be intersected; a control
+        // point one ray when its whole position is known, else two (one ray meets a
+        // vertical line at a glancing angle in a near-nadir photo).
         let enough = match prior {
-            Some(_) => n_obs >= 1,
+            Some(s) if s.iter().all(|v| v.is_finite()) => n_obs >= 1,
+            Some(_) => n_obs >= 2,
             None => n_obs >= 2 || (n_obs >= 1 && planned.contains(&pt.id)),
         };
         if !enough {
+            if prior.is_some() {
+                tracing::warn!(
+                    point = pt.id,
+                    name = %pt.name,
+                    rays = n_obs,
+                    "control point left out: too few image observations for its unknown axes"
+                );
+            }
             continue;
         }
         let p = points.len();
@@ -218,7 +245,7 @@ fn build(block: &Block, planes: &[PlaneConstraint]) -> Result<Problem, AdjustErr
             });
         }
         if let Some(sigma) = prior {
-            control_positions.push(pt.position);
+            control_positions.push((pt.position, [0, 1, 2].map(|k| sigma[k].is_finite())));
             res.push(ResidualBlock {
                 kind: Kind::PointPrior {
                     value: pt.position,
@@ -299,8 +326,14 @@ fn build(block: &Block, planes: &[PlaneConstraint]) -> Result<Problem, AdjustErr
         }
     }
     let mut datum = Vec::new();
+    let plan = control_positions.iter().any(|(_, k)| k[0] && k[1]);
+    let height = control_positions.iter().any(|(_, k)| k[2]);
     if !control_positions.is_empty() {
-        datum.push("control");
+        datum.push(match (plan, height) {
+            (true, true) => "control",
+            (true, false) => "control_plan",
+            _ => "control_height",
+        });
     }
     if n_pos > 0 {
         datum.push("pos");
@@ -308,8 +341,8 @@ fn build(block: &Block, planes: &[PlaneConstraint]) -> Result<Problem, AdjustErr
     if !planes.is_empty() {
         datum.push("lidar_planes");
     }
-    if datum == ["control"] {
-        check_control_geometry(&control_positions)?;
+    if datum.len() == 1 && !control_positions.is_empty() {
+        super::datum::check_control_geometry(&control_positions)?;
     }
     let mut photo_free = vec![[true; 6]; photo_ids.len()];
     if datum.is_empty() {
@@ -352,35 +385,7 @@ fn build(block: &Block, planes: &[PlaneConstraint]) -> Result<Problem, AdjustErr
     })
 }
 
-/// Control points alone fix the datum only when at least three of them span a plane.
-fn check_control_geometry(c: &[Vector3<f64>]) -> Result<(), AdjustError> {
-    if c.len() < 3 {
-        return Err(AdjustError::Degenerate(format!(
-            "{} control point(s) cannot fix the datum; at least 3 not on a line are needed (or POS / LiDAR planes)",
-            c.len()
-        )));
-    }
-    let mean = c.iter().fold(Vector3::zeros(), |a, b| a + b) / c.len() as f64;
-    let mut m = DMatrix::zeros(c.len(), 3);
-    for (i, p) in c.iter().enumerate() {
-        for k in 0..3 {
-            m[(i, k)] = p[k] - mean[k];
-        }
-    }
-    let s = m.singular_values();
-    let mut s: Vec<f64> = s.iter().copied().collect();
-    s.sort_by(|a, b| b.total_cmp(a));
-    if s[0] <= 0.0 || s[1] < 1e-3 * s[0] {
-        return Err(AdjustError::Degenerate(format!(
-            "the {} control points are collinear (spread {:.3} m across their line); they cannot fix the rotation about it",
-            c.len(),
-            s[1] / (c.len() as f64).sqrt()
-        )));
-    }
-    Ok(())
-}
-
-fn n_unknowns(st: &Structure, res: &[ResidualBlock], n_points: usize) -> usize {
+pub(super) fn n_unknowns(st: &Structure, res: &[ResidualBlock], n_points: usize) -> usize {
     let mut active = vec![false; n_points];
     for r in res.iter().filter(|r| r.active) {
         if let Some(p) = r.point {
@@ -390,8 +395,9 @@ fn n_unknowns(st: &Structure, res: &[ResidualBlock], n_points: usize) -> usize {
     st.n + 3 * active.iter().filter(|&&a| a).count()
 }
 
-/// Deactivates the remaining blocks of tie points left with fewer than two rays and
-/// nothing else (they can no longer be intersected).
+/// Deactivates the remaining blocks of points left with fewer than two rays and no
+/// full position of their own (a 3-D control prior, or a plane with its one ray): they can
+/// no longer be intersected.
 fn drop_orphans(res: &mut [ResidualBlock], n_points: usize) {
     let mut rays = vec![0usize; n_points];
     let mut other = vec![false; n_points];
@@ -399,6 +405,7 @@ fn drop_orphans(res: &mut [ResidualBlock], n_points: usize) {
         if let Some(p) = r.point {
             match r.kind {
                 Kind::Image { .. } => rays[p] += 1,
+                Kind::PointPrior { .. } if r.kind.dof() < 3 => {}
                 _ => other[p] = true,
             }
         }
@@ -415,7 +422,10 @@ fn drop_orphans(res: &mut [ResidualBlock], n_points: usize) {
 /// Adjusts the block in place and reports the precision. `planes` are LiDAR
 /// point-to-plane constraints of tie points; `refitter`, when given, re-fits them
 /// between rounds. Rejected image observations are removed from the block (they are
-/// listed in the report); check points are never changed.
+/// listed in the report), and so are tie points left with fewer than two image
+/// observations (counted in the report); control points keep even a single ray; check
+/// points are never changed. A control point's σ may be +∞ on an axis it does not know
+/// (a GCP of unknown height); such a point needs two rays.
 pub fn adjust(
     block: &mut Block,
     planes: &[PlaneConstraint],
@@ -431,16 +441,26 @@ pub fn adjust(
         function_tolerance: opts.function_tolerance,
         parameter_tolerance: opts.parameter_tolerance,
     };
+    let mut test = RejectionTest::new(opts.rejection);
+    // Data snooping is a least-squares test: the robust loss brings the first rounds
+    // through the gross errors, the final solution of the observations kept is least
+    // squares (they are taken as clean) and passes the test once more.
+    let final_loss = match opts.rejection {
+        Rejection::DataSnooping(_) => Loss::None,
+        _ => opts.loss,
+    };
+    let mut loss = opts.loss;
     let mut rejected: Vec<Rejected> = Vec::new();
     let mut iterations = 0;
     let mut converged;
     let mut refits = 0;
     let mut readmitted = false;
     let mut round = 0;
+    let mut exhausted = false;
     loop {
         round += 1;
         let st = pb.structure();
-        let out = solver::levenberg_marquardt(&st, &pb.res, &mut pb.state, opts.loss, &lm);
+        let out = solver::levenberg_marquardt(&st, &pb.res, &mut pb.state, loss, &lm);
         iterations += out.iterations;
         converged = out.converged;
         tracing::info!(
@@ -450,41 +470,26 @@ pub fn adjust(
             cost = out.final_cost,
             "adjustment round"
         );
+        if round == 1 {
+            test.calibrate(&st, &pb);
+        }
         if round >= opts.max_rounds {
+            exhausted = true;
             break;
         }
         let mut changed = false;
         if let Some(rf) = refitter.as_deref_mut() {
             if refits < MAX_PLANE_REFITS {
                 refits += 1;
-                let pts: Vec<(PointId, Vector3<f64>)> = pb
-                    .point_ids
-                    .iter()
-                    .zip(&pb.state.points)
-                    .map(|(&id, x)| (id, *x))
-                    .collect();
-                let new_planes = rf.refit(&pts);
-                let mut keep_res = Vec::new();
-                let mut keep_refs = Vec::new();
-                for (r, f) in pb.res.drain(..).zip(pb.refs.drain(..)) {
-                    if !matches!(r.kind, Kind::Plane { .. }) {
-                        keep_res.push(r);
-                        keep_refs.push(f);
-                    }
-                }
-                pb.res = keep_res;
-                pb.refs = keep_refs;
-                for pl in &new_planes {
-                    pb.res.push(plane_block(pl, &pb.point_index)?);
-                    pb.refs.push(ObservationRef::Plane { point: pl.point });
-                }
+                refit_planes(&mut pb, rf)?;
                 changed = true;
             }
         }
         // Re-fitted planes change the residual list: the structure must index the new one
         // before residuals are tested for rejection.
         let st = if changed { pb.structure() } else { st };
-        let newly = robust::select_rejections(&st, &pb, opts, round, n_points);
+        let newly = test.select(&st, &pb, loss, round, false);
+        tracing::debug!(round, newly = newly.len(), "rejection test");
         if !newly.is_empty() {
             for (i, rj) in newly {
                 pb.res[i].active = false;
@@ -496,299 +501,78 @@ pub fn adjust(
             // Observations rejected early, while larger gross errors still distorted the
             // solution, are tested again against the final one.
             readmitted = true;
-            changed = robust::readmit(&mut pb, &mut rejected, opts);
+            let before = rejected.len();
+            changed = test.readmit(&mut pb, &mut rejected, loss);
+            tracing::debug!(round, readmitted = before - rejected.len(), "re-admission");
+        }
+        if !changed && loss != final_loss {
+            loss = final_loss;
+            changed = true;
         }
         if !changed {
             break;
         }
     }
+    // The rounds ran out with exceedances left: reject them all at once and solve again,
+    // so that no observation of the output model fails the test (bounded: a sweep's
+    // re-solve rarely pushes another over).
+    if exhausted {
+        for _ in 0..MAX_SWEEPS {
+            let st = pb.structure();
+            let newly = test.select(&st, &pb, loss, round, true);
+            if newly.is_empty() && loss == final_loss {
+                break;
+            }
+            test.swept += newly.len();
+            for (i, rj) in newly {
+                pb.res[i].active = false;
+                rejected.push(rj);
+            }
+            drop_orphans(&mut pb.res, n_points);
+            loss = final_loss;
+            let st = pb.structure();
+            let out = solver::levenberg_marquardt(&st, &pb.res, &mut pb.state, loss, &lm);
+            iterations += out.iterations;
+            converged = out.converged;
+        }
+        let st = pb.structure();
+        let left = test.select(&st, &pb, loss, round, true).len();
+        if left > 0 {
+            tracing::warn!(
+                left,
+                "observations still fail the rejection test after the final sweeps"
+            );
+        }
+    }
     let st = pb.structure();
-    let report = finish(
-        block, &pb, &st, opts, rejected, iterations, round, converged, t0,
+    let report = super::report::finish(
+        block, &pb, &st, opts, loss, &test, rejected, iterations, round, converged, t0,
     )?;
     Ok(report)
 }
 
-#[allow(clippy::too_many_arguments)]
-fn finish(
-    block: &mut Block,
-    pb: &Problem,
-    st: &Structure,
-    opts: &AdjustOptions,
-    rejected: Vec<Rejected>,
-    iterations: usize,
-    rounds: usize,
-    converged: bool,
-    t0: Instant,
-) -> Result<AdjustReport, AdjustError> {
-    let n_points = pb.point_ids.len();
-    let ev = solver::evaluate(&pb.res, &pb.state, opts.loss);
-    let n_unk = n_unknowns(st, &pb.res, n_points);
-    let (s0, n_obs, redundancy) = precision::sigma0(&pb.res, &ev, n_unk);
-    let pts = solver::point_systems(st, &pb.res, &ev, 0.0);
-    let std = precision::standardized(&pb.res, &ev, &pts, if s0.is_finite() { s0 } else { 1.0 });
-    let rmse_px = precision::image_rmse(&pb.res, &ev);
-
-    // Per-photo image RMS.
-    let mut ph_sum = vec![(0.0, 0usize); pb.photo_ids.len()];
-    let mut residuals = Vec::new();
-    for (i, r) in pb.res.iter().enumerate() {
-        let Some(e) = &ev.evals[i] else { continue };
-        let scale: Vec<f64> = match &r.kind {
-            Kind::Image { sigma, .. } => {
-                let ph = r.photo.expect("image block has a photo");
-                ph_sum[ph].0 += e.norm_sq() * sigma * sigma;
-                ph_sum[ph].1 += 1;
-                vec![*sigma; 2]
-            }
-            Kind::PointPrior { sigma, .. } | Kind::PosCenter { sigma, .. } => {
-                sigma.iter().copied().collect()
-            }
-            Kind::PosAttitude { sigma, .. } => vec![*sigma; 3],
-            Kind::Plane { sqrt_weight, .. } => vec![1.0 / sqrt_weight],
-        };
-        let (red, w) = std[i].unwrap_or((1.0, 0.0));
-        residuals.push(ResidualReport {
-            observation: pb.refs[i].clone(),
-            residual: (0..e.dim).map(|k| e.r[k] * scale[k]).collect(),
-            standardized: w,
-            redundancy: red,
-        });
-    }
-
-    // Precision from the undamped reduced camera system.
-    let mut photo_precision = Vec::new();
-    let mut calibration = Vec::new();
-    let rows = solver::reduced_rows(st, &pb.res, &ev, &pts, 0.0);
-    let mut cache = solver::SymbolicCache::default();
-    let factor = solver::factorize(st, &rows, &mut cache);
-    let var0 = if s0.is_finite() { s0 * s0 } else { 1.0 };
-    let cof = factor.as_ref().map(|f| cofactors(st, f, opts.covariance));
-    if factor.is_none() {
-        tracing::warn!("the reduced camera system is singular at the solution: no precision");
-    }
-    for (i, &pid) in pb.photo_ids.iter().enumerate() {
-        let mut sr = [f64::NAN; 3];
-        let mut sc = [f64::NAN; 3];
-        if let Some(c) = &cof {
-            let q = &c.diag_blocks[i];
-            for (j, &k) in st.free[i].iter().enumerate() {
-                if q.nrows() > j {
-                    let s = (q[(j, j)] * var0).max(0.0).sqrt();
-                    if k < 3 {
-                        sr[k] = s;
-                    } else {
-                        sc[k - 3] = s;
-                    }
-                }
-            }
-            for k in 0..6 {
-                if !st.free[i].contains(&k) {
-                    if k < 3 {
-                        sr[k] = 0.0;
-                    } else {
-                        sc[k - 3] = 0.0;
-                    }
-                }
-            }
-        }
-        let (s, n) = ph_sum[i];
-        photo_precision.push(PhotoPrecision {
-            photo: pid,
-            name: block.photos[&pid].name.clone(),
-            sigma_rotation_rad: sr,
-            sigma_center_m: sc,
-            rmse_px: if n > 0 {
-                (s / (2 * n) as f64).sqrt()
-            } else {
-                0.0
-            },
-            observations: n,
-        });
-    }
-    if let (Some(c), Some(f)) = (&cof, &factor) {
-        let _ = f;
-        // Reduced-system diagonal (1 / conditional variance) for the multiple correlation.
-        let mut sdiag = vec![0.0; st.n];
-        for (b, row) in rows.iter().enumerate() {
-            for (j, &k) in st.free[b].iter().enumerate() {
-                sdiag[st.offset[b] + j] = row.blocks[0][(k, k)];
-            }
-        }
-        let name_of = |g: usize| -> String {
-            let b = st.offset.partition_point(|&o| o <= g) - 1;
-            let k = st.free[b][g - st.offset[b]];
-            if b < st.n_photos {
-                let n = ["rx", "ry", "rz", "cx", "cy", "cz"][k];
-                format!("photo {} {n}", pb.photo_ids[b])
-            } else {
-                let ci = st
-                    .camera_block
-                    .iter()
-                    .position(|x| *x == Some(b))
-                    .expect("camera");
-                format!(
-                    "camera {} {}",
-                    pb.camera_ids[ci],
-                    pb.state.cameras[ci].param_names()[k]
-                )
-            }
-        };
-        for (ci, cb) in st.camera_block.iter().enumerate() {
-            let Some(b) = cb else { continue };
-            let params = pb.state.cameras[ci].params();
-            for (j, &k) in st.free[*b].iter().enumerate() {
-                let g = st.offset[*b] + j;
-                let Some((_, col)) = c.columns.iter().find(|(gg, _)| *gg == g) else {
-                    continue;
-                };
-                let qkk = col[g];
-                let mut best = (0.0f64, String::new());
-                for (h, &qh) in col.iter().enumerate() {
-                    let d = c.diag[h];
-                    if h == g || !d.is_finite() || d <= 0.0 {
-                        continue;
-                    }
-                    // fx and fy are one physical focal length for square pixels: their
-                    // mutual correlation says nothing about the block geometry.
-                    let pair = st.free[*b].get(h.wrapping_sub(st.offset[*b])).copied();
-                    if matches!((k, pair), (0, Some(1)) | (1, Some(0))) {
-                        continue;
-                    }
-                    let rho = (qh / (qkk * d).sqrt()).abs();
-                    if rho > best.0 {
-                        best = (rho, name_of(h));
-                    }
-                }
-                // Multiple correlation with all other camera-side unknowns.
-                let multiple = (1.0 - 1.0 / (qkk * sdiag[g])).max(0.0).sqrt();
-                tracing::debug!(multiple, pairwise = best.0, "self-calibration correlation");
-                let (corr, with) = best;
-                let determinable = corr < opts.max_correlation;
-                if !determinable {
-                    tracing::warn!(
-                        camera = pb.camera_ids[ci],
-                        param = pb.state.cameras[ci].param_names()[k],
-                        corr,
-                        "self-calibration parameter is not determinable by this block"
-                    );
-                }
-                calibration.push(CalibrationReport {
-                    camera: pb.camera_ids[ci],
-                    param: pb.state.cameras[ci].param_names()[k].to_string(),
-                    value: params[k],
-                    sigma: (qkk * var0).max(0.0).sqrt(),
-                    max_correlation: corr,
-                    correlated_with: with,
-                    determinable,
-                    fixed: false,
-                });
-            }
-        }
-    }
-
-    // Write back.
-    for (i, &pid) in pb.photo_ids.iter().enumerate() {
-        let ph = block.photos.get_mut(&pid).expect("photo");
-        ph.pose = pb.state.poses[i];
-        ph.status = crate::block::PhotoStatus::Oriented;
-    }
-    for (i, &cid) in pb.camera_ids.iter().enumerate() {
-        block.cameras.get_mut(&cid).expect("camera").model = pb.state.cameras[i].clone();
-    }
-    let mut active_point = vec![false; n_points];
-    for r in pb.res.iter().filter(|r| r.active) {
-        if let Some(p) = r.point {
-            active_point[p] = true;
-        }
-    }
-    for (i, &id) in pb.point_ids.iter().enumerate() {
-        let pt = block.points.get_mut(&id).expect("point");
-        if pt.kind == PointKind::Tie && active_point[i] {
-            pt.position = pb.state.points[i];
-        }
-    }
-    for rj in &rejected {
-        if let ObservationRef::Image { point, photo } = rj.observation {
-            if let Some(pt) = block.points.get_mut(&point) {
-                pt.observations.retain(|o| o.photo != photo);
-            }
-        }
-    }
-
-    let check = check_points(block);
-    let n_active_points = active_point.iter().filter(|&&a| a).count();
-    Ok(AdjustReport {
-        sigma0: s0,
-        rmse_px,
-        iterations,
-        rounds,
-        converged,
-        datum: pb.datum.clone(),
-        photos: pb.photo_ids.len(),
-        points: n_active_points,
-        observations: n_obs,
-        redundancy,
-        rejected: RejectedSummary {
-            count: rejected.len(),
-            list: rejected,
-        },
-        time_s: t0.elapsed().as_secs_f64(),
-        photo_precision,
-        calibration,
-        check,
-        residuals,
-    })
-}
-
-/// Intersects every check point with the adjusted orientations and compares.
-pub(crate) fn check_points(block: &Block) -> Option<CheckSummary> {
-    let mut pts = Vec::new();
-    for pt in block.points.values().filter(|p| p.kind == PointKind::Check) {
-        let rays: Vec<_> = pt
-            .observations
-            .iter()
-            .filter_map(|o| {
-                let ph = block.photos.get(&o.photo)?;
-                let cam = &block.cameras.get(&ph.camera)?.model;
-                Some((cam, &ph.pose, o.pixel, o.sigma_px))
-            })
-            .collect();
-        let Some(x) = intersect(&rays) else {
-            tracing::warn!(
-                point = pt.id,
-                "check point cannot be intersected (fewer than two usable rays)"
-            );
-            continue;
-        };
-        let e = x - pt.position;
-        pts.push(CheckPointReport {
-            point: pt.id,
-            name: pt.name.clone(),
-            error: [e.x, e.y, e.z],
-            rays: rays.len(),
-        });
-    }
-    if pts.is_empty() {
-        return None;
-    }
-    let n = pts.len() as f64;
-    let plan = (pts
+/// Replaces the LiDAR plane constraints by the refitter's planes at the current points.
+fn refit_planes(pb: &mut Problem, rf: &mut dyn PlaneRefitter) -> Result<(), AdjustError> {
+    let pts: Vec<(PointId, Vector3<f64>)> = pb
+        .point_ids
         .iter()
-        .map(|p| p.error[0].powi(2) + p.error[1].powi(2))
-        .sum::<f64>()
-        / n)
-        .sqrt();
-    let height = (pts.iter().map(|p| p.error[2].powi(2)).sum::<f64>() / n).sqrt();
-    let max = pts
-        .iter()
-        .map(|p| Vector3::from(p.error).norm())
-        .fold(0.0, f64::max);
-    Some(CheckSummary {
-        count: pts.len(),
-        rmse_plan_m: plan,
-        rmse_height_m: height,
-        max_m: max,
-        points: pts,
-    })
+        .zip(&pb.state.points)
+        .map(|(&id, x)| (id, *x))
+        .collect();
+    let new_planes = rf.refit(&pts);
+    let mut keep_res = Vec::new();
+    let mut keep_refs = Vec::new();
+    for (r, f) in pb.res.drain(..).zip(pb.refs.drain(..)) {
+        if !matches!(r.kind, Kind::Plane { .. }) {
+            keep_res.push(r);
+            keep_refs.push(f);
+        }
+    }
+    pb.res = keep_res;
+    pb.refs = keep_refs;
+    for pl in &new_planes {
+        pb.res.push(plane_block(pl, &pb.point_index)?);
+        pb.refs.push(ObservationRef::Plane { point: pl.point });
+    }
+    Ok(())
 }

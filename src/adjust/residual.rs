@@ -21,7 +21,8 @@ pub(crate) struct State {
 pub(crate) enum Kind {
     /// Image coordinates of an object point (tie or control), σ in pixels.
     Image { pixel: Vector2<f64>, sigma: f64 },
-    /// Surveyed position of a control point.
+    /// Surveyed position of a control point; an axis with σ = +∞ carries no prior (a GCP
+    /// of unknown height): its whitened residual and Jacobian row are zero.
     PointPrior {
         value: Vector3<f64>,
         sigma: Vector3<f64>,
@@ -50,6 +51,34 @@ impl Kind {
             Kind::PosAttitude { .. } => "POS attitude",
             Kind::Plane { .. } => "LiDAR plane",
         }
+    }
+
+    /// The observation group of the variance components (report names).
+    pub fn group(&self) -> &'static str {
+        match self {
+            Kind::Image { .. } => "image",
+            Kind::PointPrior { .. } => "control",
+            Kind::PosCenter { .. } => "pos_center",
+            Kind::PosAttitude { .. } => "pos_attitude",
+            Kind::Plane { .. } => "plane",
+        }
+    }
+
+    /// Which residual components are observations (a prior axis with σ = ∞ is none).
+    pub fn known(&self) -> [bool; 3] {
+        match self {
+            Kind::Image { .. } => [true, true, false],
+            Kind::Plane { .. } => [true, false, false],
+            Kind::PointPrior { sigma, .. } | Kind::PosCenter { sigma, .. } => {
+                [0, 1, 2].map(|k| sigma[k].is_finite())
+            }
+            Kind::PosAttitude { .. } => [true; 3],
+        }
+    }
+
+    /// Number of scalar observations of the block.
+    pub fn dof(&self) -> usize {
+        self.known().iter().filter(|&&k| k).count()
     }
 }
 

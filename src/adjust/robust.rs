@@ -1,132 +1,535 @@
-//! Gross-error elimination between solves: standardised residuals against the robust
-//! σ0 (or the a-priori σ for Baarda's data snooping), one observation per object point
-//! and round, leave-one-out localisation among a point's rays, the test of control
-//! priors against their own rays' intersection, and re-admission against the final
-//! solution.
+//! Gross-error elimination between solves. Baarda's data snooping (the default) tests
+//! each observation with its own dimension against the a-priori σ; the threshold rule
+//! tests standardised residual components against k × the robust σ0 of the round. Both
+//! remove one observation per object point and round, localise a point's gross error
+//! among its rays by leaving one out, test control priors against their own rays'
+//! intersection and re-admit against the final solution.
 
-use super::precision::{self, intersect};
+use super::chi2;
+use super::precision::{self, intersect, Snoop};
 use super::problem::Problem;
-use super::residual::Kind;
+use super::residual::{Kind, Loss, ResidualBlock};
 use super::solver::{self, Structure};
-use super::{AdjustOptions, Rejected, Rejection};
-use nalgebra::{Vector2, Vector3};
-use std::collections::BTreeMap;
+use super::{Rejected, Rejection};
+use nalgebra::{DMatrix, DVector, Matrix3, Vector2, Vector3};
+use std::collections::{BTreeMap, BTreeSet};
 
-fn rejection_k(r: Rejection) -> Option<f64> {
-    match r {
-        Rejection::None => None,
-        Rejection::Threshold(k) | Rejection::DataSnooping(k) => Some(k),
+/// The data-snooping guard takes the first solution's image σ0 instead of the a-priori σ
+/// when it is at least this much larger (and significantly so). A test against a σ that
+/// is too small by a factor f has the false-alarm rate of critical value 13.82/f² in
+/// χ²(2): 0.1 % at f = 1, 0.33 % at 1.1, 0.8 % at 1.2 and 4.6 % at 1.5 — at 1.5 a block
+/// would already lose one good observation in twenty, so the guard steps in at 1.1.
+const GUARD_RATIO: f64 = 1.1;
+
+/// The rejection test of one adjustment: rule, critical values and the image σ it uses.
+pub(super) struct RejectionTest {
+    rule: Rejection,
+    /// Critical values of χ²(d), d = 0..3, at α0 (data snooping).
+    crit: [f64; 4],
+    /// σ of the image group in units of its a-priori σ that the test assumes.
+    image_sigma: f64,
+    /// Robust σ0 of the image group on the first solution (data snooping).
+    first_round: Option<f64>,
+    /// Observations rejected by the final sweep(s).
+    pub(super) swept: usize,
+}
+
+/// The test statistics of one solution.
+struct Stats {
+    ev: solver::Evaluated,
+    snoop: Vec<Option<Snoop>>,
+}
+
+fn stats(st: &Structure, pb: &Problem) -> Stats {
+    let ev = solver::evaluate(&pb.res, &pb.state, Loss::None);
+    let pts = solver::point_systems(st, &pb.res, &ev, 0.0);
+    let snoop = precision::snooping(&pb.res, &ev, &pts);
+    Stats { ev, snoop }
+}
+
+impl RejectionTest {
+    pub(super) fn new(rule: Rejection) -> Self {
+        let mut crit = [f64::INFINITY; 4];
+        if let Some(a) = rule.alpha() {
+            for (d, c) in crit.iter_mut().enumerate().skip(1) {
+                *c = chi2::critical(d, a);
+            }
+        }
+        Self {
+            rule,
+            crit,
+            image_sigma: 1.0,
+            first_round: None,
+            swept: 0,
+        }
+    }
+
+    /// Which test ran (the report's `rejection_test`).
+    pub(super) fn describe(&self) -> String {
+        let mut s = match self.rule {
+            Rejection::None => "none".to_string(),
+            Rejection::Threshold(k) => format!("threshold k={k} sigma=robust_sigma0"),
+            Rejection::DataSnooping(k) => {
+                let a = chi2::alpha_of_k(k);
+                // Four significant digits: 3.29 gives 0.001002, α0 = 0.001 gives 0.001.
+                let e = 10f64.powi(3 - a.log10().floor() as i32);
+                let a = (a * e).round() / e;
+                match self.first_round {
+                    Some(s) if self.image_sigma != 1.0 => {
+                        format!("baarda_data_snooping alpha={a} sigma=first_round {s:.2}")
+                    }
+                    _ => format!("baarda_data_snooping alpha={a} sigma=a_priori"),
+                }
+            }
+        };
+        if self.swept > 0 {
+            s.push_str(&format!(", final sweep {}", self.swept));
+        }
+        s
+    }
+
+    /// Guard against a wrong a-priori image σ, on the first solution: the robust σ0 of
+    /// the image group replaces the a-priori σ, fixed for all later rounds, when it
+    /// exceeds it by `GUARD_RATIO` and by three of its standard errors (√(1.36/n) for the
+    /// median estimator). A σ0 below 1 keeps the a-priori σ: the test is then
+    /// conservative. The σ0 is 1.4826 × the median |z| of the decorrelated standardised
+    /// components, over the object points none of whose observations fails the test at
+    /// that σ0 (iterated): a gross error smears into its point's other rays, and with 5 %
+    /// of the observations displaced the median over all points came out 1.24 for a
+    /// right a-priori σ.
+    pub(super) fn calibrate(&mut self, st: &Structure, pb: &Problem) {
+        if !matches!(self.rule, Rejection::DataSnooping(_)) {
+            return;
+        }
+        let s = stats(st, pb);
+        let img: Vec<(usize, &Snoop)> = pb
+            .res
+            .iter()
+            .zip(&s.snoop)
+            .filter(|(r, _)| matches!(r.kind, Kind::Image { .. }))
+            .filter_map(|(r, t)| Some((r.point?, t.as_ref()?)))
+            .collect();
+        let scale = |flagged: &BTreeSet<usize>| {
+            let z: Vec<f64> = img
+                .iter()
+                .filter(|(p, _)| !flagged.contains(p))
+                .flat_map(|(_, t)| t.z[..t.dof].iter().map(|v| v.abs()))
+                .collect();
+            (precision::robust_scale(z.clone()), z.len())
+        };
+        let (mut s0, mut n) = scale(&BTreeSet::new());
+        for _ in 0..10 {
+            if !s0.is_finite() {
+                return;
+            }
+            let flagged: BTreeSet<usize> = img
+                .iter()
+                .filter(|(_, t)| t.dof > 0 && t.t / (s0 * s0) > self.crit[t.dof])
+                .map(|(p, _)| *p)
+                .collect();
+            let (s1, n1) = scale(&flagged);
+            let done = (s1 - s0).abs() <= 1e-3 * s0;
+            (s0, n) = (s1, n1);
+            if done {
+                break;
+            }
+        }
+        if !s0.is_finite() {
+            return;
+        }
+        self.first_round = Some(s0);
+        let se = (1.36 / n as f64).sqrt();
+        tracing::debug!(
+            sigma0 = s0,
+            components = n,
+            "robust image σ0 of the first solution"
+        );
+        if s0 > GUARD_RATIO && s0 > 1.0 + 3.0 * se {
+            self.image_sigma = s0;
+            tracing::warn!(
+                sigma0 = s0,
+                "the a-priori image σ is too optimistic: data snooping tests against the first solution's σ0"
+            );
+        }
+    }
+
+    /// Observations to reject after a solution. Per object point only the worst goes
+    /// (a gross error smears into the other rays of its point, which recover once it is
+    /// removed). `sweep` (the rounds ran out) takes every exceedance: data snooping per
+    /// failing point by `sweep_point`, the threshold rule all at once.
+    pub(super) fn select(
+        &self,
+        st: &Structure,
+        pb: &Problem,
+        loss: Loss,
+        round: usize,
+        sweep: bool,
+    ) -> Vec<(usize, Rejected)> {
+        let cand = match self.rule {
+            Rejection::None => return Vec::new(),
+            Rejection::Threshold(k) => threshold_candidates(st, pb, loss, k),
+            Rejection::DataSnooping(_) => self.snooping_candidates(st, pb),
+        };
+        let mut out: Vec<(usize, f64, String)> = Vec::new();
+        let mut blamed = BTreeSet::new();
+        for c in &cand {
+            if matches!(pb.res[c.i].kind, Kind::PointPrior { .. }) {
+                blamed.extend(pb.res[c.i].point);
+                out.push((c.i, c.w, c.reason.clone()));
+            }
+        }
+        let mut best: BTreeMap<usize, &Candidate> = BTreeMap::new();
+        let mut swept = BTreeSet::new();
+        for c in &cand {
+            let r = &pb.res[c.i];
+            // POS priors are not rejected: a photo without its prior may lose the datum, and
+            // a POS gross error shows in the image residuals of the photo all the same.
+            let Some(p) = r.point else { continue };
+            if matches!(r.kind, Kind::PointPrior { .. }) || blamed.contains(&p) {
+                continue;
+            }
+            if sweep {
+                swept.insert(p);
+                if !matches!(self.rule, Rejection::DataSnooping(_)) {
+                    out.push((c.i, c.w, c.reason.clone()));
+                }
+                continue;
+            }
+            let e = best.entry(p).or_insert(c);
+            if c.rank > e.rank {
+                *e = c;
+            }
+        }
+        if matches!(self.rule, Rejection::DataSnooping(_)) {
+            for p in swept {
+                out.extend(self.sweep_point(st, pb, p));
+            }
+        }
+        for (p, c) in best {
+            let i = match pb.res[c.i].kind {
+                Kind::Image { .. } => localize(pb, &active_rays(pb, st, p)).unwrap_or(c.i),
+                _ => c.i,
+            };
+            let reason = if i == c.i {
+                c.reason.clone()
+            } else {
+                format!(
+                    "{}; left out as the ray that leaves the others most consistent",
+                    c.reason
+                )
+            };
+            out.push((i, c.w, reason));
+        }
+        out.sort_by_key(|(i, _, _)| *i);
+        out.into_iter()
+            .map(|(i, w, reason)| {
+                (
+                    i,
+                    Rejected {
+                        observation: pb.refs[i].clone(),
+                        round,
+                        standardized_residual: w,
+                        reason: if sweep {
+                            format!("{reason} (final sweep)")
+                        } else {
+                            reason
+                        },
+                    },
+                )
+            })
+            .collect()
+    }
+
+    /// Final sweep of one object point: data snooping within the point with the
+    /// orientations held — reject the worst (localised) observation, re-intersect, test
+    /// the rest again — until all pass or too few rays remain. Rejecting every exceedance
+    /// at once would also take the good rays a gross error smeared into.
+    fn sweep_point(&self, st: &Structure, pb: &Problem, p: usize) -> Vec<(usize, f64, String)> {
+        let f2 = self.image_sigma * self.image_sigma;
+        let mut idx: Vec<usize> = st.point_res[p]
+            .iter()
+            .copied()
+            .filter(|&j| pb.res[j].active && pb.res[j].point == Some(p))
+            .collect();
+        let mut out = Vec::new();
+        loop {
+            let rays: Vec<usize> = idx
+                .iter()
+                .copied()
+                .filter(|&j| matches!(pb.res[j].kind, Kind::Image { .. }))
+                .collect();
+            let held = idx.iter().any(|&j| match pb.res[j].kind {
+                Kind::PointPrior { .. } => pb.res[j].kind.dof() == 3,
+                Kind::Plane { .. } => true,
+                _ => false,
+            });
+            if rays.len() < 2 && !held {
+                break;
+            }
+            let tests = precision::point_snooping(&pb.res, &pb.state, &idx);
+            let mut worst: Option<(usize, f64, f64, usize)> = None;
+            for (&j, t) in idx.iter().zip(&tests) {
+                let Some(t) = t else { continue };
+                let tt = match pb.res[j].kind {
+                    Kind::Image { .. } => t.t / f2,
+                    Kind::Plane { .. } => t.t,
+                    _ => continue,
+                };
+                let rank = if t.dof > 0 {
+                    tt / self.crit[t.dof]
+                } else {
+                    0.0
+                };
+                if worst.is_none_or(|w| rank > w.2) {
+                    worst = Some((j, tt, rank, t.dof));
+                }
+            }
+            let Some((j, t, _, dof)) = worst.filter(|w| w.2 > 1.0) else {
+                break;
+            };
+            let i = match pb.res[j].kind {
+                Kind::Image { .. } => localize(pb, &rays).unwrap_or(j),
+                _ => j,
+            };
+            out.push((i, t.sqrt(), self.reason(&pb.res[j], t, dof)));
+            idx.retain(|&k| k != i);
+        }
+        out
+    }
+
+    fn reason(&self, r: &ResidualBlock, t: f64, dof: usize) -> String {
+        let sigma = if self.image_sigma == 1.0 {
+            "a-priori σ".to_string()
+        } else {
+            format!("σ0 {:.2} of the first solution", self.image_sigma)
+        };
+        format!(
+            "{}: w² = {t:.2} > {:.2} (χ²({dof}) at α0 = {:.3} %, {sigma})",
+            r.kind.label(),
+            self.crit[dof],
+            100.0 * self.rule.alpha().unwrap_or(f64::NAN)
+        )
+    }
+
+    fn snooping_candidates(&self, st: &Structure, pb: &Problem) -> Vec<Candidate> {
+        let s = stats(st, pb);
+        let f2 = self.image_sigma * self.image_sigma;
+        let mut out = Vec::new();
+        for (i, r) in pb.res.iter().enumerate() {
+            let (t, dof) = match (&r.kind, r.point, r.active) {
+                (Kind::PointPrior { .. }, Some(p), true) => {
+                    match prior_vs_rays(st, pb, &s.ev, p, i) {
+                        Some((d, q, sigma)) => prior_test(&d, &q, &sigma, f2),
+                        None => continue,
+                    }
+                }
+                (Kind::Image { .. }, _, _) => match &s.snoop[i] {
+                    Some(t) => (t.t / f2, t.dof),
+                    None => continue,
+                },
+                (Kind::Plane { .. }, _, _) => match &s.snoop[i] {
+                    Some(t) => (t.t, t.dof),
+                    None => continue,
+                },
+                _ => continue,
+            };
+            if dof == 0 || t <= self.crit[dof] {
+                continue;
+            }
+            out.push(Candidate {
+                i,
+                w: t.sqrt(),
+                rank: t / self.crit[dof],
+                reason: self.reason(r, t, dof),
+            });
+        }
+        out
+    }
+
+    /// Re-admits rejected observations that pass the test against the current solution
+    /// (they do not take part in it: their residual's cofactor is their own plus their
+    /// point's).
+    pub(super) fn readmit(
+        &self,
+        pb: &mut Problem,
+        rejected: &mut Vec<Rejected>,
+        loss: Loss,
+    ) -> bool {
+        let st = pb.structure();
+        let index: BTreeMap<String, usize> = pb
+            .refs
+            .iter()
+            .enumerate()
+            .filter(|(i, _)| !pb.res[*i].active)
+            .map(|(i, r)| (format!("{r:?}"), i))
+            .collect();
+        // The threshold rule re-admits within k × the robust σ0 of the current solution;
+        // data snooping tests against the same σ as the rounds did.
+        let (pts, s0) = match self.rule {
+            Rejection::None => return false,
+            Rejection::Threshold(_) => {
+                let ev = solver::evaluate(&pb.res, &pb.state, loss);
+                let pts = solver::point_systems(&st, &pb.res, &ev, 0.0);
+                let u = precision::standardized(&pb.res, &ev, &pts, 1.0);
+                (pts, precision::robust_sigma0(&pb.res, &ev, &u))
+            }
+            Rejection::DataSnooping(_) => {
+                let ev = solver::evaluate(&pb.res, &pb.state, Loss::None);
+                (solver::point_systems(&st, &pb.res, &ev, 0.0), 1.0)
+            }
+        };
+        if !s0.is_finite() {
+            return false;
+        }
+        let f2 = self.image_sigma * self.image_sigma;
+        let alive: BTreeSet<usize> = pb
+            .res
+            .iter()
+            .filter(|r| r.active)
+            .filter_map(|r| r.point)
+            .collect();
+        let mut readmit = Vec::new();
+        rejected.retain(|rj| {
+            let Some(&i) = index.get(&format!("{:?}", rj.observation)) else {
+                return true;
+            };
+            let mut blk = pb.res[i].clone();
+            blk.active = true;
+            let Some(e) = blk.evaluate(&pb.state) else {
+                return true;
+            };
+            // Only when the point is still in the solution.
+            if blk.point.is_some_and(|p| !alive.contains(&p)) {
+                return true;
+            }
+            let known = blk.kind.known();
+            let ok = match self.rule {
+                Rejection::Threshold(k) => (0..e.dim)
+                    .filter(|&c| known[c])
+                    .all(|c| e.r[c].abs() < k * s0),
+                _ => {
+                    let (t, dof) = precision::predicted(&blk, &e, &pts, f2);
+                    t <= self.crit[dof]
+                }
+            };
+            if ok {
+                readmit.push(i);
+            }
+            !ok
+        });
+        for &i in &readmit {
+            pb.res[i].active = true;
+        }
+        !readmit.is_empty()
     }
 }
 
-pub(super) fn select_rejections(
-    st: &Structure,
-    pb: &Problem,
-    opts: &AdjustOptions,
-    round: usize,
-    n_points: usize,
-) -> Vec<(usize, Rejected)> {
-    let Some(k) = rejection_k(opts.rejection) else {
-        return Vec::new();
-    };
-    let ev = solver::evaluate(&pb.res, &pb.state, opts.loss);
-    let _ = n_points;
+/// An observation above the critical value: its index, test statistic (w), rank among
+/// its point's observations and the reason for the report.
+struct Candidate {
+    i: usize,
+    w: f64,
+    rank: f64,
+    reason: String,
+}
+
+/// The k·σ0 rule: standardised residual components against the round's robust σ0.
+fn threshold_candidates(st: &Structure, pb: &Problem, loss: Loss, k: f64) -> Vec<Candidate> {
+    let ev = solver::evaluate(&pb.res, &pb.state, loss);
     let pts = solver::point_systems(st, &pb.res, &ev, 0.0);
     let unit = precision::standardized(&pb.res, &ev, &pts, 1.0);
-    // Baarda's data snooping tests against the a-priori σ (variance factor 1); the
-    // threshold test against the robust a-posteriori σ0.
-    let s0 = match opts.rejection {
-        Rejection::DataSnooping(_) => 1.0,
-        _ => precision::robust_sigma0(&ev, &unit),
-    };
+    let s0 = precision::robust_sigma0(&pb.res, &ev, &unit);
     if !s0.is_finite() || s0 <= 0.0 {
         return Vec::new();
     }
-    let std: Vec<Option<(f64, f64)>> = unit.iter().map(|u| u.map(|(r, w)| (r, w / s0))).collect();
     let reason =
         |w: f64, kind: &str| format!("{kind}: standardised residual {w:.2} > {k} (σ0 = {s0:.3})");
     let mut out = Vec::new();
-    // A control point's surveyed position is tested against its intersection from its
-    // own rays (with the current orientations): a strong prior absorbs its gross error
-    // into the image residuals, which would otherwise be rejected instead of the prior.
-    let mut tested_points = std::collections::BTreeSet::new();
     for (i, r) in pb.res.iter().enumerate() {
-        let (Kind::PointPrior { value, sigma }, Some(p), true) = (&r.kind, r.point, r.active)
-        else {
-            continue;
-        };
-        let mut v = nalgebra::Matrix3::zeros();
-        let mut g = Vector3::zeros();
-        let mut rays = 0;
-        for &j in &st.point_res[p] {
-            if let (Kind::Image { .. }, Some(e)) = (&pb.res[j].kind, &ev.evals[j]) {
-                let w = ev.weights[j];
-                v += w * e.j_point.transpose() * e.j_point;
-                g += w * e.j_point.transpose() * e.r;
-                rays += 1;
+        let w = match (&r.kind, r.point, r.active) {
+            (Kind::PointPrior { .. }, Some(p), true) => {
+                let Some((d, q, sigma)) = prior_vs_rays(st, pb, &ev, p, i) else {
+                    continue;
+                };
+                (0..3)
+                    .filter(|&c| sigma[c].is_finite())
+                    .map(|c| d[c].abs() / (s0 * (q[(c, c)] + sigma[c] * sigma[c]).sqrt()))
+                    .fold(0.0, f64::max)
             }
-        }
-        if rays < 2 {
-            continue;
-        }
-        let Some(q) = v.try_inverse() else { continue };
-        let x_rays = pb.state.points[p] - q * g;
-        let d = x_rays - value;
-        let w = (0..3)
-            .map(|c| d[c].abs() / (s0 * (q[(c, c)] + sigma[c] * sigma[c]).sqrt()))
-            .fold(0.0, f64::max);
+            (Kind::PointPrior { .. } | Kind::PosCenter { .. } | Kind::PosAttitude { .. }, ..) => {
+                continue
+            }
+            _ => match unit[i] {
+                Some((_, w)) => w / s0,
+                None => continue,
+            },
+        };
         if w > k {
-            out.push((i, w));
-            tested_points.insert(p);
-        }
-    }
-    // Per object point only its worst observation goes in one round: a gross error smears
-    // into the other rays of its point, which recover once it is removed.
-    let mut best: BTreeMap<(u8, usize), (usize, f64)> = BTreeMap::new();
-    for (i, s) in std.iter().enumerate() {
-        let Some((_, w)) = s else { continue };
-        if *w <= k {
-            continue;
-        }
-        let r = &pb.res[i];
-        // POS priors are not rejected: a photo without its prior may lose the datum, and
-        // a POS gross error shows in the image residuals of the photo all the same.
-        if matches!(
-            r.kind,
-            Kind::PointPrior { .. } | Kind::PosCenter { .. } | Kind::PosAttitude { .. }
-        ) || r.point.is_some_and(|p| tested_points.contains(&p))
-        {
-            continue;
-        }
-        let key = match r.point {
-            Some(p) => (0, p),
-            None => (1, r.photo.unwrap_or(0)),
-        };
-        let e = best.entry(key).or_insert((i, *w));
-        if *w > e.1 {
-            *e = (i, *w);
-        }
-    }
-    for (key, (i, w)) in best {
-        let i = match key {
-            (0, p) => localize(pb, st, p).unwrap_or(i),
-            _ => i,
-        };
-        out.push((i, w));
-    }
-    out.sort_by_key(|(i, _)| *i);
-    out.into_iter()
-        .map(|(i, w)| {
-            (
+            out.push(Candidate {
                 i,
-                Rejected {
-                    observation: pb.refs[i].clone(),
-                    round,
-                    standardized_residual: w,
-                    reason: reason(w, pb.res[i].kind.label()),
-                },
-            )
-        })
+                w,
+                rank: w,
+                reason: reason(w, r.kind.label()),
+            });
+        }
+    }
+    out
+}
+
+/// A control point's surveyed position against its intersection from its own rays (with
+/// the current orientations): a strong prior absorbs its gross error into the image
+/// residuals, which would otherwise be rejected instead of the prior. Returns the
+/// difference (m), the rays' object-space cofactor (m², a-priori image σ) and the prior's
+/// σ; `None` with fewer than two rays.
+fn prior_vs_rays(
+    st: &Structure,
+    pb: &Problem,
+    ev: &solver::Evaluated,
+    p: usize,
+    i: usize,
+) -> Option<(Vector3<f64>, Matrix3<f64>, Vector3<f64>)> {
+    let Kind::PointPrior { value, sigma } = &pb.res[i].kind else {
+        return None;
+    };
+    let mut v = Matrix3::zeros();
+    let mut g = Vector3::zeros();
+    let mut rays = 0;
+    for &j in &st.point_res[p] {
+        if let (Kind::Image { .. }, Some(e)) = (&pb.res[j].kind, &ev.evals[j]) {
+            let w = ev.weights[j];
+            v += w * e.j_point.transpose() * e.j_point;
+            g += w * e.j_point.transpose() * e.r;
+            rays += 1;
+        }
+    }
+    if rays < 2 {
+        return None;
+    }
+    let q = v.try_inverse()?;
+    let x_rays = pb.state.points[p] - q * g;
+    Some((x_rays - value, q, *sigma))
+}
+
+/// dᵀ(f²Q + Σ)⁻¹d over the prior's known axes, and their number.
+fn prior_test(d: &Vector3<f64>, q: &Matrix3<f64>, sigma: &Vector3<f64>, f2: f64) -> (f64, usize) {
+    let idx: Vec<usize> = (0..3).filter(|&c| sigma[c].is_finite()).collect();
+    let n = idx.len();
+    let m = DMatrix::from_fn(n, n, |a, b| {
+        f2 * q[(idx[a], idx[b])] + if a == b { sigma[idx[a]].powi(2) } else { 0.0 }
+    });
+    let v = DVector::from_fn(n, |a, _| d[idx[a]]);
+    match m.cholesky() {
+        Some(c) => (v.dot(&c.solve(&v)), n),
+        None => (0.0, 0),
+    }
+}
+
+/// The active image observations of object point `p`.
+fn active_rays(pb: &Problem, st: &Structure, p: usize) -> Vec<usize> {
+    st.point_res[p]
+        .iter()
+        .copied()
+        .filter(|&j| pb.res[j].active && matches!(pb.res[j].kind, Kind::Image { .. }))
         .collect()
 }
 
@@ -134,17 +537,12 @@ pub(super) fn select_rejections(
 /// the ray whose removal leaves the others most consistent (smallest sum of squared
 /// residuals of a re-intersection with the current orientations). With three rays or
 /// more this tells a wrong ray from the good ones its error smeared into.
-fn localize(pb: &Problem, st: &Structure, p: usize) -> Option<usize> {
-    let rays: Vec<usize> = st.point_res[p]
-        .iter()
-        .copied()
-        .filter(|&j| pb.res[j].active && matches!(pb.res[j].kind, Kind::Image { .. }))
-        .collect();
+fn localize(pb: &Problem, rays: &[usize]) -> Option<usize> {
     if rays.len() < 3 {
         return None;
     }
     let ray = |j: usize| {
-        let r = &pb.res[j];
+        let r: &ResidualBlock = &pb.res[j];
         let Kind::Image { pixel, sigma } = r.kind else {
             unreachable!()
         };
@@ -156,7 +554,7 @@ fn localize(pb: &Problem, st: &Structure, p: usize) -> Option<usize> {
         )
     };
     let mut best: Option<(usize, f64)> = None;
-    for &skip in &rays {
+    for &skip in rays {
         let others: Vec<_> = rays
             .iter()
             .filter(|&&j| j != skip)
@@ -178,54 +576,4 @@ fn localize(pb: &Problem, st: &Structure, p: usize) -> Option<usize> {
         }
     }
     best.map(|(j, _)| j)
-}
-
-/// Re-admits rejected observations whose residual against the current solution is
-/// within k·σ0 (r = 1: a rejected observation does not take part in the solution).
-pub(super) fn readmit(
-    pb: &mut Problem,
-    rejected: &mut Vec<Rejected>,
-    opts: &AdjustOptions,
-) -> bool {
-    let Some(k) = rejection_k(opts.rejection) else {
-        return false;
-    };
-    let st = pb.structure();
-    let ev = solver::evaluate(&pb.res, &pb.state, opts.loss);
-    let pts = solver::point_systems(&st, &pb.res, &ev, 0.0);
-    let s0 = precision::robust_sigma0(&ev, &precision::standardized(&pb.res, &ev, &pts, 1.0));
-    if !s0.is_finite() {
-        return false;
-    }
-    let index: BTreeMap<String, usize> = pb
-        .refs
-        .iter()
-        .enumerate()
-        .filter(|(i, _)| !pb.res[*i].active)
-        .map(|(i, r)| (format!("{r:?}"), i))
-        .collect();
-    let mut any = false;
-    rejected.retain(|rj| {
-        let Some(&i) = index.get(&format!("{:?}", rj.observation)) else {
-            return true;
-        };
-        let mut blk = pb.res[i].clone();
-        blk.active = true;
-        let ok = blk
-            .evaluate(&pb.state)
-            .map(|e| (0..e.dim).all(|c| e.r[c].abs() < k * s0))
-            .unwrap_or(false);
-        // Only when the point is still in the solution.
-        let alive = blk
-            .point
-            .is_none_or(|p| pb.res.iter().any(|r| r.active && r.point == Some(p)));
-        if ok && alive {
-            pb.res[i].active = true;
-            any = true;
-            false
-        } else {
-            true
-        }
-    });
-    any
 }

@@ -112,8 +112,11 @@ class Block:
         n, dd, w = as_f64(normals, 3, "normals"), as_f64(d), as_f64(weights)
         check(lib.ccp_block_add_planes(self._h, len(p), p.ctypes.data_as(_u64p), ptr(n), ptr(dd), ptr(w)))
 
-    def adjust(self, loss: str = "huber", loss_scale: float = 2.0, rejection: str = "threshold", k: float = 3.0,
+    def adjust(self, loss: str = "huber", loss_scale: float = 2.0, rejection: str = "snooping", k: float = 3.2905,
                max_iterations: int = 50, max_rounds: int = 10) -> dict:
+        """Robust bundle adjustment. The default is the library's: Baarda data snooping against
+        the a-priori σ with k = 3.2905 (α0 = 0.1 % per test); "threshold" rejects standardised
+        residuals above k·σ0 re-estimated each round (it erodes the tails of clean data)."""
         o = AdjustOptions(LOSS[loss], loss_scale, REJECTION[rejection], k, max_iterations, max_rounds)
         s = AdjustSummary()
         check(lib.ccp_block_adjust(self._h, ctypes.byref(o), ctypes.byref(s)))

@@ -49,12 +49,17 @@ pub struct AdjustArgs {
     /// Robust loss.
     #[arg(long, default_value = "huber")]
     pub robust: String,
-    /// Gross-error elimination threshold k (in σ0); 0 disables it.
+    /// Gross-error elimination: `snooping` (Baarda data snooping against the a-priori σ,
+    /// each observation tested with its own dimension at level --alpha), `threshold`
+    /// (standardised residuals above --reject k·σ0, σ0 re-estimated each round) or `none`.
+    #[arg(long, default_value = "snooping")]
+    pub rejection: String,
+    /// Significance level α0 of each data-snooping test.
+    #[arg(long, default_value_t = 0.001)]
+    pub alpha: f64,
+    /// k of the `threshold` rule (in σ0); 0 disables elimination whatever the rule.
     #[arg(long, default_value_t = 3.0)]
     pub reject: f64,
-    /// Baarda data snooping (a-priori σ) instead of the k·σ0 threshold.
-    #[arg(long)]
-    pub snooping: bool,
     /// A-priori σ of image measurements (px).
     #[arg(long, default_value_t = 1.0)]
     pub sigma_px: f64,
@@ -190,7 +195,12 @@ fn read_surveyed(a: &AdjustArgs) -> Result<Surveyed, String> {
         };
         match a.gcp_sigma[..] {
             [] => {}
-            [xy, z] => (o.sigma_xy, o.sigma_z) = (xy, z),
+            [xy, z] if xy > 0.0 && z > 0.0 => (o.sigma_xy, o.sigma_z) = (xy, z),
+            [xy, z] => {
+                return err(format!(
+                    "--gcp-sigma: σ must be positive (inf for an unknown axis), got {xy},{z}"
+                ))
+            }
             _ => return err("--gcp-sigma: expected two values, σ_xy,σ_z (m)"),
         }
         let f = read_odm_gcp(p, &o).map_err(text)?;
@@ -295,12 +305,17 @@ pub fn run_adjust(a: &AdjustArgs) -> Result<serde_json::Value, String> {
         "none" => Loss::None,
         o => return err(format!("--robust: '{o}' is not one of huber, cauchy, none")),
     };
-    let rejection = if a.reject <= 0.0 {
-        Rejection::None
-    } else if a.snooping {
-        Rejection::DataSnooping(a.reject)
-    } else {
-        Rejection::Threshold(a.reject)
+    let rejection = match a.rejection.as_str() {
+        _ if a.reject <= 0.0 => Rejection::None,
+        "none" => Rejection::None,
+        "threshold" => Rejection::Threshold(a.reject),
+        "snooping" if a.alpha > 0.0 && a.alpha < 0.5 => Rejection::data_snooping(a.alpha),
+        "snooping" => return err(format!("--alpha: {} is not a level in (0, 0.5)", a.alpha)),
+        o => {
+            return err(format!(
+                "--rejection: '{o}' is not one of snooping, threshold, none"
+            ))
+        }
     };
     let opts = AdjustOptions {
         loss,
@@ -349,6 +364,7 @@ pub fn run_adjust(a: &AdjustArgs) -> Result<serde_json::Value, String> {
                     covariance: false,
                     ..opts.clone()
                 },
+                alpha: a.alpha,
                 ..GeorefOptions::default()
             },
         )

@@ -1,0 +1,420 @@
+//! The adjustment's report and the write-back of the solution into the block: precision,
+//! self-calibration, variance components, check points, and a clean output model (no
+//! rejected observation, no tie point left with fewer than two rays).
+
+use super::precision::{self, cofactors, intersect};
+use super::problem::{n_unknowns, Problem};
+use super::residual::Kind;
+use super::robust::RejectionTest;
+use super::solver::{self, Structure};
+use super::{
+    AdjustError, AdjustOptions, AdjustReport, CalibrationReport, CheckPointReport, CheckSummary,
+    Loss, ObservationRef, PhotoPrecision, Rejected, RejectedSummary, ResidualReport,
+};
+use crate::block::{Block, PointKind};
+use nalgebra::Vector3;
+use std::time::Instant;
+
+#[allow(clippy::too_many_arguments)]
+pub(super) fn finish(
+    block: &mut Block,
+    pb: &Problem,
+    st: &Structure,
+    opts: &AdjustOptions,
+    loss: Loss,
+    test: &RejectionTest,
+    rejected: Vec<Rejected>,
+    iterations: usize,
+    rounds: usize,
+    converged: bool,
+    t0: Instant,
+) -> Result<AdjustReport, AdjustError> {
+    let n_points = pb.point_ids.len();
+    let ev = solver::evaluate(&pb.res, &pb.state, loss);
+    let n_unk = n_unknowns(st, &pb.res, n_points);
+    let (s0, n_obs, redundancy) = precision::sigma0(&pb.res, &ev, n_unk);
+    let pts = solver::point_systems(st, &pb.res, &ev, 0.0);
+    let std = precision::standardized(&pb.res, &ev, &pts, if s0.is_finite() { s0 } else { 1.0 });
+    let rmse_px = precision::image_rmse(&pb.res, &ev);
+
+    // Per-photo image RMS.
+    let mut ph_sum = vec![(0.0, 0usize); pb.photo_ids.len()];
+    let mut residuals = Vec::new();
+    for (i, r) in pb.res.iter().enumerate() {
+        let Some(e) = &ev.evals[i] else { continue };
+        let scale: Vec<f64> = match &r.kind {
+            Kind::Image { sigma, .. } => {
+                let ph = r.photo.expect("image block has a photo");
+                ph_sum[ph].0 += e.norm_sq() * sigma * sigma;
+                ph_sum[ph].1 += 1;
+                vec![*sigma; 2]
+            }
+            Kind::PointPrior { sigma, .. } | Kind::PosCenter { sigma, .. } => {
+                sigma.iter().copied().collect()
+            }
+            Kind::PosAttitude { sigma, .. } => vec![*sigma; 3],
+            Kind::Plane { sqrt_weight, .. } => vec![1.0 / sqrt_weight],
+        };
+        let (red, w) = std[i].unwrap_or((1.0, 0.0));
+        // An axis without prior (σ = ∞) reports the adjusted minus the given coordinate.
+        let unweighted = |k: usize| match (&r.kind, r.point) {
+            (Kind::PointPrior { value, .. }, Some(p)) => pb.state.points[p][k] - value[k],
+            _ => 0.0,
+        };
+        residuals.push(ResidualReport {
+            observation: pb.refs[i].clone(),
+            residual: (0..e.dim)
+                .map(|k| {
+                    if scale[k].is_finite() {
+                        e.r[k] * scale[k]
+                    } else {
+                        unweighted(k)
+                    }
+                })
+                .collect(),
+            standardized: w,
+            redundancy: red,
+        });
+    }
+
+    // Precision from the undamped reduced camera system.
+    let mut photo_precision = Vec::new();
+    let mut calibration = Vec::new();
+    let rows = solver::reduced_rows(st, &pb.res, &ev, &pts, 0.0);
+    let mut cache = solver::SymbolicCache::default();
+    let factor = solver::factorize(st, &rows, &mut cache);
+    let var0 = if s0.is_finite() { s0 * s0 } else { 1.0 };
+    let cof = factor.as_ref().map(|f| cofactors(st, f, opts.covariance));
+    if factor.is_none() {
+        tracing::warn!("the reduced camera system is singular at the solution: no precision");
+    }
+    for (i, &pid) in pb.photo_ids.iter().enumerate() {
+        let mut sr = [f64::NAN; 3];
+        let mut sc = [f64::NAN; 3];
+        if let Some(c) = &cof {
+            let q = &c.diag_blocks[i];
+            for (j, &k) in st.free[i].iter().enumerate() {
+                if q.nrows() > j {
+                    let s = (q[(j, j)] * var0).max(0.0).sqrt();
+                    if k < 3 {
+                        sr[k] = s;
+                    } else {
+                        sc[k - 3] = s;
+                    }
+                }
+            }
+            for k in 0..6 {
+                if !st.free[i].contains(&k) {
+                    if k < 3 {
+                        sr[k] = 0.0;
+                    } else {
+                        sc[k - 3] = 0.0;
+                    }
+                }
+            }
+        }
+        let (s, n) = ph_sum[i];
+        photo_precision.push(PhotoPrecision {
+            photo: pid,
+            name: block.photos[&pid].name.clone(),
+            sigma_rotation_rad: sr,
+            sigma_center_m: sc,
+            rmse_px: if n > 0 {
+                (s / (2 * n) as f64).sqrt()
+            } else {
+                0.0
+            },
+            observations: n,
+        });
+    }
+    if let (Some(c), Some(f)) = (&cof, &factor) {
+        let _ = f;
+        // Reduced-system diagonal (1 / conditional variance) for the multiple correlation.
+        let mut sdiag = vec![0.0; st.n];
+        for (b, row) in rows.iter().enumerate() {
+            for (j, &k) in st.free[b].iter().enumerate() {
+                sdiag[st.offset[b] + j] = row.blocks[0][(k, k)];
+            }
+        }
+        let name_of = |g: usize| -> String {
+            let b = st.offset.partition_point(|&o| o <= g) - 1;
+            let k = st.free[b][g - st.offset[b]];
+            if b < st.n_photos {
+                let n = ["rx", "ry", "rz", "cx", "cy", "cz"][k];
+                format!("photo {} {n}", pb.photo_ids[b])
+            } else {
+                let ci = st
+                    .camera_block
+                    .iter()
+                    .position(|x| *x == Some(b))
+                    .expect("camera");
+                format!(
+                    "camera {} {}",
+                    pb.camera_ids[ci],
+                    pb.state.cameras[ci].param_names()[k]
+                )
+            }
+        };
+        for (ci, cb) in st.camera_block.iter().enumerate() {
+            let Some(b) = cb else { continue };
+            let params = pb.state.cameras[ci].params();
+            for (j, &k) in st.free[*b].iter().enumerate() {
+                let g = st.offset[*b] + j;
+                let Some((_, col)) = c.columns.iter().find(|(gg, _)| *gg == g) else {
+                    continue;
+                };
+                let qkk = col[g];
+                let mut best = (0.0f64, String::new());
+                for (h, &qh) in col.iter().enumerate() {
+                    let d = c.diag[h];
+                    if h == g || !d.is_finite() || d <= 0.0 {
+                        continue;
+                    }
+                    // fx and fy are one physical focal length for square pixels: their
+                    // mutual correlation says nothing about the block geometry.
+                    let pair = st.free[*b].get(h.wrapping_sub(st.offset[*b])).copied();
+                    if matches!((k, pair), (0, Some(1)) | (1, Some(0))) {
+                        continue;
+                    }
+                    let rho = (qh / (qkk * d).sqrt()).abs();
+                    if rho > best.0 {
+                        best = (rho, name_of(h));
+                    }
+                }
+                // Multiple correlation with all other camera-side unknowns.
+                let multiple = (1.0 - 1.0 / (qkk * sdiag[g])).max(0.0).sqrt();
+                tracing::debug!(multiple, pairwise = best.0, "self-calibration correlation");
+                let (corr, with) = best;
+                let determinable = corr < opts.max_correlation;
+                if !determinable {
+                    tracing::warn!(
+                        camera = pb.camera_ids[ci],
+                        param = pb.state.cameras[ci].param_names()[k],
+                        corr,
+                        "self-calibration parameter is not determinable by this block"
+                    );
+                }
+                calibration.push(CalibrationReport {
+                    camera: pb.camera_ids[ci],
+                    param: pb.state.cameras[ci].param_names()[k].to_string(),
+                    value: params[k],
+                    sigma: (qkk * var0).max(0.0).sqrt(),
+                    max_correlation: corr,
+                    correlated_with: with,
+                    determinable,
+                    fixed: false,
+                });
+            }
+        }
+    }
+
+    let variance_components =
+        group_variances(pb, st, opts, &ev, &pts, factor.as_ref(), cof.as_ref());
+
+    // Write back.
+    for (i, &pid) in pb.photo_ids.iter().enumerate() {
+        let ph = block.photos.get_mut(&pid).expect("photo");
+        ph.pose = pb.state.poses[i];
+        ph.status = crate::block::PhotoStatus::Oriented;
+    }
+    for (i, &cid) in pb.camera_ids.iter().enumerate() {
+        block.cameras.get_mut(&cid).expect("camera").model = pb.state.cameras[i].clone();
+    }
+    // A tie point is written back with its adjusted position when at least two of its
+    // image observations are in the solution; a tie point left with fewer (its other rays
+    // rejected) cannot be intersected and leaves the block, so the output model holds no
+    // point whose position its observations do not determine. Control points stay: one
+    // ray of a surveyed point still constrains its photo.
+    let mut rays = vec![0usize; n_points];
+    let mut active_point = vec![false; n_points];
+    for r in pb.res.iter().filter(|r| r.active) {
+        if let Some(p) = r.point {
+            active_point[p] = true;
+            if matches!(r.kind, Kind::Image { .. }) {
+                rays[p] += 1;
+            }
+        }
+    }
+    for (i, &id) in pb.point_ids.iter().enumerate() {
+        let pt = block.points.get_mut(&id).expect("point");
+        if pt.kind == PointKind::Tie && active_point[i] {
+            pt.position = pb.state.points[i];
+        }
+    }
+    for rj in &rejected {
+        if let ObservationRef::Image { point, photo } = rj.observation {
+            if let Some(pt) = block.points.get_mut(&point) {
+                pt.observations.retain(|o| o.photo != photo);
+            }
+        }
+    }
+    let in_solution: std::collections::BTreeMap<_, usize> = pb
+        .point_ids
+        .iter()
+        .zip(&rays)
+        .map(|(&id, &n)| (id, n))
+        .collect();
+    let before = block.points.len();
+    block.points.retain(|id, p| {
+        p.kind != PointKind::Tie
+            || in_solution.get(id).copied().unwrap_or(p.observations.len()) >= 2
+    });
+    let removed_tie_points = before - block.points.len();
+    if removed_tie_points > 0 {
+        tracing::info!(
+            removed_tie_points,
+            "tie points with fewer than two image observations left the block"
+        );
+    }
+
+    let check = check_points(block);
+    let n_active_points = active_point.iter().filter(|&&a| a).count();
+    Ok(AdjustReport {
+        sigma0: s0,
+        rejection_test: test.describe(),
+        variance_components,
+        removed_tie_points,
+        rmse_px,
+        iterations,
+        rounds,
+        converged,
+        datum: pb.datum.clone(),
+        photos: pb.photo_ids.len(),
+        points: n_active_points,
+        observations: n_obs,
+        redundancy,
+        rejected: RejectedSummary {
+            count: rejected.len(),
+            list: rejected,
+        },
+        time_s: t0.elapsed().as_secs_f64(),
+        photo_precision,
+        calibration,
+        check,
+        residuals,
+    })
+}
+
+/// Intersects every check point with the adjusted orientations and compares.
+pub(crate) fn check_points(block: &Block) -> Option<CheckSummary> {
+    let mut pts = Vec::new();
+    for pt in block.points.values().filter(|p| p.kind == PointKind::Check) {
+        let rays: Vec<_> = pt
+            .observations
+            .iter()
+            .filter_map(|o| {
+                let ph = block.photos.get(&o.photo)?;
+                let cam = &block.cameras.get(&ph.camera)?.model;
+                Some((cam, &ph.pose, o.pixel, o.sigma_px))
+            })
+            .collect();
+        let Some(x) = intersect(&rays) else {
+            tracing::warn!(
+                point = pt.id,
+                "check point cannot be intersected (fewer than two usable rays)"
+            );
+            continue;
+        };
+        let e = x - pt.position;
+        pts.push(CheckPointReport {
+            point: pt.id,
+            name: pt.name.clone(),
+            error: [e.x, e.y, e.z],
+            rays: rays.len(),
+        });
+    }
+    if pts.is_empty() {
+        return None;
+    }
+    let n = pts.len() as f64;
+    let plan = (pts
+        .iter()
+        .map(|p| p.error[0].powi(2) + p.error[1].powi(2))
+        .sum::<f64>()
+        / n)
+        .sqrt();
+    let height = (pts.iter().map(|p| p.error[2].powi(2)).sum::<f64>() / n).sqrt();
+    let max = pts
+        .iter()
+        .map(|p| Vector3::from(p.error).norm())
+        .fold(0.0, f64::max);
+    Some(CheckSummary {
+        count: pts.len(),
+        rmse_plan_m: plan,
+        rmse_height_m: height,
+        max_m: max,
+        points: pts,
+    })
+}
+
+/// Variance components per observation group, with exact redundancy numbers for control
+/// priors (the point's full cofactor) and POS priors (the photo's EO cofactor, when the
+/// EO covariances were computed).
+fn group_variances(
+    pb: &Problem,
+    st: &Structure,
+    opts: &AdjustOptions,
+    ev: &solver::Evaluated,
+    pts: &[solver::PointSys],
+    factor: Option<&solver::Factor>,
+    cof: Option<&precision::Cofactors>,
+) -> Vec<super::VarianceComponent> {
+    let ev_ls = solver::evaluate(&pb.res, &pb.state, Loss::None);
+    let pts_ls = solver::point_systems(st, &pb.res, &ev_ls, 0.0);
+    let snoop = precision::snooping(&pb.res, &ev_ls, &pts_ls);
+    let mut exact = Vec::new();
+    for (i, r) in pb.res.iter().enumerate() {
+        if !r.active || ev.evals[i].is_none() {
+            continue;
+        }
+        let (q, sigma) = match (&r.kind, r.point, r.photo) {
+            (Kind::PointPrior { sigma, .. }, Some(p), _) => match factor {
+                Some(f) => (precision::point_cofactor(st, f, &pts[p]), *sigma),
+                None => continue,
+            },
+            (Kind::PosCenter { sigma, .. }, _, Some(ph)) if opts.covariance => {
+                match eo_cofactor(st, cof, ph, 3) {
+                    Some(q) => (q, *sigma),
+                    None => continue,
+                }
+            }
+            (Kind::PosAttitude { sigma, .. }, _, Some(ph)) if opts.covariance => {
+                match eo_cofactor(st, cof, ph, 0) {
+                    Some(q) => (q, Vector3::repeat(*sigma)),
+                    None => continue,
+                }
+            }
+            _ => continue,
+        };
+        let red: f64 = (0..3)
+            .filter(|&k| sigma[k].is_finite())
+            .map(|k| (1.0 - q[(k, k)] / (sigma[k] * sigma[k])).max(0.0))
+            .sum();
+        exact.push((i, red));
+    }
+    precision::variance_components(&pb.res, &ev_ls, &snoop, &exact)
+}
+
+/// 3×3 cofactor of a photo's rotation (`first` 0) or centre (3); a parameter held fixed
+/// by the datum has cofactor 0.
+fn eo_cofactor(
+    st: &Structure,
+    cof: Option<&precision::Cofactors>,
+    photo: usize,
+    first: usize,
+) -> Option<nalgebra::Matrix3<f64>> {
+    let q = &cof?.diag_blocks[photo];
+    let free = &st.free[photo];
+    if q.nrows() != free.len() {
+        return None;
+    }
+    let mut m = nalgebra::Matrix3::zeros();
+    for (a, &ka) in free.iter().enumerate() {
+        for (b, &kb) in free.iter().enumerate() {
+            if (first..first + 3).contains(&ka) && (first..first + 3).contains(&kb) {
+                m[(ka - first, kb - first)] = q[(a, b)];
+            }
+        }
+    }
+    Some(m)
+}
