@@ -274,6 +274,30 @@ fn hand_written_files_with_mistakes_name_line_and_column() {
         e.contains("p3.csv: line 2, column sigma_xy: σ must be positive"),
         "{e}"
     );
+    let e = cp::read_points(&write(
+        "p4.csv",
+        "id,x,y,z,sigma_xy,sigma_z\nA,1,2,3,0.1,NaN\n",
+    ))
+    .unwrap_err()
+    .to_string();
+    assert!(e.contains("p4.csv: line 2, column sigma_z:"), "{e}");
+    // σ_z = inf: a plan control point (its height unknown).
+    let pts = cp::read_points(&write(
+        "p5.csv",
+        "id,x,y,z,sigma_xy,sigma_z\nA,1,2,0,0.1,inf\n",
+    ))
+    .unwrap();
+    assert_eq!((pts[0].sigma_xy, pts[0].sigma_z), (0.1, f64::INFINITY));
+    let e = cp::read_points(&write(
+        "p6.csv",
+        "id,x,y,z,sigma_xy,sigma_z\nA,1,2,0,inf,inf\n",
+    ))
+    .unwrap_err()
+    .to_string();
+    assert!(
+        e.contains("p6.csv: line 2, column sigma_z: point A: σ_xy and σ_z both inf"),
+        "{e}"
+    );
     let e = cp::read_measurements(&write(
         "m1.csv",
         "id,image_name,x,y\n\n# c\nA,a.tif,1,inf\n",

@@ -62,13 +62,15 @@ fn require_text(path: &Path, line: usize, column: &str, v: &str) -> Result<()> {
     Ok(())
 }
 
+/// A σ must be positive; `inf` is allowed (an axis without a coordinate: 2-D control or a
+/// height-only point), NaN is not.
 fn require_positive(path: &Path, line: usize, column: &str, v: f64) -> Result<f64> {
-    if v <= 0.0 {
+    if v.is_nan() || v <= 0.0 {
         return Err(FormatError::at(
             path,
             line,
             Some(column.into()),
-            format!("σ must be positive, found {v}"),
+            format!("σ must be positive (or inf for an unknown axis), found {v}"),
         ));
     }
     Ok(v)
@@ -80,9 +82,34 @@ struct PointRow {
     x: f64,
     y: f64,
     z: f64,
-    sigma_xy: Option<f64>,
-    sigma_z: Option<f64>,
+    sigma_xy: Option<Sigma>,
+    sigma_z: Option<Sigma>,
     kind: Option<String>,
+}
+
+/// A σ cell: a number, or `inf` for an axis without a coordinate (2-D or height-only
+/// control) — the one column where the CSV reader's refusal of non-finite numbers is
+/// lifted. Its sign is checked with the row, naming line and column.
+#[derive(Clone, Copy)]
+struct Sigma(f64);
+
+impl<'de> Deserialize<'de> for Sigma {
+    fn deserialize<D: serde::Deserializer<'de>>(d: D) -> std::result::Result<Self, D::Error> {
+        let text = String::deserialize(d)?;
+        match text.trim().to_ascii_lowercase().as_str() {
+            "inf" | "+inf" | "infinity" => Ok(Sigma(f64::INFINITY)),
+            t => t
+                .parse::<f64>()
+                .ok()
+                .filter(|v| v.is_finite())
+                .map(Sigma)
+                .ok_or_else(|| {
+                    serde::de::Error::custom(format!(
+                        "{text:?} is not a σ (a positive number, or inf for an unknown axis)"
+                    ))
+                }),
+        }
+    }
 }
 
 /// σ of a surveyed coordinate when the file has no σ column (m): a GNSS-surveyed target.
@@ -133,14 +160,33 @@ pub fn read_points(path: &Path) -> Result<Vec<SurveyedPoint>> {
                 ))
             }
         };
+        if r.sigma_xy
+            .zip(r.sigma_z)
+            .is_some_and(|(a, b)| a.0.is_infinite() && b.0.is_infinite())
+        {
+            return Err(FormatError::at(
+                path,
+                line,
+                Some("sigma_z".into()),
+                format!(
+                    "point {}: σ_xy and σ_z both inf, it would control nothing",
+                    r.id
+                ),
+            ));
+        }
         out.push(SurveyedPoint {
             sigma_xy: require_positive(
                 path,
                 line,
                 "sigma_xy",
-                r.sigma_xy.unwrap_or(DEFAULT_SIGMA_M),
+                r.sigma_xy.map_or(DEFAULT_SIGMA_M, |s| s.0),
             )?,
-            sigma_z: require_positive(path, line, "sigma_z", r.sigma_z.unwrap_or(DEFAULT_SIGMA_M))?,
+            sigma_z: require_positive(
+                path,
+                line,
+                "sigma_z",
+                r.sigma_z.map_or(DEFAULT_SIGMA_M, |s| s.0),
+            )?,
             id: r.id,
             xyz: [r.x, r.y, r.z],
             kind,

@@ -124,12 +124,20 @@ pub fn parse_odm_gcp(path: &Path, text: &str, opts: &GcpOptions) -> Result<GcpFi
         ("sigma_z", opts.sigma_z),
         ("sigma_px", opts.sigma_px),
     ] {
-        if !(v.is_finite() && v > 0.0) {
+        // An infinite σ_xy or σ_z is an axis without a coordinate (2-D or height-only
+        // control); a pixel σ must be finite.
+        if !(v > 0.0 && (v.is_finite() || name != "sigma_px")) {
             return Err(FormatError::invalid(
                 path,
-                format!("GCP option {name} must be positive and finite, found {v}"),
+                format!("GCP option {name} must be positive (finite for sigma_px), found {v}"),
             ));
         }
+    }
+    if opts.sigma_xy.is_infinite() && opts.sigma_z.is_infinite() {
+        return Err(FormatError::invalid(
+            path,
+            "GCP options sigma_xy and sigma_z are both infinite: the points would control nothing",
+        ));
     }
     let text = text.strip_prefix('\u{feff}').unwrap_or(text);
     // ODM and OpenSfM skip blank lines and lines starting with `#`.
