@@ -161,6 +161,11 @@ pub struct Rejected {
     /// standardised component in units of the round's robust σ0.
     pub standardized_residual: f64,
     pub reason: String,
+    /// The observation went with its whole tie point: the point's rays disagree but have
+    /// no redundancy to tell which one is wrong (two rays, or three along one base line),
+    /// so the point leaves the block; this observation is not itself claimed wrong.
+    #[serde(default)]
+    pub with_point: bool,
 }
 
 /// Residual of one observation after the adjustment.
@@ -265,10 +270,16 @@ pub struct AdjustReport {
     /// The gross-error test used, e.g. "baarda_data_snooping alpha=0.001 sigma=a_priori",
     /// "baarda_data_snooping alpha=0.001 sigma=first_round 1.83" (the a-priori image σ was
     /// too optimistic: the test used the first solution's robust σ0, fixed for all rounds),
-    /// "threshold k=3 sigma=robust_sigma0" or "none"; ", final sweep n" when the rounds
-    /// ran out and n remaining exceedances were rejected at once.
+    /// "threshold k=3 sigma=robust_sigma0" or "none"; ", control sigma x4.2" when the
+    /// control group's σ were scaled (see `control_sigma_scale`); ", final sweep n" when
+    /// the rounds ran out and n remaining exceedances were rejected at once.
     #[serde(default)]
     pub rejection_test: String,
+    /// Factor every control σ was scaled by on the first solution, when the control as a
+    /// whole fitted its rays significantly worse than its stated σ (data snooping; the
+    /// control group's residuals and variance component refer to the scaled σ).
+    #[serde(default)]
+    pub control_sigma_scale: Option<f64>,
     /// σ0 per observation group.
     #[serde(default)]
     pub variance_components: Vec<VarianceComponent>,

@@ -470,8 +470,9 @@ pub fn adjust(
             cost = out.final_cost,
             "adjustment round"
         );
-        if round == 1 {
-            test.calibrate(&st, &pb);
+        // A re-weighted control group is solved again before anything is tested.
+        if round == 1 && test.calibrate(&st, &mut pb) {
+            continue;
         }
         if round >= opts.max_rounds {
             exhausted = true;

@@ -272,6 +272,7 @@ pub(super) fn finish(
     Ok(AdjustReport {
         sigma0: s0,
         rejection_test: test.describe(),
+        control_sigma_scale: test.control_scale,
         variance_components,
         removed_tie_points,
         rmse_px,

@@ -32,6 +32,8 @@ pub(super) struct RejectionTest {
     first_round: Option<f64>,
     /// Observations rejected by the final sweep(s).
     pub(super) swept: usize,
+    /// Factor the control points' σ were scaled by on the first solution (data snooping).
+    pub(super) control_scale: Option<f64>,
 }
 
 /// The test statistics of one solution.
@@ -61,6 +63,7 @@ impl RejectionTest {
             image_sigma: 1.0,
             first_round: None,
             swept: 0,
+            control_scale: None,
         }
     }
 
@@ -82,6 +85,9 @@ impl RejectionTest {
                 }
             }
         };
+        if let Some(f) = self.control_scale {
+            s.push_str(&format!(", control sigma x{f:.2}"));
+        }
         if self.swept > 0 {
             s.push_str(&format!(", final sweep {}", self.swept));
         }
@@ -97,10 +103,15 @@ impl RejectionTest {
     /// that σ0 (iterated): a gross error smears into its point's other rays, and with 5 %
     /// of the observations displaced the median over all points came out 1.24 for a
     /// right a-priori σ.
-    pub(super) fn calibrate(&mut self, st: &Structure, pb: &Problem) {
+    pub(super) fn calibrate(&mut self, st: &Structure, pb: &mut Problem) -> bool {
         if !matches!(self.rule, Rejection::DataSnooping(_)) {
-            return;
+            return false;
         }
+        self.calibrate_image(st, pb);
+        self.scale_control(st, pb)
+    }
+
+    fn calibrate_image(&mut self, st: &Structure, pb: &Problem) {
         let s = stats(st, pb);
         let img: Vec<(usize, &Snoop)> = pb
             .res
@@ -153,6 +164,83 @@ impl RejectionTest {
         }
     }
 
+    /// Variance component of the control group on the first solution: each control
+    /// point's surveyed position against the intersection of its own rays, dᵀ(Q + Σ)⁻¹d ~
+    /// χ²(d) with d its known axes. A control σ stated too small for the whole group (a
+    /// GCP file of digitised or handheld-GNSS points given σ 5 cm, fitting at decimetres)
+    /// would make every test fail, and the adjustment would reject good control and bend
+    /// the block onto it, pushing good tie observations over the image test. When the
+    /// median p-value of the points' tests is significantly small at α0 (the k-th smallest
+    /// of n uniforms, k the median's rank), every control σ is scaled by the factor that
+    /// brings the median p-value to ½, re-weighting the group (one robust variance
+    /// component step, fixed for later rounds). A median does not move for a minority of
+    /// wrong points: those are left for the test. Returns whether weights changed.
+    fn scale_control(&mut self, st: &Structure, pb: &mut Problem) -> bool {
+        let alpha = self.rule.alpha().unwrap_or(f64::NAN);
+        let ev = solver::evaluate(&pb.res, &pb.state, Loss::None);
+        let f2 = self.image_sigma * self.image_sigma;
+        let tests: Vec<(Vector3<f64>, Matrix3<f64>, Vector3<f64>)> = pb
+            .res
+            .iter()
+            .enumerate()
+            .filter(|(_, r)| r.active && matches!(r.kind, Kind::PointPrior { .. }))
+            .filter_map(|(i, r)| prior_vs_rays(st, pb, &ev, r.point?, i))
+            .filter(|(_, _, sigma)| sigma.iter().any(|v| v.is_finite()))
+            .collect();
+        let n = tests.len();
+        if n < 3 || !alpha.is_finite() {
+            return false;
+        }
+        let k = n.div_ceil(2);
+        let median_p = |f: f64| {
+            let mut p: Vec<f64> = tests
+                .iter()
+                .map(|(d, q, sigma)| {
+                    let (t, dof) = prior_test(d, q, &(sigma * f.sqrt()), f2);
+                    chi2::upper_tail(dof, t)
+                })
+                .collect();
+            p.sort_by(f64::total_cmp);
+            p[k - 1]
+        };
+        let m = median_p(1.0);
+        // P(k-th smallest of n uniforms ≤ m) = P(at least k of n below m).
+        let significance: f64 = (k..=n)
+            .map(|j| binomial(n, j) * m.powi(j as i32) * (1.0 - m).powi((n - j) as i32))
+            .sum();
+        if significance >= alpha {
+            return false;
+        }
+        let (mut lo, mut hi) = (1.0f64, 1.0f64);
+        while median_p(hi) < 0.5 && hi < 1e8 {
+            hi *= 4.0;
+        }
+        for _ in 0..60 {
+            let mid = (lo * hi).sqrt();
+            if median_p(mid) < 0.5 {
+                lo = mid;
+            } else {
+                hi = mid;
+            }
+        }
+        let scale = hi.sqrt();
+        if scale < GUARD_RATIO {
+            return false;
+        }
+        for r in pb.res.iter_mut() {
+            if let Kind::PointPrior { sigma, .. } = &mut r.kind {
+                *sigma *= scale;
+            }
+        }
+        self.control_scale = Some(scale);
+        tracing::warn!(
+            scale,
+            points = n,
+            "the control σ is too optimistic for the control as a whole: every control σ is scaled"
+        );
+        true
+    }
+
     /// Observations to reject after a solution. Per object point only the worst goes
     /// (a gross error smears into the other rays of its point, which recover once it is
     /// removed). `sweep` (the rounds ran out) takes every exceedance: data snooping per
@@ -200,25 +288,44 @@ impl RejectionTest {
                 *e = c;
             }
         }
+        let mut with_point = BTreeSet::new();
         if matches!(self.rule, Rejection::DataSnooping(_)) {
             for p in swept {
-                out.extend(self.sweep_point(st, pb, p));
+                for (i, w, reason, whole) in self.sweep_point(st, pb, p) {
+                    if whole {
+                        with_point.insert(i);
+                    }
+                    out.push((i, w, reason));
+                }
             }
         }
+        let (f2, crit1) = self.localisation_test();
         for (p, c) in best {
-            let i = match pb.res[c.i].kind {
-                Kind::Image { .. } => localize(pb, &active_rays(pb, st, p)).unwrap_or(c.i),
-                _ => c.i,
+            let blame = match pb.res[c.i].kind {
+                Kind::Image { .. } => {
+                    let rays = active_rays(pb, st, p);
+                    localize(pb, &rays, is_held(pb, st, p), f2, crit1).map(|b| (b, rays))
+                }
+                _ => None,
             };
-            let reason = if i == c.i {
-                c.reason.clone()
-            } else {
-                format!(
-                    "{}; left out as the ray that leaves the others most consistent",
-                    c.reason
-                )
-            };
-            out.push((i, c.w, reason));
+            match blame {
+                None => out.push((c.i, c.w, c.reason.clone())),
+                Some((Blame::Ray(i), _)) if i == c.i => out.push((i, c.w, c.reason.clone())),
+                Some((Blame::Ray(i), _)) => out.push((
+                    i,
+                    c.w,
+                    format!(
+                        "{}; left out as the ray that leaves the others most consistent",
+                        c.reason
+                    ),
+                )),
+                Some((Blame::Point, rays)) => {
+                    for &j in &rays {
+                        with_point.insert(j);
+                        out.push((j, c.w, point_reason(&c.reason, rays.len())));
+                    }
+                }
+            }
         }
         out.sort_by_key(|(i, _, _)| *i);
         out.into_iter()
@@ -234,18 +341,35 @@ impl RejectionTest {
                         } else {
                             reason
                         },
+                        with_point: with_point.contains(&i),
                     },
                 )
             })
             .collect()
     }
 
+    /// The variance factor of the image σ the tests assume, and the χ²(1) critical value
+    /// a leave-one-out pair is tested with (the threshold rule at α0 = 0.1 %).
+    fn localisation_test(&self) -> (f64, f64) {
+        let crit1 = if self.crit[1].is_finite() {
+            self.crit[1]
+        } else {
+            chi2::critical(1, 0.001)
+        };
+        (self.image_sigma * self.image_sigma, crit1)
+    }
+
     /// Final sweep of one object point: data snooping within the point with the
     /// orientations held — reject the worst (localised) observation, re-intersect, test
     /// the rest again — until all pass or too few rays remain. Rejecting every exceedance
     /// at once would also take the good rays a gross error smeared into.
-    fn sweep_point(&self, st: &Structure, pb: &Problem, p: usize) -> Vec<(usize, f64, String)> {
-        let f2 = self.image_sigma * self.image_sigma;
+    fn sweep_point(
+        &self,
+        st: &Structure,
+        pb: &Problem,
+        p: usize,
+    ) -> Vec<(usize, f64, String, bool)> {
+        let (f2, crit1) = self.localisation_test();
         let mut idx: Vec<usize> = st.point_res[p]
             .iter()
             .copied()
@@ -287,11 +411,23 @@ impl RejectionTest {
             let Some((j, t, _, dof)) = worst.filter(|w| w.2 > 1.0) else {
                 break;
             };
-            let i = match pb.res[j].kind {
-                Kind::Image { .. } => localize(pb, &rays).unwrap_or(j),
-                _ => j,
+            let reason = self.reason(&pb.res[j], t, dof);
+            let blame = match pb.res[j].kind {
+                Kind::Image { .. } => localize(pb, &rays, held, f2, crit1),
+                _ => None,
             };
-            out.push((i, t.sqrt(), self.reason(&pb.res[j], t, dof)));
+            let i = match blame {
+                None => j,
+                Some(Blame::Ray(i)) => i,
+                Some(Blame::Point) => {
+                    out.extend(
+                        rays.iter()
+                            .map(|&k| (k, t.sqrt(), point_reason(&reason, rays.len()), true)),
+                    );
+                    break;
+                }
+            };
+            out.push((i, t.sqrt(), reason, false));
             idx.retain(|&k| k != i);
         }
         out
@@ -424,6 +560,19 @@ impl RejectionTest {
     }
 }
 
+/// Binomial coefficient C(n, k) as a float (n is a number of control points).
+fn binomial(n: usize, k: usize) -> f64 {
+    (0..k).fold(1.0, |c, j| c * (n - j) as f64 / (j + 1) as f64)
+}
+
+/// The reason of a ray that went with its point.
+fn point_reason(test: &str, rays: usize) -> String {
+    format!(
+        "{test}; the point's {rays} rays cannot tell which one is wrong (leaving out any one \
+         fits): the tie point is removed"
+    )
+}
+
 /// An observation above the critical value: its index, test statistic (w), rank among
 /// its point's observations and the reason for the report.
 struct Candidate {
@@ -533,13 +682,28 @@ fn active_rays(pb: &Problem, st: &Structure, p: usize) -> Vec<usize> {
         .collect()
 }
 
-/// Leave-one-out localisation of a gross error among the rays of an object point:
-/// the ray whose removal leaves the others most consistent (smallest sum of squared
-/// residuals of a re-intersection with the current orientations). With three rays or
-/// more this tells a wrong ray from the good ones its error smeared into.
-fn localize(pb: &Problem, rays: &[usize]) -> Option<usize> {
+/// Where the gross error of an object point that failed its test lies.
+enum Blame {
+    /// This ray: leaving it out leaves the others consistent.
+    Ray(usize),
+    /// No single ray: the disagreement has no redundancy that tells the rays apart. Two
+    /// rays share one residual; three rays along one base line have one redundant
+    /// component along it (x-parallax), in which each ray's test statistic is the same.
+    /// The point leaves the block, else a ray chosen at random goes and the gross error
+    /// stays in the remaining two, where no test can see it.
+    Point,
+}
+
+/// Leave-one-out localisation of a gross error among the rays of an object point: the ray
+/// whose removal leaves the others most consistent (smallest sum of squared residuals of
+/// a re-intersection with the current orientations, in units of the tested σ, `f2` its
+/// variance factor). A point of three rays is localised only when leaving out any other
+/// ray leaves an inconsistent pair (its SSR, χ²(1) under H0, above `crit1`). `held`: the
+/// point also has a control prior or a LiDAR plane, whose redundancy tells the rays apart
+/// (`None` for the caller's own choice when it has fewer than three rays).
+fn localize(pb: &Problem, rays: &[usize], held: bool, f2: f64, crit1: f64) -> Option<Blame> {
     if rays.len() < 3 {
-        return None;
+        return (!held && rays.len() == 2).then_some(Blame::Point);
     }
     let ray = |j: usize| {
         let r: &ResidualBlock = &pb.res[j];
@@ -553,7 +717,7 @@ fn localize(pb: &Problem, rays: &[usize]) -> Option<usize> {
             sigma,
         )
     };
-    let mut best: Option<(usize, f64)> = None;
+    let mut ssr: Vec<(f64, usize)> = Vec::new();
     for &skip in rays {
         let others: Vec<_> = rays
             .iter()
@@ -563,7 +727,7 @@ fn localize(pb: &Problem, rays: &[usize]) -> Option<usize> {
         let Some(x) = intersect(&others) else {
             continue;
         };
-        let ssr: f64 = others
+        let s: f64 = others
             .iter()
             .map(|(c, pose, px, s)| {
                 crate::geometry::project(c, pose, &x)
@@ -571,9 +735,27 @@ fn localize(pb: &Problem, rays: &[usize]) -> Option<usize> {
                     .unwrap_or(f64::INFINITY)
             })
             .sum();
-        if best.is_none_or(|(_, b)| ssr < b) {
-            best = Some((skip, ssr));
-        }
+        ssr.push((s / f2, skip));
     }
-    best.map(|(j, _)| j)
+    ssr.sort_by(|a, b| a.0.total_cmp(&b.0));
+    let &(_, best) = ssr.first()?;
+    if rays.len() == 3 && !held && ssr.get(1).is_none_or(|s| s.0 <= crit1) {
+        return Some(Blame::Point);
+    }
+    Some(Blame::Ray(best))
+}
+
+/// Whether object point `p` has an active control prior (with a known axis) or a LiDAR
+/// plane besides its rays.
+fn is_held(pb: &Problem, st: &Structure, p: usize) -> bool {
+    st.point_res[p].iter().any(|&j| {
+        let r = &pb.res[j];
+        r.active
+            && r.point == Some(p)
+            && match r.kind {
+                Kind::PointPrior { .. } => r.kind.dof() > 0,
+                Kind::Plane { .. } => true,
+                _ => false,
+            }
+    })
 }
