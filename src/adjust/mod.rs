@@ -26,6 +26,7 @@ pub mod synthetic;
 
 pub use precision::intersect;
 pub use problem::adjust;
+pub use report::checkpoint_rmse;
 pub use resection::{resect, ResectionOptions, ResectionResult};
 pub use residual::Loss;
 

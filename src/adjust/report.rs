@@ -327,18 +327,7 @@ pub(crate) fn check_points(block: &Block) -> Option<CheckSummary> {
     if pts.is_empty() {
         return None;
     }
-    let n = pts.len() as f64;
-    let plan = (pts
-        .iter()
-        .map(|p| p.error[0].powi(2) + p.error[1].powi(2))
-        .sum::<f64>()
-        / n)
-        .sqrt();
-    let height = (pts.iter().map(|p| p.error[2].powi(2)).sum::<f64>() / n).sqrt();
-    let max = pts
-        .iter()
-        .map(|p| Vector3::from(p.error).norm())
-        .fold(0.0, f64::max);
+    let [plan, height, max] = checkpoint_rmse(pts.iter().map(|p| p.error));
     Some(CheckSummary {
         count: pts.len(),
         rmse_plan_m: plan,
@@ -346,6 +335,20 @@ pub(crate) fn check_points(block: &Block) -> Option<CheckSummary> {
         max_m: max,
         points: pts,
     })
+}
+
+/// RMSE in plan and height and the largest 3-D error of check point errors (m): the one
+/// checkpoint statistic of the adjustment report and the epoch evaluation. Zeros for none.
+pub fn checkpoint_rmse(errors: impl IntoIterator<Item = [f64; 3]>) -> [f64; 3] {
+    let (mut plan, mut height, mut max, mut n) = (0.0, 0.0, 0.0f64, 0usize);
+    for e in errors {
+        plan += e[0] * e[0] + e[1] * e[1];
+        height += e[2] * e[2];
+        max = max.max(Vector3::from(e).norm());
+        n += 1;
+    }
+    let n = n.max(1) as f64;
+    [(plan / n).sqrt(), (height / n).sqrt(), max]
 }
 
 /// Variance components per observation group, with exact redundancy numbers for control

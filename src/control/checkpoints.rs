@@ -108,18 +108,7 @@ pub fn evaluate_checkpoints(
     if points.is_empty() {
         return Err(EvaluationError::TooFewRays);
     }
-    let n = points.len() as f64;
-    let plan = (points
-        .iter()
-        .map(|p| p.error[0].powi(2) + p.error[1].powi(2))
-        .sum::<f64>()
-        / n)
-        .sqrt();
-    let height = (points.iter().map(|p| p.error[2].powi(2)).sum::<f64>() / n).sqrt();
-    let max = points
-        .iter()
-        .map(|p| Vector3::from(p.error).norm())
-        .fold(0.0, f64::max);
+    let [plan, height, max] = adjust::checkpoint_rmse(points.iter().map(|p| p.error));
     Ok(CheckpointEvaluation {
         count: points.len(),
         rmse_plan_m: plan,
