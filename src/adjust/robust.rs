@@ -107,12 +107,13 @@ impl RejectionTest {
         if !matches!(self.rule, Rejection::DataSnooping(_)) {
             return false;
         }
-        self.calibrate_image(st, pb);
-        self.scale_control(st, pb)
+        // One evaluation of the first solution serves both groups.
+        let s = stats(st, pb);
+        self.calibrate_image(pb, &s);
+        self.scale_control(st, pb, &s.ev)
     }
 
-    fn calibrate_image(&mut self, st: &Structure, pb: &Problem) {
-        let s = stats(st, pb);
+    fn calibrate_image(&mut self, pb: &Problem, s: &Stats) {
         let img: Vec<(usize, &Snoop)> = pb
             .res
             .iter()
@@ -175,16 +176,15 @@ impl RejectionTest {
     /// brings the median p-value to ½, re-weighting the group (one robust variance
     /// component step, fixed for later rounds). A median does not move for a minority of
     /// wrong points: those are left for the test. Returns whether weights changed.
-    fn scale_control(&mut self, st: &Structure, pb: &mut Problem) -> bool {
+    fn scale_control(&mut self, st: &Structure, pb: &mut Problem, ev: &solver::Evaluated) -> bool {
         let alpha = self.rule.alpha().unwrap_or(f64::NAN);
-        let ev = solver::evaluate(&pb.res, &pb.state, Loss::None);
         let f2 = self.image_sigma * self.image_sigma;
         let tests: Vec<(Vector3<f64>, Matrix3<f64>, Vector3<f64>)> = pb
             .res
             .iter()
             .enumerate()
             .filter(|(_, r)| r.active && matches!(r.kind, Kind::PointPrior { .. }))
-            .filter_map(|(i, r)| prior_vs_rays(st, pb, &ev, r.point?, i))
+            .filter_map(|(i, r)| prior_vs_rays(st, pb, ev, r.point?, i))
             .filter(|(_, _, sigma)| sigma.iter().any(|v| v.is_finite()))
             .collect();
         let n = tests.len();
