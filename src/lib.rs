@@ -8,6 +8,7 @@
 
 pub mod adjust;
 pub mod block;
+pub mod cache;
 pub mod control;
 pub mod estimators;
 pub mod ffi;

@@ -3,7 +3,7 @@
 
 use cloudcontrol::block::{Block, BlockCamera, Photo};
 use cloudcontrol::formats::crs::Crs;
-use cloudcontrol::formats::ortho::{write_orthophoto, OrthoOptions, RgbImage};
+use cloudcontrol::formats::ortho::{write_orthophoto, OrthoOptions, PhotoImages, RgbImage};
 use cloudcontrol::geometry::{
     back_project, rotation_from_vector, Brown, Camera, Dem, FrameCamera, Pose, Ray,
 };
@@ -53,7 +53,22 @@ fn texture(x: f64, y: f64) -> [u8; 3] {
     ]
 }
 
+/// Two photos of 500² px at 450 m over the hill and the building.
 fn scene() -> (Block, Dem, BTreeMap<u32, RgbImage>) {
+    let centres = [
+        (-70.0, 0.0, 450.0, [0.01, -0.02, 0.03]),
+        (70.0, 5.0, 455.0, [-0.015, 0.01, -0.02]),
+    ];
+    rendered_block(&centres, 500, 520.0)
+}
+
+/// Photos of `size`² px (focal `f` px, slight distortion) rendered from the textured DEM
+/// at the given centres (block frame) and rotation vectors off nadir.
+fn rendered_block(
+    centres: &[(f64, f64, f64, [f64; 3])],
+    size: u32,
+    f: f64,
+) -> (Block, Dem, BTreeMap<u32, RgbImage>) {
     let dem = Dem::from_fn(E0 - 200.0, N0 + 200.0, 2.0, 200, 200, terrain).unwrap();
     let mut block = Block::new();
     block.crs = Some("EPSG:32650".into());
@@ -64,9 +79,9 @@ fn scene() -> (Block, Dem, BTreeMap<u32, RgbImage>) {
             k2: 0.01,
             ..Default::default()
         },
-        cx: 251.3,
-        cy: 248.9,
-        ..FrameCamera::pinhole(500, 500, 520.0)
+        cx: size as f64 / 2.0 + 1.3,
+        cy: size as f64 / 2.0 - 1.1,
+        ..FrameCamera::pinhole(size, size, f)
     };
     block.cameras.insert(
         1,
@@ -78,10 +93,6 @@ fn scene() -> (Block, Dem, BTreeMap<u32, RgbImage>) {
         },
     );
     let nadir = Matrix3::from_diagonal(&Vector3::new(1.0, -1.0, -1.0));
-    let centres = [
-        (-70.0, 0.0, 450.0, [0.01, -0.02, 0.03]),
-        (70.0, 5.0, 455.0, [-0.015, 0.01, -0.02]),
-    ];
     let mut images = BTreeMap::new();
     for (i, (x, y, z, w)) in centres.iter().enumerate() {
         let id = i as u32 + 1;
@@ -90,9 +101,9 @@ fn scene() -> (Block, Dem, BTreeMap<u32, RgbImage>) {
             Vector3::new(*x, *y, *z),
         );
         let camera = Camera::Frame(cam.clone());
-        let mut data = Vec::with_capacity(500 * 500 * 3);
-        for r in 0..500 {
-            for c in 0..500 {
+        let mut data = Vec::with_capacity((size * size * 3) as usize);
+        for r in 0..size {
+            for c in 0..size {
                 let ray = back_project(&camera, &pose, [c as f64 + 0.5, r as f64 + 0.5]).unwrap();
                 let world = Ray {
                     origin: block.to_world(&ray.origin),
@@ -105,7 +116,7 @@ fn scene() -> (Block, Dem, BTreeMap<u32, RgbImage>) {
                 data.extend_from_slice(&rgb);
             }
         }
-        images.insert(id, RgbImage::new(500, 500, data).unwrap());
+        images.insert(id, RgbImage::new(size, size, data).unwrap());
         block.photos.insert(
             id,
             Photo {
@@ -169,7 +180,15 @@ fn orthophoto_places_markers_within_one_ground_pixel_and_handles_occlusion() {
         ..Default::default()
     };
     let out = dir.path().join("ortho.tif");
-    let report = write_orthophoto(&out, &block, &dem, &images, &crs, &opts).unwrap();
+    let report = write_orthophoto(
+        &out,
+        &block,
+        &dem,
+        PhotoImages::Decoded(&images),
+        &crs,
+        &opts,
+    )
+    .unwrap();
     assert_eq!(report.per_photo.len(), 2);
     assert!(
         report.occluded_fallbacks > 0,
@@ -197,7 +216,7 @@ fn orthophoto_places_markers_within_one_ground_pixel_and_handles_occlusion() {
         &naive,
         &block,
         &dem,
-        &images,
+        PhotoImages::Decoded(&images),
         &crs,
         &OrthoOptions {
             occlusion: false,
@@ -225,7 +244,7 @@ fn orthophoto_places_markers_within_one_ground_pixel_and_handles_occlusion() {
         &flat_out,
         &block,
         &flat,
-        &images,
+        PhotoImages::Decoded(&images),
         &crs,
         &OrthoOptions {
             occlusion: false,
@@ -262,7 +281,15 @@ fn cloud_optimised_output_and_bad_input() {
         cog: true,
         ..Default::default()
     };
-    write_orthophoto(&out, &block, &dem, &images, &crs, &opts).unwrap();
+    write_orthophoto(
+        &out,
+        &block,
+        &dem,
+        PhotoImages::Decoded(&images),
+        &crs,
+        &opts,
+    )
+    .unwrap();
     let ds = Dataset::open(&out).unwrap();
     let layout = ds.metadata_item("LAYOUT", "IMAGE_STRUCTURE");
     assert_eq!(layout.as_deref(), Some("COG"));
@@ -276,7 +303,7 @@ fn cloud_optimised_output_and_bad_input() {
         &dir.path().join("bad.tif"),
         &block,
         &dem,
-        &wrong,
+        PhotoImages::Decoded(&wrong),
         &crs,
         &opts,
     )
@@ -287,4 +314,94 @@ fn cloud_optimised_output_and_bad_input() {
         "{e}"
     );
     assert!(!dir.path().join("bad.tif").exists());
+}
+
+/// Band values of a GeoTIFF, all bands.
+fn pixels(path: &std::path::Path) -> Vec<Vec<u8>> {
+    let ds = Dataset::open(path).unwrap();
+    let (w, h) = ds.raster_size();
+    (1..=ds.raster_count())
+        .map(|b| {
+            let band = ds.rasterband(b).unwrap();
+            band.read_as::<u8>((0, 0), (w, h), (w, h), None)
+                .unwrap()
+                .into_shape_and_vec()
+                .1
+        })
+        .collect()
+}
+
+#[test]
+fn photos_decoded_on_demand_through_a_small_cache_give_the_same_orthophoto() {
+    // 25 photos in 5 strips 150 m above the ground (100–125 m): each sees about 60 m, a
+    // tile of 32 m a few photos.
+    let mut centres = Vec::new();
+    for i in 0..5 {
+        for j in 0..5 {
+            let w = [0.01 * (i as f64 - 2.0), -0.008 * (j as f64 - 2.0), 0.02];
+            centres.push((-80.0 + 40.0 * j as f64, -80.0 + 40.0 * i as f64, 260.0, w));
+        }
+    }
+    let (mut block, dem, images) = rendered_block(&centres, 200, 520.0);
+    let dir = tempfile::tempdir().unwrap();
+    let mut files = BTreeMap::new();
+    for (id, img) in &images {
+        let path = dir.path().join(format!("p{id}.png"));
+        image::RgbImage::from_raw(img.width, img.height, img.data.clone())
+            .unwrap()
+            .save(&path)
+            .unwrap();
+        files.insert(*id, path);
+    }
+    // A photo that is not oriented is neither decoded nor used.
+    block.photos.get_mut(&13).unwrap().status = cloudcontrol::block::PhotoStatus::Approximate;
+    let crs = Crs::from_epsg(32650).unwrap();
+    let one = 200 * 200 * 3;
+    let opts = OrthoOptions {
+        gsd: Some(0.5),
+        extent: Some((E0 - 110.0, N0 - 110.0, E0 + 110.0, N0 + 110.0)),
+        tile: 64,
+        image_cache_bytes: 4 * one,
+        overviews: vec![],
+        ..Default::default()
+    };
+    let a = dir.path().join("decoded.tif");
+    let ra =
+        write_orthophoto(&a, &block, &dem, PhotoImages::Decoded(&images), &crs, &opts).unwrap();
+    assert_eq!(ra.per_photo.len(), 24, "{:?}", ra.per_photo.keys());
+    assert!(!ra.per_photo.contains_key(&13));
+    assert!(ra.filled > 400 * 400, "{} cells filled", ra.filled);
+    // Decoded images held by the caller are not the cache's.
+    assert_eq!((ra.image_loads, ra.peak_image_bytes), (0, 0));
+    // Cache bounds from 2 photos to all of them: the same orthophoto; at most the bound plus
+    // the photos one tile takes cells from alive at once (a 32 m tile within a grid of 40 m
+    // Voronoi cells: at most 4); along the Hilbert curve a photo is decoded again only when
+    // the curve comes back to its cells after the cache has dropped it (measured 80, 56, 32
+    // and 24 loads).
+    for (photos, max_loads) in [(2, 90), (4, 64), (8, 36), (24, 24)] {
+        let b = dir.path().join(format!("files{photos}.tif"));
+        let opts = OrthoOptions {
+            image_cache_bytes: photos * one,
+            ..opts.clone()
+        };
+        let rb =
+            write_orthophoto(&b, &block, &dem, PhotoImages::Files(&files), &crs, &opts).unwrap();
+        eprintln!(
+            "cache of {photos} photos: {} loads of 24 photos, peak {} photo images",
+            rb.image_loads,
+            rb.peak_image_bytes / one
+        );
+        assert!(pixels(&a) == pixels(&b), "the cache changed the orthophoto");
+        assert_eq!(ra.per_photo, rb.per_photo);
+        assert!(
+            rb.peak_image_bytes <= (photos.max(4)) * one,
+            "peak {}",
+            rb.peak_image_bytes
+        );
+        assert!(
+            rb.image_loads >= 24 && rb.image_loads <= max_loads,
+            "{} loads",
+            rb.image_loads
+        );
+    }
 }

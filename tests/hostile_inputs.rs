@@ -642,7 +642,7 @@ fn scan_pixel_size_outside_film_scanning_is_refused_at_every_entry() {
 fn orthophoto_gsd_far_below_the_extent_is_refused() {
     use cloudcontrol::block::{Block, BlockCamera, Photo};
     use cloudcontrol::formats::ortho::{
-        write_orthophoto, OrthoOptions, RgbImage, MAX_ORTHO_PIXELS,
+        write_orthophoto, OrthoOptions, PhotoImages, RgbImage, MAX_ORTHO_PIXELS,
     };
     use cloudcontrol::geometry::{Camera, Dem, FrameCamera, Pose};
     use nalgebra::{Matrix3, Vector3};
@@ -673,9 +673,16 @@ fn orthophoto_gsd_far_below_the_extent_is_refused() {
         gsd: Some(0.0005),
         ..Default::default()
     };
-    let e = write_orthophoto(&out, &block, &dem, &images, &crs, &opts)
-        .unwrap_err()
-        .to_string();
+    let e = write_orthophoto(
+        &out,
+        &block,
+        &dem,
+        PhotoImages::Decoded(&images),
+        &crs,
+        &opts,
+    )
+    .unwrap_err()
+    .to_string();
     says(&e, &out, &["gsd 0.0005", &MAX_ORTHO_PIXELS.to_string()]);
     assert!(!out.exists());
 

@@ -96,12 +96,12 @@ pub fn convert(input: &Path, output: &Path, opts: &ConvertOptions) -> Result<Blo
     Ok(block)
 }
 
-/// Loads the photos of a block from `images_dir` (photo names relative to it); photos
-/// whose file is missing are reported in the error, naming the first.
-pub fn load_images(
+/// The image files of a block's oriented photos in `images_dir` (photo names relative to
+/// it); a missing file is reported in the error, naming the first.
+pub fn image_files(
     block: &Block,
     images_dir: &Path,
-) -> Result<BTreeMap<crate::block::PhotoId, super::ortho::RgbImage>> {
+) -> Result<BTreeMap<crate::block::PhotoId, std::path::PathBuf>> {
     let mut out = BTreeMap::new();
     for p in block.photos.values().filter(|p| p.is_oriented()) {
         let path = images_dir.join(p.name.replace('\\', "/"));
@@ -111,7 +111,7 @@ pub fn load_images(
                 format!("image of photo {} ({}) is missing", p.id, p.name),
             ));
         }
-        out.insert(p.id, super::ortho::RgbImage::load(&path)?);
+        out.insert(p.id, path);
     }
     Ok(out)
 }
@@ -147,6 +147,13 @@ pub fn orthophoto_from_files(
             }
         }
     }
-    let images = load_images(&block, images_dir)?;
-    super::ortho::write_orthophoto(out, &block, &dem, &images, &crs, opts)
+    let files = image_files(&block, images_dir)?;
+    super::ortho::write_orthophoto(
+        out,
+        &block,
+        &dem,
+        super::ortho::PhotoImages::Files(&files),
+        &crs,
+        opts,
+    )
 }

@@ -4,6 +4,7 @@
 use super::catalogue::Catalogue;
 use super::las::{read_points, PointBatch};
 use super::{LidarError, Result};
+use crate::cache::Lru;
 use serde::{Deserialize, Serialize};
 use std::sync::Arc;
 
@@ -153,10 +154,8 @@ impl LoadedTile {
 /// Loads tiles of a catalogue on demand with an LRU bound on the points held.
 pub struct TileStore {
     catalogue: Catalogue,
-    max_points: u64,
-    /// (tile index, points), most recently used last.
-    cache: Vec<(usize, Arc<LoadedTile>)>,
-    loads: usize,
+    /// Tiles by index, weighed by their points.
+    cache: Lru<usize, LoadedTile>,
 }
 
 impl TileStore {
@@ -165,9 +164,7 @@ impl TileStore {
     pub fn new(catalogue: Catalogue, max_points: u64) -> Self {
         Self {
             catalogue,
-            max_points,
-            cache: Vec::new(),
-            loads: 0,
+            cache: Lru::new(max_points),
         }
     }
 
@@ -177,12 +174,12 @@ impl TileStore {
 
     /// Points currently held in the cache.
     pub fn cached_points(&self) -> u64 {
-        self.cache.iter().map(|(_, b)| b.len() as u64).sum()
+        self.cache.held()
     }
 
     /// How many tile reads the store has done.
     pub fn loads(&self) -> usize {
-        self.loads
+        self.cache.loads()
     }
 
     /// A tile's points, from the cache or read from its file.
@@ -192,31 +189,19 @@ impl TileStore {
                 "tile index {index} out of range"
             )));
         }
-        if let Some(pos) = self.cache.iter().position(|(i, _)| *i == index) {
-            let e = self.cache.remove(pos);
-            let b = e.1.clone();
-            self.cache.push(e);
-            return Ok(b);
-        }
         let entry = &self.catalogue.tiles[index];
-        let pts = read_points(&entry.file, None, None)?;
-        if pts.len() as u64 != entry.point_count {
-            return Err(LidarError::CountMismatch {
-                path: entry.file.clone(),
-                declared: entry.point_count,
-                found: pts.len() as u64,
-            });
-        }
-        self.loads += 1;
-        let pts = Arc::new(LoadedTile::new(pts));
-        let n = pts.len() as u64;
-        let mut held = self.cached_points();
-        while held + n > self.max_points && !self.cache.is_empty() {
-            let (_, old) = self.cache.remove(0);
-            held -= old.len() as u64;
-        }
-        self.cache.push((index, pts.clone()));
-        Ok(pts)
+        self.cache.get_or_load(&index, || {
+            let pts = read_points(&entry.file, None, None)?;
+            if pts.len() as u64 != entry.point_count {
+                return Err(LidarError::CountMismatch {
+                    path: entry.file.clone(),
+                    declared: entry.point_count,
+                    found: pts.len() as u64,
+                });
+            }
+            let n = pts.len() as u64;
+            Ok((LoadedTile::new(pts), n))
+        })
     }
 
     /// The points inside `bbox`, optionally of the listed classes, from every tile that

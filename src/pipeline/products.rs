@@ -202,18 +202,17 @@ pub(crate) fn write_products(
             )?;
         }
         if orthophoto {
-            let mut rgb = BTreeMap::new();
-            for (id, p) in &named.photos {
-                if let Some(path) = &p.image {
-                    rgb.insert(*id, formats::ortho::RgbImage::load(path)?);
-                }
-            }
+            let files: BTreeMap<_, _> = named
+                .photos
+                .iter()
+                .filter_map(|(id, p)| Some((*id, p.image.clone()?)))
+                .collect();
             let gsd = formats::ortho::default_gsd(&named, &dem).map(|g| g * o.ortho_gsd_factor);
             let rep = formats::ortho::write_orthophoto(
                 &dir.join("orthophoto.tif"),
                 &named,
                 &dem,
-                &rgb,
+                formats::ortho::PhotoImages::Files(&files),
                 &crs,
                 &formats::ortho::OrthoOptions {
                     gsd,

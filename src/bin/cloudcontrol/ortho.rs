@@ -34,6 +34,10 @@ pub struct Args {
     /// Skip the visibility test (plain rectification, faster, ghosts at occlusions).
     #[arg(long)]
     no_occlusion: bool,
+    /// MiB of decoded photos kept between tiles (photos are decoded when a tile needs
+    /// them; a tile's own photos are held even beyond this).
+    #[arg(long, default_value_t = cloudcontrol::formats::ortho::DEFAULT_IMAGE_CACHE_BYTES >> 20)]
+    image_cache_mib: u64,
 }
 
 pub fn run(a: Args, json: bool, quiet: bool) -> ExitCode {
@@ -53,6 +57,7 @@ pub fn run(a: Args, json: bool, quiet: bool) -> ExitCode {
         extent: a.extent.as_ref().map(|e| (e[0], e[1], e[2], e[3])),
         cog: a.cog,
         occlusion: !a.no_occlusion,
+        image_cache_bytes: a.image_cache_mib.saturating_mul(1 << 20),
         ..Default::default()
     };
     let spinner = (!quiet && !json).then(|| {

@@ -8,10 +8,18 @@
 //! centre is marched over the DEM in half-cell steps and must not pass below the surface
 //! (occlusion test by ray–DEM intersection). A cell no photo sees is transparent.
 //!
-//! The raster is computed and written in strips of whole tiles (windowed writing), so
-//! only one strip is in memory; cells are independent, so strips are filled in parallel
-//! with identical results. Outputs: tiled, DEFLATE, alpha band, nodata on the colour
-//! bands, overviews, or a cloud-optimised GeoTIFF; written atomically.
+//! The raster is computed and written tile by tile (windowed writing), so only one tile is
+//! in memory; a tile is rendered from the photos whose ground footprint meets it, decoded
+//! on demand through a cache bounded in bytes, with tiles visited along a Hilbert curve
+//! ([`tiles`]), so memory does not grow with the number of photos. Cells are independent,
+//! so a tile is filled in parallel with identical results. Outputs: tiled, DEFLATE, alpha
+//! band, nodata on the colour bands, overviews, or a cloud-optimised GeoTIFF; written
+//! atomically.
+
+mod images;
+mod tiles;
+
+pub use images::{PhotoImages, RgbImage};
 
 use super::crs::Crs;
 use super::{write_atomically, FormatError, Result};
@@ -21,69 +29,15 @@ use gdal::raster::{Buffer, ColorInterpretation, RasterCreationOptions};
 use gdal::DriverManager;
 use nalgebra::{Vector2, Vector3};
 use rayon::prelude::*;
-use std::collections::BTreeMap;
+use std::collections::{BTreeMap, BTreeSet};
 use std::path::Path;
-
-/// An 8-bit RGB photo in memory, row-major; pixel (c, r) has its centre at (c+½, r+½).
-#[derive(Debug, Clone)]
-pub struct RgbImage {
-    pub width: u32,
-    pub height: u32,
-    pub data: Vec<u8>,
-}
-
-impl RgbImage {
-    pub fn new(width: u32, height: u32, data: Vec<u8>) -> std::result::Result<Self, String> {
-        if data.len() != width as usize * height as usize * 3 {
-            return Err(format!(
-                "RGB image {width}×{height} needs {} bytes, got {}",
-                width as usize * height as usize * 3,
-                data.len()
-            ));
-        }
-        Ok(Self {
-            width,
-            height,
-            data,
-        })
-    }
-
-    /// Loads any format the `image` crate decodes (TIFF, PNG, JPEG), converted to RGB8.
-    pub fn load(path: &Path) -> Result<Self> {
-        let img = super::image_open::decode_image(path)?.to_rgb8();
-        let (w, h) = img.dimensions();
-        Ok(Self {
-            width: w,
-            height: h,
-            data: img.into_raw(),
-        })
-    }
-
-    /// Bilinear sample at a pixel position (our corner-origin convention).
-    pub fn sample(&self, x: f64, y: f64) -> Option<[f64; 3]> {
-        let (fx, fy) = (x - 0.5, y - 0.5);
-        if !(fx >= -0.5 && fy >= -0.5 && x <= self.width as f64 && y <= self.height as f64) {
-            return None;
-        }
-        let (w, h) = (self.width as usize, self.height as usize);
-        let fx = fx.clamp(0.0, (w - 1) as f64);
-        let fy = fy.clamp(0.0, (h - 1) as f64);
-        let (c0, r0) = (fx.floor() as usize, fy.floor() as usize);
-        let (c1, r1) = ((c0 + 1).min(w - 1), (r0 + 1).min(h - 1));
-        let (u, v) = (fx - c0 as f64, fy - r0 as f64);
-        let px = |c: usize, r: usize, k: usize| self.data[(r * w + c) * 3 + k] as f64;
-        let mut out = [0.0; 3];
-        for (k, o) in out.iter_mut().enumerate() {
-            *o = (1.0 - v) * ((1.0 - u) * px(c0, r0, k) + u * px(c1, r0, k))
-                + v * ((1.0 - u) * px(c0, r1, k) + u * px(c1, r1, k));
-        }
-        Some(out)
-    }
-}
 
 /// Largest orthophoto (pixels): 2³² (65 536² px, e.g. 6.5 km square at 10 cm). A gsd far
 /// below the photos' ground pixel over a large extent is refused before anything is made.
 pub const MAX_ORTHO_PIXELS: u64 = 1 << 32;
+
+/// Default bound of the decoded-image cache: 1 GiB, ten 42 µm film scans in RGB.
+pub const DEFAULT_IMAGE_CACHE_BYTES: u64 = 1 << 30;
 
 /// Options of orthophoto production.
 #[derive(Debug, Clone)]
@@ -92,8 +46,11 @@ pub struct OrthoOptions {
     pub gsd: Option<f64>,
     /// World extent `(x_min, y_min, x_max, y_max)`; `None`: the DEM's extent.
     pub extent: Option<(f64, f64, f64, f64)>,
-    /// Internal tile size (pixels, multiple of 16); also the strip height of the writer.
+    /// Internal tile size (pixels, multiple of 16); also the unit the writer renders.
     pub tile: usize,
+    /// Bytes of decoded photo images kept between tiles (a tile's own photos are held
+    /// even beyond it).
+    pub image_cache_bytes: u64,
     /// Overview factors (e.g. [2, 4, 8]); empty for none. A COG always gets overviews.
     pub overviews: Vec<i32>,
     /// Write a cloud-optimised GeoTIFF (GDAL's COG driver).
@@ -110,6 +67,7 @@ impl Default for OrthoOptions {
             gsd: None,
             extent: None,
             tile: 256,
+            image_cache_bytes: DEFAULT_IMAGE_CACHE_BYTES,
             overviews: vec![2, 4, 8, 16],
             cog: false,
             occlusion: true,
@@ -131,6 +89,10 @@ pub struct OrthoReport {
     pub occluded_fallbacks: usize,
     /// Filled cells per photo.
     pub per_photo: BTreeMap<PhotoId, usize>,
+    /// Photo images decoded (a photo evicted from the cache and needed again counts again).
+    pub image_loads: usize,
+    /// Most bytes of decoded image files alive at once.
+    pub peak_image_bytes: u64,
 }
 
 /// No-data value of the colour bands; valid pixels are lifted to at least 1.
@@ -140,13 +102,17 @@ pub const ORTHO_NODATA: u8 = 0;
 /// sees it), and whether a nearer photo was skipped because the cell is hidden in it.
 type Cell = (Option<([u8; 3], usize)>, bool);
 
+/// A cell's view (index) and pixel in it, before any image is decoded; and the fallback flag.
+type Choice = (Option<(usize, Vector2<f64>)>, bool);
+
 struct View<'a> {
     id: PhotoId,
     camera: &'a Camera,
     rotation: nalgebra::Matrix3<f64>,
     /// Projection centre in world coordinates.
     center: Vector3<f64>,
-    image: &'a RgbImage,
+    /// Ground box the photo can see ([`tiles::footprint`]); `None`: anywhere.
+    footprint: Option<[f64; 4]>,
 }
 
 /// Median ground pixel size of the photos over the DEM's mean height.
@@ -192,19 +158,19 @@ fn visible(dem: &Dem, g: &Vector3<f64>, c: &Vector3<f64>, tol: f64) -> bool {
 }
 
 /// Orthorectifies the block's photos onto `dem` (world coordinates in `crs`) and writes an
-/// RGB + alpha GeoTIFF. `images` holds the photos' pixels by photo id; photos without an
+/// RGB + alpha GeoTIFF. `images` gives the photos' pixels by photo id; photos without an
 /// image or without an oriented pose are skipped.
 pub fn write_orthophoto(
     path: &Path,
     block: &Block,
     dem: &Dem,
-    images: &BTreeMap<PhotoId, RgbImage>,
+    images: PhotoImages,
     crs: &Crs,
     opts: &OrthoOptions,
 ) -> Result<OrthoReport> {
     let mut views = Vec::new();
     for p in block.photos.values().filter(|p| p.is_oriented()) {
-        let Some(image) = images.get(&p.id) else {
+        let Some((iw, ih)) = images.size(p.id)? else {
             continue;
         };
         let cam = &block
@@ -218,21 +184,22 @@ pub fn write_orthophoto(
             })?
             .model;
         let (w, h) = cam.image_size();
-        if (w, h) != (image.width, image.height) {
+        if (w, h) != (iw, ih) {
             return Err(FormatError::invalid(
                 path,
                 format!(
-                    "photo {} ({}): image is {}×{} but its camera is {w}×{h}",
-                    p.id, p.name, image.width, image.height
+                    "photo {} ({}): image is {iw}×{ih} but its camera is {w}×{h}",
+                    p.id, p.name
                 ),
             ));
         }
+        let center = block.to_world(&p.pose.center);
         views.push(View {
             id: p.id,
             camera: cam,
             rotation: p.pose.rotation,
-            center: block.to_world(&p.pose.center),
-            image,
+            center,
+            footprint: tiles::footprint(cam, &p.pose.rotation, &center, dem.z_range()),
         });
     }
     if views.is_empty() {
@@ -285,16 +252,21 @@ pub fn write_orthophoto(
         256
     };
 
-    let render_cell = |col: usize, row: usize| -> Cell {
+    // The view a cell is taken from, by geometry alone (so only the photos a tile uses are
+    // decoded): the nadir-nearest of `cand` (views whose footprint meets the tile) that has
+    // the cell in its frame and sees it, and the pixel there.
+    let choose_view = |col: usize, row: usize, cand: &[usize]| -> Choice {
         let (x, y) = gt.pixel_to_world(col as f64 + 0.5, row as f64 + 0.5);
         let Some(z) = dem.height_at(x, y) else {
             return (None, false);
         };
         let g = Vector3::new(x, y, z);
-        let mut order: Vec<(f64, usize)> = views
+        let mut order: Vec<(f64, usize)> = cand
             .iter()
-            .enumerate()
-            .map(|(i, v)| (((v.center.x - x).powi(2) + (v.center.y - y).powi(2)), i))
+            .map(|&i| {
+                let c = &views[i].center;
+                ((c.x - x).powi(2) + (c.y - y).powi(2), i)
+            })
             .collect();
         order.sort_by(|a, b| a.0.total_cmp(&b.0).then(a.1.cmp(&b.1)));
         let mut fell_back = false;
@@ -304,15 +276,14 @@ pub fn write_orthophoto(
             let Ok(px) = v.camera.project(&xc) else {
                 continue;
             };
-            let Some(rgb) = inside(v.image, px) else {
+            if !in_frame(v.camera, px) {
                 continue;
-            };
+            }
             if opts.occlusion && !visible(dem, &g, &v.center, opts.occlusion_tolerance) {
                 fell_back = true;
                 continue;
             }
-            let c = rgb.map(|c| (c.round().clamp(0.0, 255.0) as u8).max(ORTHO_NODATA + 1));
-            return (Some((c, i)), fell_back);
+            return (Some((i, px)), fell_back);
         }
         (None, fell_back)
     };
@@ -355,13 +326,51 @@ pub fn write_orthophoto(
             let mut filled = 0usize;
             let mut occluded = 0usize;
             let mut per_photo: BTreeMap<PhotoId, usize> = BTreeMap::new();
-            for r0 in (0..height).step_by(tile) {
-                let rows = tile.min(height - r0);
-                let cells: Vec<Cell> = (0..rows * width)
-                    .into_par_iter()
-                    .map(|k| render_cell(k % width, r0 + k / width))
+            let mut cache = images::ImageCache::new(images, opts.image_cache_bytes, path);
+            let (nx, ny) = (width.div_ceil(tile), height.div_ceil(tile));
+            for (done, (tx, ty)) in tiles::hilbert_order(nx, ny).into_iter().enumerate() {
+                let (c0, r0) = (tx * tile, ty * tile);
+                let (cols, rows) = (tile.min(width - c0), tile.min(height - r0));
+                let (xa, yb) = gt.pixel_to_world(c0 as f64, r0 as f64);
+                let (xb, ya) = gt.pixel_to_world((c0 + cols) as f64, (r0 + rows) as f64);
+                let bbox = [xa.min(xb), ya.min(yb), xa.max(xb), ya.max(yb)];
+                let cand: Vec<usize> = (0..views.len())
+                    .filter(|&i| {
+                        views[i]
+                            .footprint
+                            .is_none_or(|f| tiles::overlaps(&f, &bbox))
+                    })
                     .collect();
-                let mut bands = vec![vec![0u8; rows * width]; 4];
+                let chosen: Vec<Choice> = (0..rows * cols)
+                    .into_par_iter()
+                    .map(|k| choose_view(c0 + k % cols, r0 + k / cols, &cand))
+                    .collect();
+                let used: Vec<usize> = chosen
+                    .iter()
+                    .filter_map(|c| Some(c.0?.0))
+                    .collect::<BTreeSet<_>>()
+                    .into_iter()
+                    .collect();
+                let ids: Vec<PhotoId> = used.iter().map(|&i| views[i].id).collect();
+                let held = cache.get_all(&ids)?;
+                let cells: Vec<Cell> = chosen
+                    .into_par_iter()
+                    .map(|(c, fb)| {
+                        let rgb = c.and_then(|(i, px)| {
+                            let k = used.binary_search(&i).ok()?;
+                            let rgb = held[k].sample(px.x, px.y)?;
+                            Some((
+                                rgb.map(|c| {
+                                    (c.round().clamp(0.0, 255.0) as u8).max(ORTHO_NODATA + 1)
+                                }),
+                                i,
+                            ))
+                        });
+                        (rgb, fb)
+                    })
+                    .collect();
+                drop(held);
+                let mut bands = vec![vec![0u8; rows * cols]; 4];
                 for (k, (c, fb)) in cells.iter().enumerate() {
                     occluded += *fb as usize;
                     if let Some((rgb, i)) = c {
@@ -374,13 +383,18 @@ pub fn write_orthophoto(
                     }
                 }
                 for (b, data) in bands.into_iter().enumerate() {
-                    let mut buf = Buffer::new((width, rows), data);
+                    let mut buf = Buffer::new((cols, rows), data);
                     ds.rasterband(b + 1)
                         .map_err(err)?
-                        .write((0, r0 as isize), (width, rows), &mut buf)
+                        .write((c0 as isize, r0 as isize), (cols, rows), &mut buf)
                         .map_err(err)?;
                 }
-                tracing::debug!(row = r0, of = height, "orthophoto strip written");
+                tracing::debug!(
+                    tile = done + 1,
+                    of = nx * ny,
+                    photos = cand.len(),
+                    "orthophoto tile written"
+                );
             }
             let mut levels = opts.overviews.clone();
             if opts.cog && levels.is_empty() {
@@ -412,6 +426,8 @@ pub fn write_orthophoto(
                 filled,
                 occluded_fallbacks: occluded,
                 per_photo,
+                image_loads: cache.loads(),
+                peak_image_bytes: cache.peak_bytes,
             })
         })();
         if opts.cog {
@@ -423,12 +439,10 @@ pub fn write_orthophoto(
     Ok(report)
 }
 
-fn inside(image: &RgbImage, px: Vector2<f64>) -> Option<[f64; 3]> {
-    if px.x >= 0.0 && px.y >= 0.0 && px.x <= image.width as f64 && px.y <= image.height as f64 {
-        image.sample(px.x, px.y)
-    } else {
-        None
-    }
+/// Whether a pixel position lies in the camera's frame (where [`RgbImage::sample`] has a value).
+fn in_frame(camera: &Camera, px: Vector2<f64>) -> bool {
+    let (w, h) = camera.image_size();
+    px.x >= 0.0 && px.y >= 0.0 && px.x <= w as f64 && px.y <= h as f64
 }
 
 /// A PNG preview of an orthophoto GeoTIFF (RGB + alpha, longest side ≤ `max_side`
