@@ -5,6 +5,10 @@
 
 use std::sync::Arc;
 
+/// Default bound of the caches of decoded photos (orthophoto tiles, tie matching): 1 GiB,
+/// ten 42 µm film scans in RGB or thirty 3000 × 2000 frames with their pyramids.
+pub const DEFAULT_IMAGE_CACHE_BYTES: u64 = 1 << 30;
+
 /// An LRU cache of `V` by key `K`, bounded by the sum of the entries' weights.
 pub struct Lru<K, V> {
     bound: u64,

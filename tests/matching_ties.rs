@@ -341,7 +341,7 @@ fn block_ties_from_approximate_orientation() {
         let t0 = std::time::Instant::now();
         let report = block_tie_points(
             &mut b,
-            &images,
+            &held(&images),
             &surface,
             MIN_PER_POSITION,
             &BlockTieOptions::default(),
@@ -418,6 +418,33 @@ fn block_ties_from_approximate_orientation() {
             );
         }
     }
+
+    // Photos are prepared when their pairs are matched and kept in a cache bounded in
+    // bytes: with no room at all (each photo dropped as the next is prepared) the tie
+    // points are the same, only prepared more often.
+    let surface = surfaces[0].1;
+    let (mut a, mut b) = (block.clone(), block.clone());
+    let roomy = block_tie_points(
+        &mut a,
+        &held(&images),
+        &surface,
+        1,
+        &BlockTieOptions::default(),
+    )
+    .unwrap();
+    let tight = BlockTieOptions {
+        image_cache_bytes: 0,
+        ..BlockTieOptions::default()
+    };
+    let cramped = block_tie_points(&mut b, &held(&images), &surface, 1, &tight).unwrap();
+    assert_eq!(a.points, b.points);
+    assert_eq!(roomy.photos_prepared, images.len());
+    eprintln!(
+        "prepared {} times with no cache room, {} photos",
+        cramped.photos_prepared,
+        images.len()
+    );
+    assert!(cramped.photos_prepared > images.len());
 }
 
 /// A photo turned by 35° about its axis against its neighbour (a crab angle or a cross
@@ -425,7 +452,9 @@ fn block_ties_from_approximate_orientation() {
 /// template into the other photo's geometry from the approximate orientation.
 #[test]
 fn oriented_ties_handle_a_rotated_photo() {
-    use cloudcontrol::matching::{oriented_tie_points, BlockTieOptions, OrientedPhoto, Surface};
+    use cloudcontrol::matching::{
+        oriented_tie_points, BlockTieOptions, OrientedPhoto, Pixels, Surface,
+    };
 
     let s = scene();
     let turn = rotation_from_vector(&Vector3::new(0.0, 0.0, 35f64.to_radians()));
@@ -440,7 +469,7 @@ fn oriented_ties_handle_a_rotated_photo() {
     let off = rotation_from_vector(&Vector3::new(0.004, -0.006, 0.005));
     let photos = [
         OrientedPhoto {
-            image: &s.photos[0],
+            image: Pixels::Held(&s.photos[0]),
             camera: &s.camera,
             pose: Pose::new(
                 off * s.poses[0].rotation,
@@ -450,7 +479,7 @@ fn oriented_ties_handle_a_rotated_photo() {
             angle_sigma_rad: 0.5f64.to_radians(),
         },
         OrientedPhoto {
-            image: &img1,
+            image: Pixels::Held(&img1),
             camera: &s.camera,
             pose: Pose::new(off.transpose() * rotated.rotation, rotated.center),
             center_sigma_m: 2.0,
@@ -522,18 +551,28 @@ fn block_ties_bad_input() {
     let mut images = BTreeMap::new();
     images.insert(1, s.photos[0].clone());
     images.insert(2, s.photos[1].crop(0, 0, W - 10, H).unwrap());
-    let e = block_tie_points(&mut block.clone(), &images, &surface, 1, &opts).unwrap_err();
+    let e = block_tie_points(&mut block.clone(), &held(&images), &surface, 1, &opts).unwrap_err();
     assert!(e.to_string().contains("camera is 360×280"), "{e}");
     images.insert(2, GreyImage::filled(W, H, 90.0));
-    let r = block_tie_points(&mut block.clone(), &images, &surface, 1, &opts).unwrap();
+    let r = block_tie_points(&mut block.clone(), &held(&images), &surface, 1, &opts).unwrap();
     assert_eq!(r.points_added, 0);
     let skipped = r.pairs[0].skipped.as_deref().unwrap();
     assert!(skipped.contains("candidates"), "{skipped}");
     images.insert(7, s.photos[2].clone());
-    let e = block_tie_points(&mut block.clone(), &images, &surface, 1, &opts).unwrap_err();
+    let e = block_tie_points(&mut block.clone(), &held(&images), &surface, 1, &opts).unwrap_err();
     assert!(e.to_string().contains("photo 7"), "{e}");
     images.clear();
     images.insert(1, s.photos[0].clone());
-    let e = block_tie_points(&mut block, &images, &surface, 1, &opts).unwrap_err();
+    let e = block_tie_points(&mut block, &held(&images), &surface, 1, &opts).unwrap_err();
     assert!(e.to_string().contains("at least 2"), "{e}");
+}
+
+/// The caller's decoded images as the pixels tie matching takes.
+fn held(
+    images: &std::collections::BTreeMap<u32, GreyImage>,
+) -> std::collections::BTreeMap<u32, cloudcontrol::matching::Pixels<'_>> {
+    images
+        .iter()
+        .map(|(k, v)| (*k, cloudcontrol::matching::Pixels::Held(v)))
+        .collect()
 }

@@ -20,7 +20,7 @@ use crate::formats::pos::photo_key;
 use crate::geometry::{matrix_from_opk, Camera, Dem, Pose, Similarity};
 use crate::lidar::{icp_point_to_plane, IcpOptions, IcpResult, PlaneIndex};
 use crate::matching::oriented::{block_tie_points, BlockTieOptions, BlockTieReport, Surface};
-use crate::matching::GreyImage;
+use crate::matching::Pixels;
 use nalgebra::Vector3;
 use rayon::prelude::*;
 use serde::Serialize;
@@ -263,20 +263,18 @@ pub fn orient_reference(
         )));
     }
     let mut block = pos_block(input)?;
-    let images: Vec<(PhotoId, GreyImage)> = input
-        .photos
-        .par_iter()
-        .enumerate()
-        .map(|(k, p)| {
-            GreyImage::load(&p.image)
-                .map(|g| (k as PhotoId + 1, g))
-                .map_err(|e| EpochError::Input {
-                    path: p.image.clone(),
-                    message: e.to_string(),
-                })
-        })
-        .collect::<Result<_, _>>()?;
-    let images: BTreeMap<PhotoId, GreyImage> = images.into_iter().collect();
+    // Photos are decoded when tie matching needs them (bounded cache); here only their
+    // files are checked, so a missing photo is named before any work.
+    let mut images: BTreeMap<PhotoId, Pixels> = BTreeMap::new();
+    for (k, p) in input.photos.iter().enumerate() {
+        if !p.image.is_file() {
+            return Err(EpochError::Input {
+                path: p.image.clone(),
+                message: "photo image not found".into(),
+            });
+        }
+        images.insert(k as PhotoId + 1, Pixels::File(&p.image));
+    }
 
     // 1. Tie points, searched around their POS prediction over the LiDAR ground.
     let surface = Surface::Dem {

@@ -231,3 +231,21 @@ impl GreyImage {
         .map_err(|e| err(e.to_string()))
     }
 }
+
+/// A photo's pixels for matching: held by the caller, or a file decoded when a stage needs
+/// it, so a block's stages do not have to hold every photo at once.
+#[derive(Debug, Clone, Copy)]
+pub enum Pixels<'a> {
+    Held(&'a GreyImage),
+    File(&'a Path),
+}
+
+impl Pixels<'_> {
+    /// The image: borrowed, or decoded from its file.
+    pub fn get(&self) -> Result<std::borrow::Cow<'_, GreyImage>> {
+        Ok(match self {
+            Pixels::Held(i) => std::borrow::Cow::Borrowed(*i),
+            Pixels::File(p) => std::borrow::Cow::Owned(GreyImage::load(p)?),
+        })
+    }
+}

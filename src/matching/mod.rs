@@ -24,7 +24,7 @@ pub use fiducial::{
     MarkResult, ScanOrientation,
 };
 pub use forstner::{forstner, ForstnerOptions, InterestPoint};
-pub use image::GreyImage;
+pub use image::{GreyImage, Pixels};
 pub use lsm::{lsm, LsmOptions, LsmResult};
 pub use matcher::{match_template, MatchOptions, MatchResult};
 pub use ncc::{ncc_search, ncc_search_pyramid, NccPeak, Window};

@@ -8,12 +8,14 @@
 //! is reported.
 
 use super::forstner::forstner;
+use super::image::Pixels;
 use super::ties::{
     coverage, relative_orientation, search_candidates, PairPrediction, RobustMethod, SearchPoint,
     TieOptions, TieResult, Track,
 };
-use super::{invalid, GreyImage, Pyramid, Result};
+use super::{invalid, Pyramid, Result};
 use crate::block::{Block, ObjectPoint, Observation, PhotoId, PointKind};
+use crate::cache::Lru;
 use crate::geometry::{
     back_project, dlt_null_matrix, hartley_normalisation, project, Camera, Dem, Pose, Ray,
 };
@@ -68,7 +70,8 @@ impl Surface<'_> {
 /// A photo with its approximate orientation and that orientation's uncertainty.
 #[derive(Debug, Clone, Copy)]
 pub struct OrientedPhoto<'a> {
-    pub image: &'a GreyImage,
+    /// Its pixels, decoded when its pairs are matched; the size is the camera's.
+    pub image: Pixels<'a>,
     pub camera: &'a Camera,
     pub pose: Pose,
     /// σ of each coordinate of the projection centre (m).
@@ -78,6 +81,17 @@ pub struct OrientedPhoto<'a> {
 }
 
 impl OrientedPhoto<'_> {
+    /// Width and height (px): the camera's, which the image must match.
+    fn size(&self) -> (f64, f64) {
+        let (w, h) = self.usize_size();
+        (w as f64, h as f64)
+    }
+
+    fn usize_size(&self) -> (usize, usize) {
+        let (w, h) = self.camera.image_size();
+        (w as usize, h as usize)
+    }
+
     /// Pixel of photo `b` seen at pixel `p` of `self`, through the surface.
     pub fn transfer(&self, b: &OrientedPhoto, surface: &Surface, p: [f64; 2]) -> Option<[f64; 2]> {
         let ray = back_project(self.camera, &self.pose, p).ok()?;
@@ -108,6 +122,9 @@ pub struct BlockTieOptions {
     /// Fewer accepted matches than this leave the relative orientation unverified; the
     /// pair contributes nothing.
     pub min_pair_matches: usize,
+    /// Bytes of prepared photos (pyramid and interest points) kept between pairs; the
+    /// photos of one photo's pairs are held even beyond it.
+    pub image_cache_bytes: u64,
 }
 
 impl Default for BlockTieOptions {
@@ -122,6 +139,7 @@ impl Default for BlockTieOptions {
             default_angle_sigma_rad: 1.0f64.to_radians(),
             sigma_floor_px: 0.25,
             min_pair_matches: 12,
+            image_cache_bytes: crate::cache::DEFAULT_IMAGE_CACHE_BYTES,
         }
     }
 }
@@ -145,8 +163,8 @@ pub fn predict_oriented_pair(
     opts: &BlockTieOptions,
 ) -> Option<OrientedPair> {
     let (a, b) = (&photos[ia], &photos[ib]);
-    let (wa, ha) = (a.image.width as f64, a.image.height as f64);
-    let (wb, hb) = (b.image.width as f64, b.image.height as f64);
+    let (wa, ha) = a.size();
+    let (wb, hb) = b.size();
     const N: usize = 11;
     let (mut pa, mut pb, mut inside) = (Vec::new(), Vec::new(), 0usize);
     for r in 0..N {
@@ -223,7 +241,7 @@ fn search_points(
     points: &[[f64; 2]],
     margin: f64,
 ) -> Vec<SearchPoint> {
-    let (wb, hb) = (b.image.width as f64, b.image.height as f64);
+    let (wb, hb) = b.size();
     points
         .par_iter()
         .filter_map(|&p| {
@@ -292,6 +310,9 @@ pub struct BlockTieReport {
     pub track_lengths: BTreeMap<usize, usize>,
     pub coverage: Vec<PhotoCoverage>,
     pub min_per_position: usize,
+    /// Photos decoded and prepared for matching (again after leaving the bounded cache
+    /// counts again).
+    pub photos_prepared: usize,
 }
 
 /// Pairwise matches and tracks of a set of oriented photos (indices into `photos`): the
@@ -300,6 +321,8 @@ pub struct BlockTieReport {
 #[derive(Debug, Clone)]
 pub struct OrientedTies {
     pub pairs: Vec<OrientedPair>,
+    /// Photos decoded and prepared for matching, counting each time again.
+    pub prepared: usize,
     pub reports: Vec<PairReport>,
     pub ties: TieResult,
 }
@@ -326,32 +349,7 @@ pub fn oriented_tie_points(
             format!("{} ids for {} photos", ids.len(), photos.len()),
         ));
     }
-    for (p, id) in photos.iter().zip(ids) {
-        let (w, h) = p.camera.image_size();
-        if (w as usize, h as usize) != (p.image.width, p.image.height) {
-            return Err(invalid(
-                format!("photo {id}"),
-                format!(
-                    "image is {}×{} px but its camera is {w}×{h} px",
-                    p.image.width, p.image.height
-                ),
-            ));
-        }
-    }
     let t = &opts.ties;
-    let pyrs: Vec<Pyramid> = photos
-        .par_iter()
-        .map(|p| Pyramid::new(p.image, 6, 32))
-        .collect();
-    let points: Vec<Vec<[f64; 2]>> = photos
-        .par_iter()
-        .map(|p| {
-            forstner(p.image, &t.forstner)
-                .iter()
-                .map(|q| [q.x, q.y])
-                .collect()
-        })
-        .collect();
     // Ground footprints (centre and radius) screen the pairs cheaply, so that a block of
     // thousands of photos does not transfer a grid for every one of its n² pairs.
     let footprints: Vec<Option<(Vector3<f64>, f64)>> =
@@ -359,16 +357,43 @@ pub fn oriented_tie_points(
     let mut pairs = Vec::new();
     let mut matches = Vec::new();
     let mut reports = Vec::new();
+    // Photos are prepared (decoded, pyramid, interest points) when their first pair is
+    // matched and kept in a cache bounded in bytes: pairs run in photo order, so a photo's
+    // partners in the next strip are prepared once and reused by its neighbours.
+    let mut cache: Lru<usize, Prepared> = Lru::new(opts.image_cache_bytes);
     for ia in 0..photos.len() {
+        // The pairs of `ia` by geometry alone, then their photos prepared in parallel.
+        let mut todo = Vec::new();
         for ib in ia + 1..photos.len() {
             if let (Some((ca, ra)), Some((cb, rb))) = (footprints[ia], footprints[ib]) {
                 if (ca.xy() - cb.xy()).norm() > ra + rb {
                     continue;
                 }
             }
-            let Some(pair) = predict_oriented_pair(photos, ia, ib, surface, opts) else {
-                continue;
-            };
+            if let Some(pair) = predict_oriented_pair(photos, ia, ib, surface, opts) {
+                todo.push((ib, pair));
+            }
+        }
+        let matched = |pair: &OrientedPair| pair.prediction.search_radius_px <= opts.max_radius_px;
+        let mut need: Vec<usize> = todo
+            .iter()
+            .filter(|(_, pair)| matched(pair))
+            .map(|(ib, _)| *ib)
+            .collect();
+        if !need.is_empty() {
+            need.push(ia);
+        }
+        need.retain(|k| !cache.contains(k));
+        let made: Vec<(usize, Result<Prepared>)> = need
+            .par_iter()
+            .map(|&k| (k, prepare(&photos[k], ids[k], t)))
+            .collect();
+        for (k, r) in made {
+            let p = r?;
+            let bytes = p.bytes();
+            cache.get_or_load(&k, || Ok::<_, super::MatchingError>((p, bytes)))?;
+        }
+        for (ib, pair) in todo {
             let radius = pair.prediction.search_radius_px;
             let mut report = PairReport {
                 a: ids[ia],
@@ -381,8 +406,9 @@ pub fn oriented_tie_points(
                 sigma_px: f64::NAN,
                 skipped: None,
             };
+            let ok = matched(&pair);
             pairs.push(pair);
-            if radius > opts.max_radius_px {
+            if !ok {
                 report.skipped = Some(format!(
                     "predicted uncertainty needs a {radius:.0} px search (limit {:.0} px)",
                     opts.max_radius_px
@@ -390,10 +416,24 @@ pub fn oriented_tie_points(
                 reports.push(report);
                 continue;
             }
+            let (pa, pb) = (
+                cache.get_or_load(&ia, || {
+                    prepare(&photos[ia], ids[ia], t).map(|p| {
+                        let b = p.bytes();
+                        (p, b)
+                    })
+                })?,
+                cache.get_or_load(&ib, || {
+                    prepare(&photos[ib], ids[ib], t).map(|p| {
+                        let b = p.bytes();
+                        (p, b)
+                    })
+                })?,
+            );
             let margin = t.template_half as f64 + 2.0;
-            let sp = search_points(&photos[ia], &photos[ib], surface, &points[ia], margin);
+            let sp = search_points(&photos[ia], &photos[ib], surface, &pa.points, margin);
             report.points = sp.len();
-            let cands = search_candidates(photos[ia].image, &pyrs[ib], &sp, radius, t);
+            let cands = search_candidates(&pa.pyramid.levels[0], &pb.pyramid, &sp, radius, t);
             report.candidates = cands.len();
             if cands.len() < opts.min_pair_matches {
                 report.skipped = Some(format!(
@@ -432,15 +472,54 @@ pub fn oriented_tie_points(
             reports.push(report);
         }
     }
-    let sizes: Vec<(usize, usize)> = photos
-        .iter()
-        .map(|p| (p.image.width, p.image.height))
-        .collect();
+    tracing::debug!(
+        photos = photos.len(),
+        prepared = cache.loads(),
+        "photos prepared for tie matching"
+    );
+    let sizes: Vec<(usize, usize)> = photos.iter().map(|p| p.usize_size()).collect();
     let preds: Vec<PairPrediction> = pairs.iter().map(|p| p.prediction).collect();
     Ok(OrientedTies {
+        prepared: cache.loads(),
         ties: TieResult::link(matches, &sizes, &preds, t.merge_px),
         pairs,
         reports,
+    })
+}
+
+/// A photo ready for tie matching: its pyramid (level 0 is the image) and its Förstner
+/// points.
+struct Prepared {
+    pyramid: Pyramid,
+    points: Vec<[f64; 2]>,
+}
+
+impl Prepared {
+    fn bytes(&self) -> u64 {
+        self.pyramid.bytes() + (self.points.len() * std::mem::size_of::<[f64; 2]>()) as u64
+    }
+}
+
+/// Decodes a photo (checking its size against the camera) and prepares it.
+fn prepare(p: &OrientedPhoto, id: PhotoId, t: &TieOptions) -> Result<Prepared> {
+    let img = p.image.get()?;
+    let (w, h) = p.camera.image_size();
+    if (w as usize, h as usize) != (img.width, img.height) {
+        return Err(invalid(
+            format!("photo {id}"),
+            format!(
+                "image is {}×{} px but its camera is {w}×{h} px",
+                img.width, img.height
+            ),
+        ));
+    }
+    let points = forstner(&img, &t.forstner)
+        .iter()
+        .map(|q| [q.x, q.y])
+        .collect();
+    Ok(Prepared {
+        pyramid: Pyramid::from_image(img.into_owned(), 6, 32),
+        points,
     })
 }
 
@@ -448,7 +527,7 @@ pub fn oriented_tie_points(
 /// corners carried onto the surface); `None` when a ray misses the surface (the pair is
 /// then judged by the grid transfer alone).
 fn footprint(p: &OrientedPhoto, surface: &Surface) -> Option<(Vector3<f64>, f64)> {
-    let (w, h) = (p.image.width as f64, p.image.height as f64);
+    let (w, h) = p.size();
     let ground = |q: [f64; 2]| {
         back_project(p.camera, &p.pose, q)
             .ok()
@@ -498,14 +577,14 @@ fn intersect_rays(rays: &[Ray]) -> Option<Vector3<f64>> {
 /// surface point under its first observation when the rays intersect too obliquely.
 pub fn block_tie_points(
     block: &mut Block,
-    images: &BTreeMap<PhotoId, GreyImage>,
+    images: &BTreeMap<PhotoId, Pixels>,
     surface: &Surface,
     min_per_position: usize,
     opts: &BlockTieOptions,
 ) -> Result<BlockTieReport> {
     // Cameras are cloned so the block can take the new points while they are in use.
     let mut ids = Vec::new();
-    let mut setup: Vec<(&GreyImage, Camera, Pose, f64, f64)> = Vec::new();
+    let mut setup: Vec<(Pixels, Camera, Pose, f64, f64)> = Vec::new();
     for (id, img) in images {
         let photo = block.photos.get(id).ok_or_else(|| {
             invalid(
@@ -531,12 +610,12 @@ pub fn block_tie_points(
             None => (opts.default_center_sigma_m, opts.default_angle_sigma_rad),
         };
         ids.push(*id);
-        setup.push((img, cam.model.clone(), photo.pose, cs, rs));
+        setup.push((*img, cam.model.clone(), photo.pose, cs, rs));
     }
     let photos: Vec<OrientedPhoto> = setup
         .iter()
         .map(|(image, camera, pose, cs, rs)| OrientedPhoto {
-            image,
+            image: *image,
             camera,
             pose: *pose,
             center_sigma_m: *cs,
@@ -608,10 +687,7 @@ pub fn block_tie_points(
         next += 1;
         added += 1;
     }
-    let sizes: Vec<(usize, usize)> = photos
-        .iter()
-        .map(|p| (p.image.width, p.image.height))
-        .collect();
+    let sizes: Vec<(usize, usize)> = photos.iter().map(|p| p.usize_size()).collect();
     let preds: Vec<PairPrediction> = ties.pairs.iter().map(|p| p.prediction).collect();
     let coverage = coverage(&sizes, &preds, &written)
         .iter()
@@ -632,5 +708,6 @@ pub fn block_tie_points(
         track_lengths: lengths,
         coverage,
         min_per_position,
+        photos_prepared: ties.prepared,
     })
 }

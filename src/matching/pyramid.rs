@@ -14,7 +14,12 @@ impl Pyramid {
     /// Builds levels until the smaller side would drop below `min_size` or `max_levels`
     /// levels (level 0 included) exist.
     pub fn new(image: &GreyImage, max_levels: usize, min_size: usize) -> Self {
-        let mut levels = vec![image.clone()];
+        Self::from_image(image.clone(), max_levels, min_size)
+    }
+
+    /// As [`Pyramid::new`], taking the image as level 0 without copying it.
+    pub fn from_image(image: GreyImage, max_levels: usize, min_size: usize) -> Self {
+        let mut levels = vec![image];
         while levels.len() < max_levels.max(1) {
             let last = levels.last().expect("level 0");
             if last.width / 2 < min_size.max(1) || last.height / 2 < min_size.max(1) {
@@ -23,6 +28,14 @@ impl Pyramid {
             levels.push(downsample(last));
         }
         Self { levels }
+    }
+
+    /// Bytes of pixel data held over all levels.
+    pub fn bytes(&self) -> u64 {
+        self.levels
+            .iter()
+            .map(|l| (l.data.len() * std::mem::size_of::<f32>()) as u64)
+            .sum()
     }
 }
 

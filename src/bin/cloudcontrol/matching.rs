@@ -11,7 +11,7 @@ use cloudcontrol::matching::fiducial::{
 };
 use cloudcontrol::matching::ncc::Window;
 use cloudcontrol::matching::ties::{coverage, link_tracks, match_pair, predict_shift, TieOptions};
-use cloudcontrol::matching::{block_tie_points, BlockTieOptions, Surface};
+use cloudcontrol::matching::{block_tie_points, BlockTieOptions, Pixels, Surface};
 use cloudcontrol::matching::{match_template, GreyImage, MatchOptions, Pyramid, RobustMethod};
 use indicatif::{ProgressBar, ProgressStyle};
 use nalgebra::Vector3;
@@ -313,15 +313,16 @@ fn ties_oriented(a: &TiesArgs, robust: RobustMethod, quiet: bool) -> ExitCode {
             .map(|p| p.to_path_buf())
             .unwrap_or_else(|| PathBuf::from("."))
     });
-    let mut images = BTreeMap::new();
-    for (id, photo) in &block.photos {
-        match GreyImage::load(&dir.join(&photo.name)) {
-            Ok(i) => {
-                images.insert(*id, i);
-            }
-            Err(e) => return fail("ties", e),
-        }
+    // Photos are decoded when their pairs are matched; a missing file is named first.
+    let files: BTreeMap<_, _> = block
+        .photos
+        .iter()
+        .map(|(id, photo)| (*id, dir.join(&photo.name)))
+        .collect();
+    if let Some(p) = files.values().find(|p| !p.is_file()) {
+        return fail("ties", format!("{}: photo image not found", p.display()));
     }
+    let images: BTreeMap<_, _> = files.iter().map(|(id, p)| (*id, Pixels::File(p))).collect();
     let dem = match &a.dem {
         Some(p) => match read_dem(p) {
             Ok((d, _)) => Some(d),

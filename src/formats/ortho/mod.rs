@@ -36,8 +36,7 @@ use std::path::Path;
 /// below the photos' ground pixel over a large extent is refused before anything is made.
 pub const MAX_ORTHO_PIXELS: u64 = 1 << 32;
 
-/// Default bound of the decoded-image cache: 1 GiB, ten 42 µm film scans in RGB.
-pub const DEFAULT_IMAGE_CACHE_BYTES: u64 = 1 << 30;
+pub use crate::cache::DEFAULT_IMAGE_CACHE_BYTES;
 
 /// Options of orthophoto production.
 #[derive(Debug, Clone)]
