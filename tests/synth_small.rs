@@ -1,4 +1,4 @@
-//! The `small` preset (the demo's data) once: its size, its budget (< 60 s on 2 cores,
+//! The `small` preset (the demo's data) once: its size, its budget (< 75 s on 2 cores,
 //! measured as process CPU time / 2 so a busy machine does not fail it) and the accuracy of
 //! its rendered checkpoints in the reference epoch.
 
@@ -40,7 +40,11 @@ fn small_preset_meets_its_budget_and_sizes() {
         m.checkpoint_count,
         m.epochs.iter().map(|e| (e.name.as_str(), e.photos.len())).collect::<Vec<_>>()
     );
-    assert!(cpu / 2.0 < 60.0, "small preset needs {cpu:.1} CPU s");
+    // The budget is the demo's (issue 15: under 3 minutes), which is this synthesis plus
+    // `run` on it (small preset, seed 7: 35 s wall). 75 s here leaves the run 70 s. The
+    // synthesis has measured 108–122.5 CPU s on this 2-core machine since its film became
+    // 42 µm scans; the earlier 60 s budget failed on that spread alone.
+    assert!(cpu / 2.0 < 75.0, "small preset needs {cpu:.1} CPU s");
     assert!((6.0..=10.0).contains(&m.lidar.density_per_m2));
     assert!(m.lidar.tiles.iter().all(|t| t.path.ends_with(".laz")));
     assert!(m.checkpoint_count >= 8);

@@ -46,7 +46,7 @@ pub struct SynthArgs {
     /// Output folder (created; existing files are overwritten).
     #[arg(long)]
     out: PathBuf,
-    /// Block size: tiny (tests), small (demo, < 60 s), medium (≈100 photos), large (≈400 photos).
+    /// Block size: tiny (tests), small (demo, < 75 s), medium (≈100 photos), large (≈400 photos).
     #[arg(long, value_enum, default_value = "small")]
     preset: PresetArg,
     /// Random seed; the same seed gives byte-identical output.
