@@ -390,8 +390,7 @@ pub fn oriented_tie_points(
             .collect();
         for (k, r) in made {
             let p = r?;
-            let bytes = p.bytes();
-            cache.get_or_load(&k, || Ok::<_, super::MatchingError>((p, bytes)))?;
+            cache.get_or_load(&k, || Ok::<_, super::MatchingError>(p.weighed()))?;
         }
         for (ib, pair) in todo {
             let radius = pair.prediction.search_radius_px;
@@ -416,20 +415,10 @@ pub fn oriented_tie_points(
                 reports.push(report);
                 continue;
             }
-            let (pa, pb) = (
-                cache.get_or_load(&ia, || {
-                    prepare(&photos[ia], ids[ia], t).map(|p| {
-                        let b = p.bytes();
-                        (p, b)
-                    })
-                })?,
-                cache.get_or_load(&ib, || {
-                    prepare(&photos[ib], ids[ib], t).map(|p| {
-                        let b = p.bytes();
-                        (p, b)
-                    })
-                })?,
-            );
+            let mut get = |k: usize| {
+                cache.get_or_load(&k, || prepare(&photos[k], ids[k], t).map(Prepared::weighed))
+            };
+            let (pa, pb) = (get(ia)?, get(ib)?);
             let margin = t.template_half as f64 + 2.0;
             let sp = search_points(&photos[ia], &photos[ib], surface, &pa.points, margin);
             report.points = sp.len();
@@ -495,8 +484,11 @@ struct Prepared {
 }
 
 impl Prepared {
-    fn bytes(&self) -> u64 {
-        self.pyramid.bytes() + (self.points.len() * std::mem::size_of::<[f64; 2]>()) as u64
+    /// With its weight in the cache: the bytes it holds.
+    fn weighed(self) -> (Self, u64) {
+        let bytes =
+            self.pyramid.bytes() + (self.points.len() * std::mem::size_of::<[f64; 2]>()) as u64;
+        (self, bytes)
     }
 }
 
