@@ -156,6 +156,26 @@ pub fn icp_point_to_plane(
         6
     };
 
+    // Points spanning the source: how far one transform is from another over them.
+    let span: Vec<Vector3<f64>> = {
+        let c = local.iter().sum::<Vector3<f64>>() / local.len() as f64;
+        std::iter::once(c)
+            .chain((0..3).flat_map(|k| {
+                let mut e = Vector3::zeros();
+                e[k] = extent;
+                [c + e, c - e]
+            }))
+            .collect()
+    };
+    let apart = |a: &Similarity, b: &Similarity| {
+        span.iter()
+            .map(|p| (a.apply(p) - b.apply(p)).norm())
+            .fold(0.0, f64::max)
+    };
+    // The transforms after the last two iterations: at the gate's floor the correspondences
+    // can flip between neighbouring planes every other iteration, and the solution then
+    // alternates between two states millimetres apart for ever.
+    let mut previous: [Option<Similarity>; 2] = [None, None];
     let mut gate = opts.initial_gate;
     let mut iterations = Vec::new();
     let mut converged = false;
@@ -287,6 +307,8 @@ pub fn icp_point_to_plane(
         let s = 1.0 + ds;
         let delta = Similarity::new(s, rot, centre + tau - s * (rot * centre));
         t = delta.compose(&t);
+        let two_back = previous[0];
+        previous = [previous[1], Some(t)];
 
         let step = tau.norm() + extent * (omega.norm() + ds.abs());
         // Redundancy uses the effective (weighted) count so σ0 is in metres per unit weight.
@@ -314,7 +336,12 @@ pub fn icp_point_to_plane(
         );
         let gate_floor = opts.min_gate.max(3.0 * opts.tukey_c * sigma).min(gate);
         let next_gate = (gate * opts.gate_shrink).max(gate_floor);
-        if step < opts.tolerance.max(0.02 * sigma) && (next_gate - gate).abs() < 1e-12 {
+        let settled = (next_gate - gate).abs() < 1e-12;
+        let small = opts.tolerance.max(0.02 * sigma);
+        // A two-iteration cycle counts as converged: the states differ by less than a step
+        // that would not be progress either.
+        let cycling = two_back.is_some_and(|b| apart(&t, &b) < small);
+        if settled && (step < small || cycling) {
             converged = true;
             break;
         }
