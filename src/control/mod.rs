@@ -4,7 +4,8 @@
 //!
 //! - [`epoch`]: an epoch as specified and as held, the one builder, the origin rule,
 //!   approximate orientations, the one error type;
-//! - [`reference`]: the reference epoch against the LiDAR;
+//! - [`reference`]: the reference epoch against the LiDAR; [`existing`]: an existing
+//!   oriented block taken as an epoch;
 //! - [`cloud`], [`export`]: cloud control points of an oriented block and their package;
 //! - [`dcp`]: the package format, its store and index;
 //! - [`chips`], [`predict`], [`orient`], [`photo`]: one photo from control patches;
@@ -18,6 +19,7 @@ pub mod cloud;
 pub mod dcp;
 pub mod dcp_files;
 pub mod epoch;
+pub mod existing;
 pub mod export;
 pub mod orient;
 pub mod photo;

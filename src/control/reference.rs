@@ -221,12 +221,12 @@ pub fn lidar_plane_index(
 }
 
 /// Similarity in world coordinates → the same map in block-local coordinates.
-fn to_local(s: &Similarity, origin: &Vector3<f64>) -> Similarity {
+pub(crate) fn to_local(s: &Similarity, origin: &Vector3<f64>) -> Similarity {
     let t = s.scale * s.rotation * origin + s.translation - origin;
     Similarity::new(s.scale, s.rotation, t)
 }
 
-fn summarise_icp(r: &IcpResult) -> IcpSummary {
+pub(crate) fn summarise_icp(r: &IcpResult) -> IcpSummary {
     let angle = nalgebra::Rotation3::from_matrix_unchecked(r.transform.rotation).angle();
     IcpSummary {
         scale: r.transform.scale,

@@ -104,14 +104,21 @@ pub(crate) fn write_products(
         .any(|p| matches!(named.camera_of(p).map(|c| &c.model), Some(Camera::Film(_))));
     let mut pixel_mm = BTreeMap::new();
     if film && (o.colmap || o.blocks_exchange || o.orthophoto) {
-        let def = match EpochCamera::load(&epoch.camera)? {
+        let Some(camera) = &epoch.camera else {
+            return Err(EpochError::Epoch {
+                epoch: epoch.name.clone(),
+                message: "an existing block with film cameras has no film camera file to resample its scans with".into(),
+            }
+            .into());
+        };
+        let def = match EpochCamera::load(camera)? {
             EpochCamera::Film(d) => d,
             EpochCamera::Frame(_) => {
                 return Err(EpochError::Epoch {
                     epoch: epoch.name.clone(),
                     message: format!(
                         "{}: a frame camera, but the epoch's block has film cameras",
-                        epoch.camera.display()
+                        camera.display()
                     ),
                 }
                 .into())

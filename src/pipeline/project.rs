@@ -51,8 +51,10 @@ pub struct Epoch {
     pub date: String,
     /// Folder of the photos.
     pub photos: PathBuf,
-    /// Camera definition (JSON): a frame camera, or a film camera with fiducials.
-    pub camera: PathBuf,
+    /// Camera definition (JSON): a frame camera, or a film camera with fiducials. Required
+    /// unless the epoch is an existing `block`, which holds its cameras.
+    #[serde(default)]
+    pub camera: Option<PathBuf>,
     /// POS file (CSV: name,x,y,z,omega,phi,kappa[,sigma_xyz,sigma_angle]).
     #[serde(default)]
     pub pos: Option<PathBuf>,
@@ -67,6 +69,52 @@ pub struct Epoch {
     /// `scan_pixel_um`.
     #[serde(default)]
     pub scan_dpi: Option<f64>,
+    /// The reference only: an existing oriented block taken as the epoch, instead of
+    /// orienting the photos against the LiDAR (then no `camera`, `pos` or `strips`).
+    #[serde(default)]
+    pub block: Option<ExistingBlock>,
+}
+
+/// An existing oriented block (an earlier aerial triangulation) given as the reference.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct ExistingBlock {
+    /// BlocksExchange XML file, or COLMAP model folder (its side file gives the CRS).
+    pub path: PathBuf,
+    /// `blocks_exchange` or `colmap`; told by the path when absent (`.xml` or a folder).
+    #[serde(default)]
+    pub format: Option<String>,
+    /// Check the block against the LiDAR: point-to-plane ICP of its tie points, the
+    /// offset reported.
+    #[serde(default = "default_true")]
+    pub lidar_check: bool,
+    /// Move the block by the similarity the LiDAR check found.
+    #[serde(default)]
+    pub apply_lidar_offset: bool,
+}
+
+fn default_true() -> bool {
+    true
+}
+
+impl ExistingBlock {
+    /// The format named or told by the path.
+    pub fn format(&self) -> Result<crate::formats::convert::BlockFormat, String> {
+        use crate::formats::convert::BlockFormat;
+        match &self.format {
+            Some(f) => BlockFormat::parse(&f.replace('_', "-"))
+                .ok_or_else(|| format!("{f:?} is not a block format (blocks_exchange or colmap)")),
+            None => BlockFormat::detect(&self.path).map_err(|e| e.to_string()),
+        }
+    }
+
+    /// Reads the block.
+    pub fn read(&self) -> Result<crate::block::Block, crate::formats::FormatError> {
+        let format = self
+            .format()
+            .map_err(|m| crate::formats::FormatError::invalid(&self.path, m))?;
+        crate::formats::convert::read_block(&self.path, Some(format))
+    }
 }
 
 impl Epoch {
@@ -157,12 +205,15 @@ impl Epoch {
     /// The epoch as the one epoch builder takes it ([`EpochInput::build`]).
     ///
     /// [`EpochInput::build`]: crate::control::EpochInput::build
+    /// An existing `block` has no such specification: its cameras and poses are in it
+    /// (the camera path is then empty, and [`Project::validate`] made sure no other epoch
+    /// lacks one).
     pub fn spec(&self) -> crate::control::EpochSpec {
         crate::control::EpochSpec {
             name: self.name.clone(),
             date: Some(self.date.clone()),
             photos: self.photos.clone(),
-            camera: self.camera.clone(),
+            camera: self.camera.clone().unwrap_or_default(),
             pos: self.pos.clone(),
             strips: self.strips.clone(),
             scan_pixel_um: self.scan_pixel_mm().map(|mm| mm * 1000.0),
@@ -224,7 +275,12 @@ impl Project {
         }
         for e in std::iter::once(&mut self.reference).chain(self.archive.iter_mut()) {
             abs(&mut e.photos);
-            abs(&mut e.camera);
+            if let Some(c) = e.camera.as_mut() {
+                abs(c)
+            }
+            if let Some(b) = e.block.as_mut() {
+                abs(&mut b.path)
+            }
             if let Some(p) = e.pos.as_mut() {
                 abs(p)
             }
@@ -323,7 +379,47 @@ impl Project {
                 (None, None) => {}
             }
             exists(&format!("{key}.photos"), &e.photos)?;
-            exists(&format!("{key}.camera"), &e.camera)?;
+            if let Some(b) = &e.block {
+                if key != "reference" {
+                    return Err(key_err(
+                        &format!("{key}.block"),
+                        "only the reference epoch can be an existing block".into(),
+                    ));
+                }
+                exists(&format!("{key}.block.path"), &b.path)?;
+                b.format()
+                    .map_err(|m| key_err(&format!("{key}.block.format"), m))?;
+                if b.apply_lidar_offset && !b.lidar_check {
+                    return Err(key_err(
+                        &format!("{key}.block.apply_lidar_offset"),
+                        "needs lidar_check (the offset is what the check finds)".into(),
+                    ));
+                }
+                for (k, given) in [
+                    ("camera", e.camera.is_some()),
+                    ("pos", e.pos.is_some()),
+                    ("strips", e.strips.is_some()),
+                    ("scan_pixel_um", e.scan_pixel_um.is_some()),
+                    ("scan_dpi", e.scan_dpi.is_some()),
+                ] {
+                    if given {
+                        return Err(key_err(
+                            &format!("{key}.{k}"),
+                            "given with block: the existing block holds the cameras and orientations".into(),
+                        ));
+                    }
+                }
+                continue;
+            }
+            match &e.camera {
+                Some(c) => exists(&format!("{key}.camera"), c)?,
+                None => {
+                    return Err(key_err(
+                        &format!("{key}.camera"),
+                        "missing: give the camera file (formats/cameras/)".into(),
+                    ))
+                }
+            }
             match (&e.pos, &e.strips) {
                 (Some(p), None) => exists(&format!("{key}.pos"), p)?,
                 (None, Some(s)) => exists(&format!("{key}.strips"), s)?,

@@ -4,7 +4,8 @@
 //! 1. `sources` — LiDAR catalogue (CRS, density, dates), cleaning (noise, strip offsets),
 //!    evaluation of the LiDAR against the surveyed checkpoints;
 //! 2. `epoch-<reference>` — the reference epoch oriented against the LiDAR alone
-//!    ([`crate::control::reference`]);
+//!    ([`crate::control::reference`]), or an existing oriented block taken as it is and
+//!    checked against the LiDAR ([`crate::control::existing`]);
 //! 3. `dcp-<epoch>` — each oriented epoch exported as Digital Control Photos;
 //! 4. `epoch-<archive>` — each archive epoch, newest first, oriented from the DCPs of all
 //!    newer epochs ([`crate::control::archive::orient_epoch`]);
@@ -23,7 +24,8 @@ use crate::control::archive::{self, ArchiveOptions};
 use crate::control::checkpoints::{self, CheckpointEvaluation, EvaluationError};
 use crate::control::cloud::CloudOptions;
 use crate::control::dcp::{Accuracy, DcpPackage, EpochInfo};
-use crate::control::epoch::{block_origin, EpochInput, Navigation};
+use crate::control::epoch::{block_origin, EpochInput, Navigation, PhotoInput};
+use crate::control::existing::{self, ExistingOptions};
 use crate::control::export::{self, DcpExportOptions};
 use crate::control::reference::{self, ReferenceOptions};
 use crate::formats::control_points;
@@ -170,7 +172,20 @@ fn select_tiles(
 ) -> Result<([f64; 4], TileSelection), WorkError> {
     let mut centres = Vec::new();
     for e in std::iter::once(&project.reference).chain(project.archive.iter()) {
-        centres.extend(Navigation::load(e.pos.as_deref(), e.strips.as_deref())?.centres());
+        match &e.block {
+            Some(b) => {
+                let block = b.read()?;
+                centres.extend(
+                    block
+                        .photos
+                        .values()
+                        .map(|p| -> [f64; 3] { block.to_world(&p.pose.center).into() }),
+                );
+            }
+            None => {
+                centres.extend(Navigation::load(e.pos.as_deref(), e.strips.as_deref())?.centres())
+            }
+        }
     }
     let fp = footprint(&centres, cat.bounds[2], 1.85).ok_or_else(|| {
         WorkError::Inconsistent("no projection centre in any POS or strip file".into())
@@ -287,6 +302,18 @@ pub(crate) fn evaluate(
     }
 }
 
+/// The report's rows of an ICP onto the LiDAR.
+fn icp_rows(iterations: &[lidar::IcpIteration]) -> Vec<IcpIteration> {
+    iterations
+        .iter()
+        .map(|it| IcpIteration {
+            iteration: it.iteration,
+            rmse_m: it.rmse_m,
+            inliers: it.correspondences,
+        })
+        .collect()
+}
+
 /// The reference adjustment tests its gross errors by Baarda's data snooping (its tie
 /// points are many and precise; `reject_k` is the archive adjustments' k·σ0).
 fn reference_options(_project: &Project) -> ReferenceOptions {
@@ -348,6 +375,9 @@ pub fn run_project(
     for e in std::iter::once(&project.reference).chain(project.archive.iter()) {
         for f in [&e.pos, &e.strips].into_iter().flatten() {
             src_inputs = src_inputs.file(f);
+        }
+        if let Some(b) = &e.block {
+            src_inputs = src_inputs.file(&b.path);
         }
     }
     let checkpoints = read_checkpoints(project).map_err(|source| StageError::Failed {
@@ -430,9 +460,14 @@ pub fn run_project(
         let mut inputs = Inputs::new()
             .file(&sources)
             .file(&e.photos)
-            .file(&e.camera)
             .param("thresholds", &project.thresholds)
             .param("date", &e.date);
+        if let Some(c) = &e.camera {
+            inputs = inputs.file(c);
+        }
+        if let Some(b) = &e.block {
+            inputs = inputs.file(&b.path).param("block", b);
+        }
         if let Some(p) = &e.pos {
             inputs = inputs.file(p);
         }
@@ -444,8 +479,43 @@ pub fn run_project(
         }
         let inputs = cp_inputs(inputs);
         let edir = stage!(format!("epoch-{}", e.name), inputs, |dir: &Path| {
-            let input = EpochInput::build(&e.spec(), &project.crs, origin)?;
-            let (result, icp) = if k == 0 {
+            let (result, icp) = if let Some(b) = &e.block {
+                // An existing oriented block: taken as it is, checked against the LiDAR.
+                let block = b.read()?;
+                let photos = PhotoInput::from_folder(&e.photos)?;
+                let opts = ExistingOptions {
+                    lidar_check: b
+                        .lidar_check
+                        .then(|| ExistingOptions::default().lidar_check)
+                        .flatten(),
+                    apply_offset: b.apply_lidar_offset,
+                };
+                let planes = if b.lidar_check {
+                    Some(lidar.planes()?)
+                } else {
+                    None
+                };
+                let (r, rep) = existing::existing_epoch(
+                    &e.name,
+                    Some(&e.date),
+                    &b.path,
+                    block,
+                    &photos,
+                    &project.crs,
+                    origin,
+                    planes,
+                    &lidar.surface()?.ground,
+                    &opts,
+                )?;
+                write_json(&dir.join("existing.json"), &rep)?;
+                let icp = rep
+                    .lidar
+                    .as_ref()
+                    .map(|c| icp_rows(&c.icp.iterations))
+                    .unwrap_or_default();
+                (r, icp)
+            } else if k == 0 {
+                let input = EpochInput::build(&e.spec(), &project.crs, origin)?;
                 let (r, rep) = reference::orient_reference(
                     &input,
                     lidar.planes()?,
@@ -456,19 +526,11 @@ pub fn run_project(
                 let icp = rep
                     .icp
                     .as_ref()
-                    .map(|i| {
-                        i.iterations
-                            .iter()
-                            .map(|it| IcpIteration {
-                                iteration: it.iteration,
-                                rmse_m: it.rmse_m,
-                                inliers: it.correspondences,
-                            })
-                            .collect()
-                    })
+                    .map(|i| icp_rows(&i.iterations))
                     .unwrap_or_default();
                 (r, icp)
             } else {
+                let input = EpochInput::build(&e.spec(), &project.crs, origin)?;
                 // The DCPs of every newer epoch, combined: the previous epoch's are the
                 // closest in time and appearance, the reference's the most accurate.
                 let pkgs = dcp_dirs
@@ -573,11 +635,13 @@ pub fn run_project(
             let odir = stage!(
                 format!("outputs-{}", e.name),
                 cp_inputs(
-                    Inputs::new()
-                        .file(&sources)
-                        .file(&edir)
-                        .file(&e.camera)
-                        .param("outputs", &project.outputs)
+                    match &e.camera {
+                        Some(c) => Inputs::new().file(c),
+                        None => Inputs::new(),
+                    }
+                    .file(&sources)
+                    .file(&edir)
+                    .param("outputs", &project.outputs)
                 ),
                 |dir: &Path| {
                     super::products::write_products(
