@@ -7,6 +7,7 @@
 //! - [`reference`]: the reference epoch against the LiDAR; [`existing`]: an existing
 //!   oriented block taken as an epoch;
 //! - [`cloud`], [`export`]: cloud control points of an oriented block and their package;
+//!   [`ortho_source`]: control points of an orthophoto with a DEM, as a package;
 //! - [`dcp`]: the package format, its store and index;
 //! - [`chips`], [`predict`], [`orient`], [`photo`]: one photo from control patches;
 //! - [`archive`]: an archive epoch; [`checkpoints`]: the checkpoint evaluation;
@@ -22,6 +23,7 @@ pub mod epoch;
 pub mod existing;
 pub mod export;
 pub mod orient;
+pub mod ortho_source;
 pub mod photo;
 pub mod plan_index;
 pub mod predict;

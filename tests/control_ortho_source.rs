@@ -1,0 +1,194 @@
+//! An orthophoto with a DEM as a control source (issue 20), on real data: PDAL's Autzen
+//! orthophoto (a JPEG georeferenced only by its world file, its CRS a separate WKT in
+//! international feet) and a DEM gridded from the Autzen LiDAR (LAZ, the same CRS). The
+//! package's control points, taken back into the orthophoto through the world file read
+//! here by hand, land on their chips' centres; the chips hold the orthophoto's pixels
+//! there; the heights are the DEM's; the CRS is the WKT's projection in metres.
+
+use cloudcontrol::control::dcp::{DcpPackage, EpochInfo};
+use cloudcontrol::control::ortho_source::{orthophoto_dcp, OrthoControlOptions, OrthoSource};
+use cloudcontrol::formats::crs::{Crs, LinearUnit};
+use cloudcontrol::formats::raster::{self, GeoTiffOptions};
+use cloudcontrol::lidar::{grid_dem, las, DemOptions};
+use std::path::{Path, PathBuf};
+
+fn data() -> PathBuf {
+    let root = Path::new(env!("CARGO_MANIFEST_DIR"));
+    for d in ["../shared/data", "../../shared/data", "/work/shared/data"] {
+        let p = root.join(d).join("autzen_lidar_ortho");
+        if p.is_dir() {
+            return p;
+        }
+    }
+    panic!("shared/data/autzen_lidar_ortho not found beside the project");
+}
+
+const FOOT: f64 = 0.3048;
+
+#[test]
+fn autzen_orthophoto_and_lidar_dem_give_control_on_chip_centres() {
+    let d = data();
+    let wkt = std::fs::read_to_string(d.join("autzen-srs.wkt")).unwrap();
+    let feet = Crs::parse(&wkt).unwrap();
+    assert!((feet.horizontal_unit().unwrap().metres - FOOT).abs() < 1e-12);
+    // The package CRS: the same projection in metres.
+    let metres = feet.with_units(Some(&LinearUnit::metre()), None).unwrap();
+    let tmp = tempfile::tempdir().unwrap();
+
+    // The DEM: the LiDAR's ground returns gridded at 1 m, in feet as the LiDAR is.
+    let pts = las::read_points(&d.join("autzen_trim.laz"), None, Some(&[2])).unwrap();
+    assert!(pts.xyz.len() > 10_000, "{} ground points", pts.xyz.len());
+    let dem = grid_dem(
+        &pts.xyz,
+        &DemOptions {
+            cell: 1.0 / FOOT,
+            ..DemOptions::default()
+        },
+    )
+    .unwrap();
+    let dem_path = tmp.path().join("autzen_dem_ft.tif");
+    raster::write_dem(&dem_path, &dem, &feet, &GeoTiffOptions::default()).unwrap();
+
+    let out = tmp.path().join("autzen.dcp");
+    let (pkg, rep) = orthophoto_dcp(
+        &OrthoSource {
+            orthophoto: &d.join("autzen.jpg"),
+            orthophoto_crs: Some(&wkt),
+            dem: &dem_path,
+            dem_crs: None,
+            epoch: EpochInfo {
+                name: "autzen_orthophoto".into(),
+                date: None,
+            },
+        },
+        metres.definition(),
+        &out,
+        &OrthoControlOptions::default(),
+    )
+    .unwrap();
+    eprintln!("{rep:#?}");
+    assert_eq!(rep.size_px, [3248, 4385]);
+    assert!((rep.unit_m - FOOT).abs() < 1e-12);
+    assert!((rep.gsd_m - FOOT).abs() < 1e-9);
+    // The DEM covers 360 × 170 m at the orthophoto's southern edge, about 24 of its
+    // 150-px cells once the chips' border is kept: control there only (18 points).
+    assert!(rep.points >= 12, "{} points", rep.points);
+    assert!(rep.outside_dem > rep.points);
+
+    // Read back as any consumer would, and checked against the world file by hand.
+    let pkg = DcpPackage::open(&pkg.dir).unwrap();
+    let m = &pkg.manifest;
+    let crs = Crs::parse(&m.crs).unwrap();
+    assert!(crs.same_horizontal(&metres).unwrap());
+    assert!(crs.horizontal_unit().unwrap().is_metre());
+    let wld: Vec<f64> = std::fs::read_to_string(d.join("autzen.wld"))
+        .unwrap()
+        .split_whitespace()
+        .map(|v| v.parse().unwrap())
+        .collect();
+    // World file: pixel size x, two rotations, pixel size y, and the centre of the
+    // upper-left pixel, in feet.
+    let (a, e, c, f) = (wld[0], wld[3], wld[4], wld[5]);
+    assert_eq!((wld[1], wld[2]), (0.0, 0.0));
+    let ortho = image::open(d.join("autzen.jpg")).unwrap().to_luma8();
+    let (dem_m, _) = raster::read_dem(&dem_path).unwrap();
+    assert_eq!(m.photos.len(), 1);
+    let mut worst_centre: f64 = 0.0;
+    let mut worst_pixel: f64 = 0.0;
+    let mut worst_height: f64 = 0.0;
+    for p in &m.points {
+        let (x_ft, y_ft) = (p.xyz[0] / FOOT, p.xyz[1] / FOOT);
+        // Pixel coordinates with the corner of the upper-left pixel at (0, 0).
+        let col = (x_ft - c) / a + 0.5;
+        let row = (y_ft - f) / e + 0.5;
+        let ms = &p.measurements[0];
+        let ch = &ms.chip;
+        assert_eq!((ch.width, ch.height), (193, 193));
+        let centre = (
+            ch.x0 as f64 + ch.width as f64 / 2.0,
+            ch.y0 as f64 + ch.height as f64 / 2.0,
+        );
+        worst_centre = worst_centre.max((col - centre.0).hypot(row - centre.1));
+        worst_pixel = worst_pixel.max((col - ms.pixel[0]).hypot(row - ms.pixel[1]));
+        // The height is the DEM's at the point (feet in the file).
+        let z = dem_m.height_at(x_ft, y_ft).unwrap() * FOOT;
+        worst_height = worst_height.max((z - p.xyz[2]).abs());
+        // The chip holds the orthophoto's pixels there.
+        let chip = pkg.chip(ch).unwrap().to_luma8();
+        let mut diff = 0.0;
+        for (i, j) in [(0, 0), (96, 96), (192, 0), (17, 150), (192, 192)] {
+            let a = chip.get_pixel(i, j)[0] as f64;
+            let b = ortho.get_pixel(ch.x0 + i, ch.y0 + j)[0] as f64;
+            diff = f64::max(diff, (a - b).abs());
+        }
+        assert!(diff <= 1.0, "point {}: chip differs by {diff}", p.id);
+        // Height σ: the DEM's, and more on slopes.
+        assert!(p.sigma[2] >= 0.5 && p.sigma[0] == FOOT, "{:?}", p.sigma);
+        assert!(p.quality.coplanarity <= 0.01);
+    }
+    eprintln!(
+        "{} points: chip centre {worst_centre:.2e} px, measurement {worst_pixel:.2e} px, height {worst_height:.3} m from the DEM",
+        m.points.len()
+    );
+    assert!(
+        worst_centre < 1e-6,
+        "control point {worst_centre} px from its chip centre"
+    );
+    assert!(
+        worst_pixel < 2e-3,
+        "measurement {worst_pixel} px from the orthophoto pixel"
+    );
+    // Bilinear height at the point against the local plane of ±2 m.
+    assert!(worst_height < 0.25, "height {worst_height} m from the DEM");
+}
+
+/// An orthophoto in another projection, or one without any CRS, is refused naming it.
+#[test]
+fn orthophoto_in_another_projection_or_without_crs_is_refused() {
+    let d = data();
+    let wkt = std::fs::read_to_string(d.join("autzen-srs.wkt")).unwrap();
+    let tmp = tempfile::tempdir().unwrap();
+    let dem_path = tmp.path().join("dem.tif");
+    let pts = las::read_points(&d.join("autzen_trim.laz"), None, Some(&[2])).unwrap();
+    let dem = grid_dem(
+        &pts.xyz,
+        &DemOptions {
+            cell: 10.0,
+            ..DemOptions::default()
+        },
+    )
+    .unwrap();
+    raster::write_dem(
+        &dem_path,
+        &dem,
+        &Crs::parse(&wkt).unwrap(),
+        &GeoTiffOptions::default(),
+    )
+    .unwrap();
+    let ortho = d.join("autzen.jpg");
+    let run = |ortho_crs: Option<&str>, crs: &str| {
+        orthophoto_dcp(
+            &OrthoSource {
+                orthophoto: &ortho,
+                orthophoto_crs: ortho_crs,
+                dem: &dem_path,
+                dem_crs: None,
+                epoch: EpochInfo {
+                    name: "o".into(),
+                    date: None,
+                },
+            },
+            crs,
+            &tmp.path().join("o.dcp"),
+            &OrthoControlOptions::default(),
+        )
+        .map(|_| ())
+        .unwrap_err()
+        .to_string()
+    };
+    let e = run(None, "EPSG:32610");
+    assert!(e.contains("autzen.jpg") && e.contains("no CRS"), "{e}");
+    let e = run(Some(&wkt), "EPSG:32610");
+    assert!(e.contains("autzen.jpg") && e.contains("reproject"), "{e}");
+    assert!(!tmp.path().join("o.dcp").exists());
+}
