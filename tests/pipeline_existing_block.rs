@@ -14,7 +14,7 @@ use std::path::{Path, PathBuf};
 use std::process::Command;
 
 mod common;
-use common::exe;
+use common::{epoch, exe, px};
 
 /// The synthetic block's project with its reference replaced by `block` (a table body),
 /// writing into `output`.
@@ -48,19 +48,6 @@ fn project_with_block(blk: &Path, block: &str, output: &str) -> PathBuf {
 
 fn report_of(run: &Path) -> Value {
     serde_json::from_slice(&std::fs::read(run.join("report/report.json")).unwrap()).unwrap()
-}
-
-fn epoch<'a>(report: &'a Value, name: &str) -> &'a Value {
-    report["epochs"]
-        .as_array()
-        .unwrap()
-        .iter()
-        .find(|e| e["name"] == name)
-        .unwrap_or_else(|| panic!("no epoch {name}"))
-}
-
-fn gsd_px(e: &Value, key: &str) -> f64 {
-    e[key].as_f64().unwrap_or(f64::NAN) / e["gsd_m"].as_f64().unwrap()
 }
 
 /// World projection centres by photo stem.
@@ -150,8 +137,8 @@ fn an_existing_block_controls_the_archive_epochs_as_our_own_reference_does() {
         let row = |e: &Value| {
             (
                 e["photos_oriented"].as_u64().unwrap(),
-                gsd_px(e, "check_rmse_plan_m"),
-                gsd_px(e, "check_rmse_height_m"),
+                px(e, "check_rmse_plan_m"),
+                px(e, "check_rmse_height_m"),
             )
         };
         let ((na, pa, ha), (nb, pb, hb)) = (row(a), row(b));

@@ -55,6 +55,11 @@ fn sample_report() -> Report {
                     inliers: 1000,
                 })
                 .collect(),
+            control: vec![if k == 0 {
+                "LiDAR (tie points by ICP and plane constraints)".into()
+            } else {
+                "DCPs of epoch reference".into()
+            }],
         };
         e.set_check_statistics();
         epochs.push(e);
@@ -121,6 +126,9 @@ fn html_report_renders_in_headless_chromium() {
         html.matches("<svg").count() >= 8,
         "map + 2 epochs × (histogram, residuals, matching, ICP)"
     );
+    // Each epoch says what controlled it.
+    assert!(html.contains("<td>LiDAR (tie points by ICP and plane constraints)</td>"));
+    assert!(html.contains("<td>DCPs of epoch reference</td>"));
     let browser = chromium().expect("chromium is installed by setup.sh");
     let shot = dir.path().join("shot.png");
     let profile = dir.path().join("profile");

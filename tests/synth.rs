@@ -205,12 +205,16 @@ fn same_seed_is_byte_identical_and_another_seed_differs() {
     );
     assert_eq!(again.files.len(), s.manifest.files.len());
     let other = synth::generate(&config(12), &dir.path().join("b")).unwrap();
-    // Camera definitions and the project file do not depend on the seed; everything else
+    // Camera definitions and the project files do not depend on the seed; everything else
     // must.
     let same: Vec<&String> = other
         .files
         .iter()
-        .filter(|f| !f.path.ends_with("camera.json") && f.path != "project.toml")
+        .filter(|f| {
+            !f.path.ends_with("camera.json")
+                && f.path != "project.toml"
+                && f.path != "project_orthophoto.toml"
+        })
         .filter(|f| a.iter().any(|g| g.path == f.path && g.sha256 == f.sha256))
         .map(|f| &f.path)
         .collect();

@@ -9,7 +9,7 @@
 use super::archive::{mean_gsd, EpochResult};
 use super::epoch::{input_err, EpochError, PhotoInput};
 use super::photo::PhotoReport;
-use super::reference::{summarise_icp, to_local, IcpSummary};
+use super::reference::{move_block, summarise_icp, IcpSummary};
 use crate::block::{Block, PhotoFailure, PhotoStatus, PointKind};
 use crate::formats::crs::Crs;
 use crate::formats::pos::photo_key;
@@ -282,16 +282,7 @@ fn check_against_lidar(
     let mean = moved.iter().sum::<Vector3<f64>>() / moved.len() as f64;
     let max = moved.iter().map(|d| d.norm()).fold(0.0, f64::max);
     if apply {
-        let local = to_local(&r.transform, &origin);
-        for ph in block.photos.values_mut() {
-            ph.pose = local.apply_pose(&ph.pose);
-        }
-        // Control keeps its surveyed coordinates, as in the reference orientation.
-        for p in block.points.values_mut() {
-            if p.kind == PointKind::Tie {
-                p.position = local.apply(&p.position);
-            }
-        }
+        move_block(block, &r.transform);
     }
     tracing::info!(
         source = %source.display(),

@@ -171,32 +171,28 @@ fn unit_to(path: &Path, crs: &Crs, target: &Crs, extent: [f64; 4]) -> Result<f64
     Ok(k)
 }
 
-/// The DEM in the package CRS's metres (heights in the CRS's vertical unit, else in its
-/// horizontal one, as LiDAR deliveries in feet have them).
-fn dem_in_metres(src: &OrthoSource, target: &Crs) -> Result<Dem, EpochError> {
-    let (dem, file_crs) =
-        raster::read_dem(src.dem).map_err(|e| input_err(src.dem, e.to_string()))?;
-    let crs = raster_crs(
-        src.dem,
-        file_crs.map(|c| c.definition().to_string()),
-        src.dem_crs,
-    )?;
+/// The DEM at `path` (its CRS the file's, or `given`) in `target`'s metres (heights in
+/// the CRS's vertical unit, else in its horizontal one, as LiDAR deliveries in feet have
+/// them), world coordinates.
+pub fn dem_in_metres(path: &Path, given: Option<&str>, target: &Crs) -> Result<Dem, EpochError> {
+    let (dem, file_crs) = raster::read_dem(path).map_err(|e| input_err(path, e.to_string()))?;
+    let crs = raster_crs(path, file_crs.map(|c| c.definition().to_string()), given)?;
     let (x0, y1) = dem.transform.pixel_to_world(0.0, 0.0);
     let (x1, y0) = dem
         .transform
         .pixel_to_world(dem.width as f64, dem.height as f64);
-    let kh = unit_to(src.dem, &crs, target, [x0, y0, x1, y1])?;
+    let kh = unit_to(path, &crs, target, [x0, y0, x1, y1])?;
     let kv = match crs.vertical_unit() {
         Ok(Some(u)) => u.metres,
         _ => kh,
     };
     if !dem.transform.is_north_up() {
-        return Err(input_err(src.dem, "is not a north-up grid"));
+        return Err(input_err(path, "is not a north-up grid"));
     }
     let g = dem.transform.0.map(|v| v * kh);
     let data = dem.data.iter().map(|z| z * kv as f32).collect();
     Dem::new(dem.width, dem.height, GeoTransform(g), data)
-        .map_err(|e| input_err(src.dem, e.to_string()))
+        .map_err(|e| input_err(path, e.to_string()))
 }
 
 /// Control points of an orthophoto with a DEM as a DCP package in `crs` (projected,
@@ -247,7 +243,7 @@ pub fn orthophoto_dcp(
         ));
     }
     let (gx, gy) = (gt.0[1], -gt.0[5]);
-    let dem = dem_in_metres(src, &target)?;
+    let dem = dem_in_metres(src.dem, src.dem_crs, &target)?;
     let (z0, z1) = dem.z_range();
     if !(z0.is_finite() && z1.is_finite()) {
         return Err(input_err(src.dem, "holds no height"));

@@ -221,9 +221,23 @@ pub fn lidar_plane_index(
 }
 
 /// Similarity in world coordinates → the same map in block-local coordinates.
-pub(crate) fn to_local(s: &Similarity, origin: &Vector3<f64>) -> Similarity {
+fn to_local(s: &Similarity, origin: &Vector3<f64>) -> Similarity {
     let t = s.scale * s.rotation * origin + s.translation - origin;
     Similarity::new(s.scale, s.rotation, t)
+}
+
+/// Moves a block (block-local, `block.origin`) by a similarity in world coordinates: its
+/// photos and tie points; control keeps its surveyed coordinates.
+pub(crate) fn move_block(block: &mut Block, s: &Similarity) {
+    let local = to_local(s, &Vector3::from(block.origin));
+    for ph in block.photos.values_mut() {
+        ph.pose = local.apply_pose(&ph.pose);
+    }
+    for p in block.points.values_mut() {
+        if p.kind == PointKind::Tie {
+            p.position = local.apply(&p.position);
+        }
+    }
 }
 
 pub(crate) fn summarise_icp(r: &IcpResult) -> IcpSummary {
@@ -327,15 +341,7 @@ pub fn orient_reference(
                 .collect();
             let r = icp_point_to_plane(lidar, &source, &Similarity::identity(), icp_opts)
                 .map_err(|e| ep(format!("ICP of the tie points onto the LiDAR: {e}")))?;
-            let local = to_local(&r.transform, &origin);
-            for ph in block.photos.values_mut() {
-                ph.pose = local.apply_pose(&ph.pose);
-            }
-            for p in block.points.values_mut() {
-                if p.kind == PointKind::Tie {
-                    p.position = local.apply(&p.position);
-                }
-            }
+            move_block(&mut block, &r.transform);
             tracing::info!(
                 epoch = %input.name,
                 rmse_m = r.rmse_m,

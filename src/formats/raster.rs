@@ -88,6 +88,45 @@ pub fn write_dem(path: &Path, dem: &Dem, crs: &Crs, opts: &GeoTiffOptions) -> Re
     })
 }
 
+/// Writes an 8-bit single-band image (row-major `data`) as a GeoTIFF with CRS and
+/// geotransform: a greyscale orthophoto.
+pub fn write_grey(
+    path: &Path,
+    (width, height): (usize, usize),
+    data: Vec<u8>,
+    transform: &GeoTransform,
+    crs: &Crs,
+    opts: &GeoTiffOptions,
+) -> Result<()> {
+    if data.len() != width * height {
+        return Err(FormatError::invalid(
+            path,
+            format!("{} pixels for a {width}×{height} image", data.len()),
+        ));
+    }
+    write_atomically(path, |tmp| {
+        let driver =
+            DriverManager::get_driver_by_name("GTiff").map_err(|e| FormatError::gdal(path, e))?;
+        let co = creation_options(opts, width, height)?;
+        let mut ds = driver
+            .create_with_band_type_with_options::<u8, _>(tmp, width, height, 1, &co)
+            .map_err(|e| FormatError::gdal(path, e))?;
+        ds.set_geo_transform(&transform.0)
+            .map_err(|e| FormatError::gdal(path, e))?;
+        ds.set_spatial_ref(crs.spatial_ref())
+            .map_err(|e| FormatError::gdal(path, e))?;
+        {
+            let mut band = ds.rasterband(1).map_err(|e| FormatError::gdal(path, e))?;
+            let mut buf = Buffer::new((width, height), data);
+            band.write((0, 0), (width, height), &mut buf)
+                .map_err(|e| FormatError::gdal(path, e))?;
+        }
+        ds.flush_cache().map_err(|e| FormatError::gdal(path, e))?;
+        drop(ds);
+        Ok(())
+    })
+}
+
 /// Width, height and geotransform of a DEM raster from its header, without reading the
 /// heights (the size query of `ccp_dem_read`).
 pub fn dem_size(path: &Path) -> Result<(usize, usize, [f64; 6])> {

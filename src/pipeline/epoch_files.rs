@@ -133,6 +133,7 @@ pub fn epoch_report(
         checkpoints,
         photos,
         icp,
+        control: Vec::new(),
     };
     rep.set_check_statistics();
     rep

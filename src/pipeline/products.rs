@@ -24,14 +24,17 @@ use std::path::Path;
 /// File name of the per-epoch DEM: until an epoch has a surface of its own, it is the
 /// LiDAR ground DEM, and named so.
 pub const LIDAR_DEM: &str = "lidar_dem.tif";
+/// The same where the DEM of the control sources (`control.dem`) stands for the LiDAR.
+pub const CONTROL_DEM: &str = "control_dem.tif";
 
 /// The files and folders of `outputs-<epoch>/` that are products (listed in the run
 /// summary when written).
-pub const PRODUCT_FILES: [&str; 5] = [
+pub const PRODUCT_FILES: [&str; 6] = [
     "colmap",
     "blocks_exchange.xml",
     "orthophoto.tif",
     LIDAR_DEM,
+    CONTROL_DEM,
     RESAMPLED_DIR,
 ];
 
@@ -86,7 +89,7 @@ pub(crate) fn write_products(
     project: &Project,
     epoch: &Epoch,
     checkpoints: Option<&Checkpoints>,
-    surface: &GroundSurface,
+    (surface, dem_file): (&GroundSurface, &str),
     origin: [f64; 3],
     edir: &Path,
     dir: &Path,
@@ -202,7 +205,7 @@ pub(crate) fn write_products(
             .map_err(FormatError::Geometry)?;
         if o.dem {
             formats::raster::write_dem(
-                &dir.join(LIDAR_DEM),
+                &dir.join(dem_file),
                 &dem,
                 &crs,
                 &formats::raster::GeoTiffOptions::default(),

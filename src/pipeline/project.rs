@@ -23,12 +23,36 @@ pub enum ProjectError {
     },
 }
 
-/// LiDAR and surveyed checkpoints: the control sources.
+/// The control sources (LiDAR, an orthophoto with a DEM) and the surveyed checkpoints.
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 #[serde(deny_unknown_fields)]
 pub struct ControlSources {
-    /// LAS/LAZ files or folders holding them.
+    /// LAS/LAZ files or folders holding them (none: the orthophoto and DEM control).
+    #[serde(default)]
     pub lidar: Vec<PathBuf>,
+    /// A georeferenced orthophoto (GeoTIFF, or an image with a world file), given with
+    /// `dem`: control points of the archive epochs where it is textured and the DEM planar.
+    #[serde(default)]
+    pub orthophoto: Option<PathBuf>,
+    /// Its CRS when the file has none (a world file gives none); `EPSG:n` or WKT.
+    #[serde(default)]
+    pub orthophoto_crs: Option<String>,
+    /// Acquisition date of the orthophoto's photos (ISO 8601), when known.
+    #[serde(default)]
+    pub orthophoto_date: Option<String>,
+    /// 1σ plan accuracy of the orthophoto (m); default one orthophoto pixel.
+    #[serde(default)]
+    pub orthophoto_sigma_m: Option<f64>,
+    /// DEM GeoTIFF of the orthophoto's area (heights of its control points; the surface
+    /// archive photos are predicted over where there is no LiDAR).
+    #[serde(default)]
+    pub dem: Option<PathBuf>,
+    /// Its CRS when the file has none.
+    #[serde(default)]
+    pub dem_crs: Option<String>,
+    /// 1σ height accuracy of the DEM (m).
+    #[serde(default = "default_dem_sigma")]
+    pub dem_sigma_m: f64,
     /// Surveyed checkpoints (CSV `id,x,y,z,sigma_xy,sigma_z`), for evaluation only.
     #[serde(default)]
     pub checkpoints: Option<PathBuf>,
@@ -95,6 +119,10 @@ pub struct ExistingBlock {
 
 fn default_true() -> bool {
     true
+}
+
+fn default_dem_sigma() -> f64 {
+    0.5
 }
 
 impl ExistingBlock {
@@ -231,8 +259,10 @@ pub struct Project {
     /// Output folder.
     pub output: PathBuf,
     pub control: ControlSources,
-    /// The recent epoch oriented against the LiDAR.
-    pub reference: Epoch,
+    /// The recent epoch oriented against the LiDAR, or an existing block; none when an
+    /// orthophoto with a DEM controls the archive epochs alone.
+    #[serde(default)]
+    pub reference: Option<Epoch>,
     /// Older epochs, oriented in time order (newest first) from the DCPs of the previous one.
     #[serde(default)]
     pub archive: Vec<Epoch>,
@@ -243,6 +273,12 @@ pub struct Project {
 }
 
 impl Project {
+    /// Every epoch in time order, newest first: the reference (when there is one), then
+    /// the archive epochs.
+    pub fn epochs(&self) -> impl Iterator<Item = &Epoch> {
+        self.reference.iter().chain(self.archive.iter())
+    }
+
     /// Reads and validates a project file. Relative paths are taken from the file's folder.
     pub fn load(path: &Path) -> Result<Self, ProjectError> {
         let text = std::fs::read_to_string(path).map_err(|e| ProjectError::Io {
@@ -267,13 +303,19 @@ impl Project {
         };
         abs(&mut self.output);
         self.control.lidar.iter_mut().for_each(abs);
+        for p in [&mut self.control.orthophoto, &mut self.control.dem]
+            .into_iter()
+            .flatten()
+        {
+            abs(p)
+        }
         if let Some(c) = self.control.checkpoints.as_mut() {
             abs(c)
         }
         if let Some(c) = self.control.checkpoint_images.as_mut() {
             abs(c)
         }
-        for e in std::iter::once(&mut self.reference).chain(self.archive.iter_mut()) {
+        for e in self.reference.iter_mut().chain(self.archive.iter_mut()) {
             abs(&mut e.photos);
             if let Some(c) = e.camera.as_mut() {
                 abs(c)
@@ -308,11 +350,80 @@ impl Project {
             .map_err(|e| key_err("crs", e.to_string()))?;
         crs.require_metric_projected(None)
             .map_err(|e| key_err("crs", e.to_string()))?;
-        if self.control.lidar.is_empty() {
-            return Err(key_err("control.lidar", "no LiDAR source given".into()));
-        }
-        for (i, l) in self.control.lidar.iter().enumerate() {
+        let c = &self.control;
+        for (i, l) in c.lidar.iter().enumerate() {
             exists(&format!("control.lidar[{i}]"), l)?;
+        }
+        match (&c.orthophoto, &c.dem) {
+            (Some(o), Some(d)) => {
+                exists("control.orthophoto", o)?;
+                exists("control.dem", d)?;
+            }
+            (Some(_), None) => {
+                return Err(key_err(
+                    "control.dem",
+                    "missing: an orthophoto controls with the heights of a DEM".into(),
+                ))
+            }
+            (None, Some(_)) => {
+                return Err(key_err(
+                    "control.orthophoto",
+                    "missing: the DEM is given for an orthophoto's control points".into(),
+                ))
+            }
+            (None, None) => {
+                if c.lidar.is_empty() {
+                    return Err(key_err(
+                        "control.lidar",
+                        "no control source given: LiDAR, or an orthophoto with a DEM".into(),
+                    ));
+                }
+            }
+        }
+        for (key, crs) in [
+            ("control.orthophoto_crs", &c.orthophoto_crs),
+            ("control.dem_crs", &c.dem_crs),
+        ] {
+            if let Some(d) = crs {
+                crate::formats::crs::Crs::parse(d).map_err(|e| key_err(key, e.to_string()))?;
+            }
+        }
+        if let Some(d) = &c.orthophoto_date {
+            if !valid_date(d) {
+                return Err(key_err(
+                    "control.orthophoto_date",
+                    format!("{d:?} is not an ISO 8601 date (YYYY, YYYY-MM or YYYY-MM-DD)"),
+                ));
+            }
+        }
+        if !(c.dem_sigma_m > 0.0 && c.dem_sigma_m.is_finite()) {
+            return Err(key_err("control.dem_sigma_m", "must be positive".into()));
+        }
+        if let Some(v) = c.orthophoto_sigma_m {
+            if !(v > 0.0 && v.is_finite()) {
+                return Err(key_err(
+                    "control.orthophoto_sigma_m",
+                    "must be positive".into(),
+                ));
+            }
+        }
+        match &self.reference {
+            None if c.orthophoto.is_none() => {
+                return Err(key_err(
+                    "reference",
+                    "missing: without an orthophoto and DEM, the reference epoch is the control of the archive epochs".into(),
+                ))
+            }
+            None if self.archive.is_empty() => {
+                return Err(key_err("archive", "no epoch to orient".into()))
+            }
+            Some(r) if c.lidar.is_empty() && r.block.as_ref().is_none_or(|b| b.lidar_check) => {
+                return Err(key_err(
+                    "reference",
+                    "is oriented (or, as a block, checked) against the LiDAR, and control.lidar is empty".into(),
+                ))
+            }
+            _ => {}
         }
         if let Some(c) = &self.control.checkpoints {
             exists("control.checkpoints", c)?;
@@ -327,12 +438,16 @@ impl Project {
             }
         }
         let mut names = std::collections::BTreeSet::new();
-        let epochs = std::iter::once(("reference".to_string(), &self.reference)).chain(
-            self.archive
-                .iter()
-                .enumerate()
-                .map(|(i, e)| (format!("archive[{i}]"), e)),
-        );
+        let epochs = self
+            .reference
+            .iter()
+            .map(|e| ("reference".to_string(), e))
+            .chain(
+                self.archive
+                    .iter()
+                    .enumerate()
+                    .map(|(i, e)| (format!("archive[{i}]"), e)),
+            );
         let mut prev_date: Option<String> = None;
         for (key, e) in epochs {
             if e.name.trim().is_empty() {

@@ -82,6 +82,9 @@ pub struct EpochReport {
     pub photos: Vec<PhotoSummary>,
     #[serde(default)]
     pub icp: Vec<IcpIteration>,
+    /// What controlled the epoch (LiDAR, an existing block, the DCP packages used).
+    #[serde(default)]
+    pub control: Vec<String>,
 }
 
 impl EpochReport {
@@ -481,10 +484,10 @@ pub fn render_html(report: &Report) -> Result<String, String> {
         esc(&report.crs),
         report.epochs.len()
     ));
-    html.push_str("<h2>Accuracy through time</h2><table><tr><th>epoch</th><th>date</th><th>GSD (m)</th><th>photos oriented</th><th>check RMSE plan (m)</th><th>height (m)</th><th>plan (px)</th><th>height (px)</th><th>max (m)</th><th>σ0</th><th>image RMSE (px)</th><th>time (s)</th></tr>");
+    html.push_str("<h2>Accuracy through time</h2><table><tr><th>epoch</th><th>date</th><th>GSD (m)</th><th>photos oriented</th><th>check RMSE plan (m)</th><th>height (m)</th><th>plan (px)</th><th>height (px)</th><th>max (m)</th><th>σ0</th><th>image RMSE (px)</th><th>time (s)</th><th>controlled by</th></tr>");
     for e in &report.epochs {
         html.push_str(&format!(
-            "<tr><td>{}</td><td>{}</td><td>{}</td><td>{}/{}</td><td>{}</td><td>{}</td><td>{}</td><td>{}</td><td>{}</td><td>{}</td><td>{}</td><td>{}</td></tr>",
+            "<tr><td>{}</td><td>{}</td><td>{}</td><td>{}/{}</td><td>{}</td><td>{}</td><td>{}</td><td>{}</td><td>{}</td><td>{}</td><td>{}</td><td>{}</td><td>{}</td></tr>",
             esc(&e.name),
             esc(&e.date),
             fmt(e.gsd_m, 2),
@@ -497,7 +500,8 @@ pub fn render_html(report: &Report) -> Result<String, String> {
             fmt(e.check_max_m, 3),
             fmt(e.sigma0, 2),
             fmt(e.rmse_px, 2),
-            fmt(e.time_s, 1)
+            fmt(e.time_s, 1),
+            esc(&e.control.join("; "))
         ));
     }
     html.push_str("</table>");

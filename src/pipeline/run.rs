@@ -27,6 +27,7 @@ use crate::control::dcp::{Accuracy, DcpPackage, EpochInfo};
 use crate::control::epoch::{block_origin, EpochInput, Navigation, PhotoInput};
 use crate::control::existing::{self, ExistingOptions};
 use crate::control::export::{self, DcpExportOptions};
+use crate::control::ortho_source::{orthophoto_dcp, OrthoControlOptions, OrthoSource};
 use crate::control::reference::{self, ReferenceOptions};
 use crate::formats::control_points;
 use crate::formats::crs::{Crs, Transformer};
@@ -99,22 +100,43 @@ struct Origin {
     origin: [f64; 3],
 }
 
-/// What the epoch stages need from the cleaned LiDAR, built once per run when first
-/// needed (a rerun that skips every epoch stage never reads the LiDAR).
-struct LidarControl {
-    tiles_dir: PathBuf,
+/// The ground the epoch stages predict over, export DCPs on and rectify onto: the
+/// cleaned LiDAR's (ground and surface models, planes for the reference), or the DEM of
+/// the control sources where there is no LiDAR. Built once per run when first needed (a
+/// rerun that skips every epoch stage never reads it).
+struct ControlGround<'a> {
+    project: &'a Project,
+    /// Cleaned LiDAR tiles (None: no LiDAR, the project's DEM).
+    tiles_dir: Option<PathBuf>,
     origin: [f64; 3],
     surface: OnceCell<GroundSurface>,
     planes: OnceCell<PlaneIndex>,
 }
 
-impl LidarControl {
+impl ControlGround<'_> {
     fn surface(&self) -> Result<&GroundSurface, WorkError> {
         if let Some(s) = self.surface.get() {
             return Ok(s);
         }
-        let tiles = lidar::catalogue::expand_inputs(std::slice::from_ref(&self.tiles_dir))?;
-        let s = lidar::lidar_surfaces(&tiles, self.origin, lidar::LIDAR_CELL_M)?;
+        let s = match &self.tiles_dir {
+            Some(dir) => {
+                let tiles = lidar::catalogue::expand_inputs(std::slice::from_ref(dir))?;
+                lidar::lidar_surfaces(&tiles, self.origin, lidar::LIDAR_CELL_M)?
+            }
+            None => {
+                let dem = control_dem(self.project)?
+                    .shifted(self.origin)
+                    .map_err(crate::formats::FormatError::Geometry)?;
+                // A DEM tells nothing of what stands on the ground: every place is taken
+                // as bare, and the orthophoto's control points are where it is planar.
+                GroundSurface {
+                    ground: dem.clone(),
+                    surface: dem,
+                    max_above_ground_m: 0.3,
+                    radius_m: 2.0,
+                }
+            }
+        };
         Ok(self.surface.get_or_init(|| s))
     }
 
@@ -122,7 +144,12 @@ impl LidarControl {
         if let Some(p) = self.planes.get() {
             return Ok(p);
         }
-        let tiles = lidar::catalogue::expand_inputs(std::slice::from_ref(&self.tiles_dir))?;
+        let Some(dir) = &self.tiles_dir else {
+            return Err(WorkError::Inconsistent(
+                "LiDAR planes are needed (reference epoch) but control.lidar is empty".into(),
+            ));
+        };
+        let tiles = lidar::catalogue::expand_inputs(std::slice::from_ref(dir))?;
         let p = reference::lidar_plane_index(
             &tiles,
             self.origin,
@@ -131,6 +158,30 @@ impl LidarControl {
         )?;
         Ok(self.planes.get_or_init(|| p))
     }
+
+    /// File name of the DEM product: whose surface it is.
+    fn dem_file(&self) -> &'static str {
+        if self.tiles_dir.is_some() {
+            super::products::LIDAR_DEM
+        } else {
+            super::products::CONTROL_DEM
+        }
+    }
+}
+
+/// The project's DEM (`control.dem`) in the project CRS, metres (world coordinates).
+fn control_dem(project: &Project) -> Result<crate::geometry::Dem, WorkError> {
+    let path = project
+        .control
+        .dem
+        .as_deref()
+        .ok_or_else(|| WorkError::Inconsistent("no LiDAR and no control.dem".into()))?;
+    let crs = Crs::parse(&project.crs)?;
+    Ok(crate::control::ortho_source::dem_in_metres(
+        path,
+        project.control.dem_crs.as_deref(),
+        &crs,
+    )?)
 }
 
 /// `sources/selection.json`: the LiDAR tiles the block needs.
@@ -171,7 +222,7 @@ fn select_tiles(
     cat: &Catalogue,
 ) -> Result<([f64; 4], TileSelection), WorkError> {
     let mut centres = Vec::new();
-    for e in std::iter::once(&project.reference).chain(project.archive.iter()) {
+    for e in project.epochs() {
         match &e.block {
             Some(b) => {
                 let block = b.read()?;
@@ -302,6 +353,55 @@ pub(crate) fn evaluate(
     }
 }
 
+/// What controlled an epoch, in words for the report.
+fn control_of(
+    project: &Project,
+    e: &Epoch,
+    is_reference: bool,
+    dcp_dirs: &[PathBuf],
+) -> Vec<String> {
+    if let Some(b) = &e.block {
+        let check = if b.lidar_check {
+            if b.apply_lidar_offset {
+                ", moved onto the LiDAR"
+            } else {
+                ", checked against the LiDAR"
+            }
+        } else {
+            ""
+        };
+        return vec![format!("existing block {}{check}", b.path.display())];
+    }
+    if is_reference {
+        return vec!["LiDAR (tie points by ICP and plane constraints)".into()];
+    }
+    dcp_dirs
+        .iter()
+        .map(|d| {
+            let name = d.file_name().map(|n| n.to_string_lossy().into_owned());
+            match name.as_deref().and_then(|n| n.strip_prefix("dcp-")) {
+                Some("orthophoto") => format!(
+                    "DCPs of the orthophoto {} with the DEM {}",
+                    project
+                        .control
+                        .orthophoto
+                        .as_deref()
+                        .unwrap_or(Path::new(""))
+                        .display(),
+                    project
+                        .control
+                        .dem
+                        .as_deref()
+                        .unwrap_or(Path::new(""))
+                        .display()
+                ),
+                Some(epoch) => format!("DCPs of epoch {epoch}"),
+                None => d.display().to_string(),
+            }
+        })
+        .collect()
+}
+
 /// The report's rows of an ICP onto the LiDAR.
 fn icp_rows(iterations: &[lidar::IcpIteration]) -> Vec<IcpIteration> {
     iterations
@@ -329,12 +429,13 @@ pub fn run_project(
 ) -> Result<RunSummary, RunError> {
     let out = &project.output;
     let mut runner = Runner::new(out).map_err(StageError::from)?;
-    let epochs: Vec<&Epoch> = std::iter::once(&project.reference)
-        .chain(project.archive.iter())
-        .collect();
+    let epochs: Vec<&Epoch> = project.epochs().collect();
+    let has_reference = project.reference.is_some();
     let o = &project.outputs;
     let want_outputs = o.colmap || o.blocks_exchange || o.orthophoto || o.dem;
-    let total = 1 + epochs.len() * (2 + usize::from(want_outputs));
+    let total = 1
+        + usize::from(project.control.orthophoto.is_some())
+        + epochs.len() * (2 + usize::from(want_outputs));
     let mut index = 0;
     let mut products: BTreeMap<String, Vec<PathBuf>> = BTreeMap::new();
 
@@ -368,11 +469,20 @@ pub fn run_project(
     for l in &project.control.lidar {
         src_inputs = src_inputs.file(l);
     }
+    let with_lidar = !project.control.lidar.is_empty();
+    if !with_lidar {
+        // The DEM then gives the origin.
+        if let Some(d) = &project.control.dem {
+            src_inputs = src_inputs
+                .file(d)
+                .param("dem_crs", &project.control.dem_crs);
+        }
+    }
     if let Some(c) = &project.control.checkpoints {
         src_inputs = src_inputs.file(c);
     }
     // The navigation decides which tiles the block needs.
-    for e in std::iter::once(&project.reference).chain(project.archive.iter()) {
+    for e in project.epochs() {
         for f in [&e.pos, &e.strips].into_iter().flatten() {
             src_inputs = src_inputs.file(f);
         }
@@ -385,6 +495,13 @@ pub fn run_project(
         source: Box::new(source),
     })?;
     let sources = stage!("sources".to_string(), src_inputs, |dir: &Path| {
+        if !with_lidar {
+            // The block origin: the one rule, over the DEM.
+            let dem = control_dem(project)?;
+            let (x0, y0, x1, y1) = dem.extent();
+            let origin = block_origin([[x0, y0], [x1, y1]]);
+            return Ok(write_json(&dir.join("origin.json"), &Origin { origin })?);
+        }
         // Tiles without a CRS are in the project's (a warning in the catalogue says so);
         // tiles with one must match it horizontally (the scan refuses them otherwise).
         let scan = ScanOptions {
@@ -441,8 +558,9 @@ pub fn run_project(
             source: Box::new(e.into()),
         })?
         .origin;
-    let lidar = LidarControl {
-        tiles_dir: sources.join("lidar"),
+    let lidar = ControlGround {
+        project,
+        tiles_dir: with_lidar.then(|| sources.join("lidar")),
         origin,
         surface: OnceCell::new(),
         planes: OnceCell::new(),
@@ -452,10 +570,60 @@ pub fn run_project(
         None => i,
     };
 
-    // 2–4. Epochs in time order, each from the DCPs of the epochs before it.
+    // 2–4. Epochs in time order, each from the DCPs of the epochs before it (and of the
+    // orthophoto with its DEM, the first package when given).
     let mut epoch_dirs: Vec<PathBuf> = Vec::new();
     let mut dcp_dirs: Vec<PathBuf> = Vec::new();
     let mut reference_gsd = f64::NAN;
+    if let (Some(ortho), Some(dem)) = (&project.control.orthophoto, &project.control.dem) {
+        let c = &project.control;
+        let inputs = Inputs::new()
+            .file(&sources)
+            .file(ortho)
+            .file(dem)
+            .param("crs", &project.crs)
+            .param("orthophoto_crs", &c.orthophoto_crs)
+            .param("orthophoto_date", &c.orthophoto_date)
+            .param("orthophoto_sigma_m", &c.orthophoto_sigma_m)
+            .param("dem_crs", &c.dem_crs)
+            .param("dem_sigma_m", &c.dem_sigma_m)
+            .param("thresholds", &project.thresholds);
+        let ddir = stage!("dcp-orthophoto".to_string(), inputs, |dir: &Path| {
+            let src = OrthoSource {
+                orthophoto: ortho,
+                orthophoto_crs: c.orthophoto_crs.as_deref(),
+                dem,
+                dem_crs: c.dem_crs.as_deref(),
+                epoch: EpochInfo {
+                    name: "orthophoto".into(),
+                    date: c.orthophoto_date.clone(),
+                },
+            };
+            let opts = OrthoControlOptions {
+                interval_px: project.thresholds.control_interval_px,
+                chip_size: project.thresholds.chip_size_px,
+                plan_sigma_m: c.orthophoto_sigma_m,
+                dem_sigma_m: c.dem_sigma_m,
+                ..OrthoControlOptions::default()
+            };
+            let (_, rep) = orthophoto_dcp(&src, &project.crs, &dir.join("package"), &opts)?;
+            Ok(write_json(&dir.join("orthophoto.json"), &rep)?)
+        });
+        let pkg = DcpPackage::open(&ddir.join("package")).map_err(|e| StageError::Failed {
+            stage: "dcp-orthophoto".into(),
+            source: Box::new(e.into()),
+        })?;
+        // Without a reference epoch, the orthophoto's pixel is the scale archive epochs'
+        // DCPs are taken relative to.
+        if !has_reference {
+            reference_gsd = pkg.manifest.gsd_m;
+        }
+        products
+            .entry("orthophoto".into())
+            .or_default()
+            .push(ddir.join("package"));
+        dcp_dirs.push(ddir);
+    }
     for (k, e) in epochs.iter().enumerate() {
         let mut inputs = Inputs::new()
             .file(&sources)
@@ -478,6 +646,7 @@ pub fn run_project(
             inputs = inputs.file(d);
         }
         let inputs = cp_inputs(inputs);
+        let is_reference = has_reference && k == 0;
         let edir = stage!(format!("epoch-{}", e.name), inputs, |dir: &Path| {
             let (result, icp) = if let Some(b) = &e.block {
                 // An existing oriented block: taken as it is, checked against the LiDAR.
@@ -514,7 +683,7 @@ pub fn run_project(
                     .map(|c| icp_rows(&c.icp.iterations))
                     .unwrap_or_default();
                 (r, icp)
-            } else if k == 0 {
+            } else if is_reference {
                 let input = EpochInput::build(&e.spec(), &project.crs, origin)?;
                 let (r, rep) = reference::orient_reference(
                     &input,
@@ -547,7 +716,8 @@ pub fn run_project(
             };
             let eval = evaluate(&checkpoints, &result.block, &e.name, result.gsd_m)?;
             let surveyed = checkpoints.as_ref().map_or(&[][..], |c| &c.surveyed[..]);
-            let rep = epoch_report(&result, &e.date, &eval, surveyed, icp);
+            let mut rep = epoch_report(&result, &e.date, &eval, surveyed, icp);
+            rep.control = control_of(project, e, is_reference, &dcp_dirs);
             Ok(save_epoch(dir, &result, &rep, &eval)?)
         });
         let rep: EpochReport =
@@ -555,7 +725,7 @@ pub fn run_project(
                 stage: format!("epoch-{}", e.name),
                 source: Box::new(x.into()),
             })?;
-        if k == 0 {
+        if is_reference {
             reference_gsd = rep.gsd_m;
         }
         epoch_dirs.push(edir.clone());
@@ -648,7 +818,7 @@ pub fn run_project(
                         project,
                         e,
                         checkpoints.as_ref(),
-                        lidar.surface()?,
+                        (lidar.surface()?, lidar.dem_file()),
                         lidar.origin,
                         &edir,
                         dir,
@@ -661,7 +831,7 @@ pub fn run_project(
                     files.push(odir.join(f));
                 }
             }
-            if k == 0 && odir.join("preview.png").exists() {
+            if k == 0 && has_reference && odir.join("preview.png").exists() {
                 let png = std::fs::read(odir.join("preview.png")).unwrap_or_default();
                 let extent: Option<[f64; 4]> = read_json(&odir.join("preview.json")).ok();
                 if let Some(extent) = extent {

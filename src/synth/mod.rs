@@ -15,6 +15,7 @@ pub mod film;
 pub mod flight;
 pub mod lidar;
 pub mod noise;
+pub mod orthophoto;
 pub mod project;
 pub mod reading;
 pub mod render;
@@ -416,6 +417,19 @@ pub fn generate(config: &SynthConfig, out_dir: &Path) -> Result<SynthManifest, S
     checkpoints::write_checkpoints(&scene, out_dir, &mut rng)?;
     stage(&mut stats, "checkpoints");
 
+    // The same present as an orthophoto with its surface model: the control of
+    // `project_orthophoto.toml`, for owners without LiDAR or a reference flight.
+    orthophoto::write(
+        &scene,
+        p.area,
+        ORIGIN,
+        p.archive_gsd,
+        &crs,
+        config.seed ^ 0x0127_0F07,
+        &out_dir.join("orthophoto"),
+    )?;
+    stage(&mut stats, "orthophoto");
+
     let mut epochs = Vec::new();
     let mut cp_rows = Vec::new();
     let specs = epoch::specs(config, &p);
@@ -435,6 +449,9 @@ pub fn generate(config: &SynthConfig, out_dir: &Path) -> Result<SynthManifest, S
     checkpoints::write_image_truth(&cp_rows, out_dir)?;
     let project = project::project_toml(config.preset, &format!("EPSG:{CRS_EPSG}"), &epochs);
     formats::write_bytes_atomically(&out_dir.join("project.toml"), project.as_bytes())?;
+    let project =
+        project::orthophoto_project_toml(config.preset, &format!("EPSG:{CRS_EPSG}"), &epochs);
+    formats::write_bytes_atomically(&out_dir.join("project_orthophoto.toml"), project.as_bytes())?;
 
     let mut manifest = SynthManifest {
         format: "cloudcontrol-synth/1".into(),

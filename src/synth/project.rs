@@ -9,6 +9,48 @@ use std::fmt::Write;
 /// navigated by strip end points gets `strips`, one with a POS gets `pos`. The checkpoint
 /// image measurements are the synthetic truth standing for an operator's.
 pub fn project_toml(preset: Preset, crs: &str, epochs: &[EpochInfo]) -> String {
+    let control = r#"lidar = ["lidar"]
+"#;
+    project(
+        preset,
+        crs,
+        "cloudcontrol-synth",
+        "../run",
+        control,
+        epochs,
+        true,
+    )
+}
+
+/// The project of the same block controlled by its orthophoto and DEM alone
+/// (`orthophoto/`): no LiDAR, no reference epoch; the archive epochs are oriented from the
+/// orthophoto's control points, each older one also from the DCPs of the newer.
+pub fn orthophoto_project_toml(preset: Preset, crs: &str, epochs: &[EpochInfo]) -> String {
+    // The synthetic surface model is exact but for its 1 m grid.
+    let control = r#"orthophoto = "orthophoto/orthophoto.tif"
+dem = "orthophoto/dem.tif"
+dem_sigma_m = 0.1
+"#;
+    project(
+        preset,
+        crs,
+        "cloudcontrol-synth-orthophoto",
+        "../run_orthophoto",
+        control,
+        &epochs[1.min(epochs.len())..],
+        false,
+    )
+}
+
+fn project(
+    preset: Preset,
+    crs: &str,
+    name: &str,
+    output: &str,
+    control: &str,
+    epochs: &[EpochInfo],
+    with_reference: bool,
+) -> String {
     // Cloud control points every ~half a chip in the reference photos; the tiny preset's
     // photos are 600 px wide, so its control is denser to give the archive epochs enough.
     let interval = match preset {
@@ -17,20 +59,23 @@ pub fn project_toml(preset: Preset, crs: &str, epochs: &[EpochInfo]) -> String {
     };
     let mut s = format!(
         r#"# cloudcontrol project of a synthetic block (cloudcontrol synth).
-name = "cloudcontrol-synth"
+name = "{name}"
 crs = "{crs}"
-output = "../run"
+output = "{output}"
 
 [control]
-lidar = ["lidar"]
-checkpoints = "checkpoints.csv"
+{control}checkpoints = "checkpoints.csv"
 # Checkpoint targets as measured in the photos (here: the synthetic truth stands for the
 # operator's measurements); used only to evaluate each epoch.
 checkpoint_images = "truth/checkpoint_images.csv"
 "#
     );
     for (k, e) in epochs.iter().enumerate() {
-        let table = if k == 0 { "[reference]" } else { "[[archive]]" };
+        let table = if k == 0 && with_reference {
+            "[reference]"
+        } else {
+            "[[archive]]"
+        };
         let nav_key = if e.navigation.ends_with("strips.csv") {
             "strips"
         } else {
