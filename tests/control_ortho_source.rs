@@ -192,3 +192,50 @@ fn orthophoto_in_another_projection_or_without_crs_is_refused() {
     assert!(e.contains("autzen.jpg") && e.contains("reproject"), "{e}");
     assert!(!tmp.path().join("o.dcp").exists());
 }
+
+/// The same through the CLI, the CRS read from the WKT file beside the world file; `dcp
+/// info` verifies the package.
+#[test]
+fn cli_writes_the_orthophoto_package() {
+    let d = data();
+    let tmp = tempfile::tempdir().unwrap();
+    let feet = Crs::parse(&std::fs::read_to_string(d.join("autzen-srs.wkt")).unwrap()).unwrap();
+    let pts = las::read_points(&d.join("autzen_trim.laz"), None, Some(&[2])).unwrap();
+    let dem = grid_dem(
+        &pts.xyz,
+        &DemOptions {
+            cell: 1.0 / FOOT,
+            ..DemOptions::default()
+        },
+    )
+    .unwrap();
+    let dem_path = tmp.path().join("dem.tif");
+    raster::write_dem(&dem_path, &dem, &feet, &GeoTiffOptions::default()).unwrap();
+    let metres = feet.with_units(Some(&LinearUnit::metre()), None).unwrap();
+    let out = tmp.path().join("autzen.dcp");
+    let o = std::process::Command::new(env!("CARGO_BIN_EXE_cloudcontrol"))
+        .args(["--json", "dcp", "from-orthophoto", "--orthophoto"])
+        .arg(d.join("autzen.jpg"))
+        .arg("--orthophoto-crs-file")
+        .arg(d.join("autzen-srs.wkt"))
+        .arg("--dem")
+        .arg(&dem_path)
+        .args(["--crs", &metres.to_wkt().unwrap(), "--date", "2010"])
+        .arg("--out")
+        .arg(&out)
+        .output()
+        .unwrap();
+    assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+    let v: serde_json::Value = serde_json::from_slice(&o.stdout).unwrap();
+    assert_eq!(v["selection"]["points"], 18, "{v}");
+    let pkg = DcpPackage::open(&out).unwrap();
+    assert_eq!(pkg.manifest.points.len(), 18);
+    assert_eq!(pkg.manifest.epoch.name, "autzen");
+    assert_eq!(pkg.manifest.epoch.date.as_deref(), Some("2010"));
+    let o = std::process::Command::new(env!("CARGO_BIN_EXE_cloudcontrol"))
+        .args(["dcp", "info"])
+        .arg(&out)
+        .output()
+        .unwrap();
+    assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+}

@@ -97,7 +97,9 @@ pub fn score_run(
         let mut row = EpochScore {
             seed,
             epoch: e.name.clone(),
-            reference: k == 0,
+            // The first epoch is the reference when the project has one (an orthophoto
+            // with a DEM controls archive epochs only).
+            reference: k == 0 && project.reference.is_some(),
             photos_total: e.photos_total,
             photos_oriented: e.photos_oriented,
             checkpoints: e.checkpoints.len(),

@@ -42,6 +42,16 @@ pub struct AccuracyArgs {
     /// (only the run is repeated).
     #[arg(long)]
     reuse_blocks: bool,
+    /// The control of the run: the block's LiDAR and reference flight (`project.toml`),
+    /// or its orthophoto and DEM alone (`project_orthophoto.toml`).
+    #[arg(long, value_enum, default_value = "lidar")]
+    control: ControlArg,
+}
+
+#[derive(Clone, Copy, clap::ValueEnum)]
+enum ControlArg {
+    Lidar,
+    Orthophoto,
 }
 
 /// `A..B` or `a,b,c`.
@@ -133,14 +143,19 @@ fn one_seed(args: &AccuracyArgs, seed: u64, targets: &Targets) -> Result<SeedRes
         .unwrap_or_default();
     let dir = args.out.join(format!("{preset}-{seed}"));
     let block = dir.join("block");
+    let project_path = block.join(match args.control {
+        ControlArg::Lidar => "project.toml",
+        ControlArg::Orthophoto => "project_orthophoto.toml",
+    });
     if args.reuse_blocks && synth::holds_block(&block, &config) {
         // A fresh run over the kept block.
-        let _ = std::fs::remove_dir_all(dir.join("run"));
+        if let Ok(p) = Project::load(&project_path) {
+            let _ = std::fs::remove_dir_all(p.output);
+        }
     } else {
         let _ = std::fs::remove_dir_all(&dir);
         synth::generate(&config, &block).map_err(|e| format!("synthetic block: {e}"))?;
     }
-    let project_path = block.join("project.toml");
     let child = run_child(&project_path, &dir.join("run.log"))?;
     if !child.success {
         return Err(format!(
@@ -227,6 +242,10 @@ pub fn run(cmd: BenchCommand, json: bool) -> Result<(), String> {
         "seeds": seeds,
         "change": args.change,
         "pos": serde_json::to_value(synth::PosQuality::from(args.pos)).unwrap_or_default(),
+        "control": match args.control {
+            ControlArg::Lidar => "lidar",
+            ControlArg::Orthophoto => "orthophoto",
+        },
         "targets": targets,
         "runs": runs,
         "rows": rows,

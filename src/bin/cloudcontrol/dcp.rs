@@ -6,6 +6,7 @@ use clap::{Args, Subcommand};
 use cloudcontrol::control::cloud::CloudOptions;
 use cloudcontrol::control::dcp::{Accuracy, DcpPackage, EpochInfo};
 use cloudcontrol::control::export::{self, ControlPointSet, DcpExportOptions, OrientedBlock};
+use cloudcontrol::control::ortho_source::{orthophoto_dcp, OrthoControlOptions, OrthoSource};
 use cloudcontrol::formats::write_bytes_atomically;
 use cloudcontrol::lidar::LIDAR_CELL_M;
 use serde_json::{json, Value};
@@ -76,6 +77,57 @@ pub enum DcpCommand {
         packages: Vec<PathBuf>,
         #[arg(long)]
         out: PathBuf,
+    },
+    /// Write a DCP package from a georeferenced orthophoto and a DEM: control points
+    /// where the orthophoto is textured and the DEM planar, chips from the orthophoto
+    /// (formats/dcp/, "Orthophoto and DEM").
+    ///
+    /// The orthophoto is a GeoTIFF or an image with a world file (then give its CRS); both
+    /// rasters must be in the package CRS's projection (feet are converted).
+    ///
+    /// Example:
+    ///   cloudcontrol dcp from-orthophoto --orthophoto autzen.jpg --orthophoto-crs-file autzen-srs.wkt --dem dem.tif --crs EPSG:4547 --out ortho.dcp
+    FromOrthophoto {
+        #[arg(long)]
+        orthophoto: PathBuf,
+        /// CRS of the orthophoto when its file has none (EPSG:n or WKT).
+        #[arg(long, conflicts_with = "orthophoto_crs_file")]
+        orthophoto_crs: Option<String>,
+        /// The same, read from a file (e.g. a .prj or .wkt beside a world file).
+        #[arg(long)]
+        orthophoto_crs_file: Option<PathBuf>,
+        #[arg(long)]
+        dem: PathBuf,
+        /// CRS of the DEM when its file has none.
+        #[arg(long)]
+        dem_crs: Option<String>,
+        /// CRS of the package (projected, metres).
+        #[arg(long)]
+        crs: String,
+        /// Package folder to write (replaced atomically when it exists).
+        #[arg(long)]
+        out: PathBuf,
+        /// Epoch name (default: the package folder's name without extension) and date of
+        /// the orthophoto's photos.
+        #[arg(long)]
+        name: Option<String>,
+        #[arg(long)]
+        date: Option<String>,
+        /// One control point per cell of this many orthophoto pixels at most.
+        #[arg(long, default_value_t = OrthoControlOptions::default().interval_px)]
+        interval_px: f64,
+        /// Pyramid level of the interest operator (the archive photos' scale).
+        #[arg(long, default_value_t = OrthoControlOptions::default().interest_level)]
+        interest_level: usize,
+        /// Chip side (px, odd).
+        #[arg(long, default_value_t = OrthoControlOptions::default().chip_size)]
+        chip_size: u32,
+        /// 1σ plan accuracy of the orthophoto (m; default one pixel).
+        #[arg(long)]
+        plan_sigma_m: Option<f64>,
+        /// 1σ height accuracy of the DEM (m).
+        #[arg(long, default_value_t = OrthoControlOptions::default().dem_sigma_m)]
+        dem_sigma_m: f64,
     },
 }
 
@@ -223,6 +275,69 @@ pub fn run(cmd: DcpCommand, json_out: bool) -> Result<(), String> {
                     s["points"],
                     s["photos"],
                     s["measurements"]
+                );
+            }
+            Ok(())
+        }
+        DcpCommand::FromOrthophoto {
+            orthophoto,
+            orthophoto_crs,
+            orthophoto_crs_file,
+            dem,
+            dem_crs,
+            crs,
+            out,
+            name,
+            date,
+            interval_px,
+            interest_level,
+            chip_size,
+            plan_sigma_m,
+            dem_sigma_m,
+        } => {
+            let ortho_crs = match (orthophoto_crs, orthophoto_crs_file) {
+                (Some(c), _) => Some(c),
+                (None, Some(f)) => Some(
+                    std::fs::read_to_string(&f)
+                        .map_err(|e| format!("{}: {e}", f.display()))?
+                        .trim()
+                        .to_string(),
+                ),
+                (None, None) => None,
+            };
+            let src = OrthoSource {
+                orthophoto: &orthophoto,
+                orthophoto_crs: ortho_crs.as_deref(),
+                dem: &dem,
+                dem_crs: dem_crs.as_deref(),
+                epoch: EpochInfo {
+                    name: name.unwrap_or_else(|| export::package_epoch_name(&out)),
+                    date,
+                },
+            };
+            let opts = OrthoControlOptions {
+                interval_px,
+                interest_level,
+                chip_size,
+                plan_sigma_m,
+                dem_sigma_m,
+                ..OrthoControlOptions::default()
+            };
+            let (p, rep) = orthophoto_dcp(&src, &crs, &out, &opts).map_err(|e| e.to_string())?;
+            if json_out {
+                print_json(&serde_json::json!({
+                    "package": summary(&out, &p),
+                    "selection": rep,
+                }));
+            } else {
+                println!(
+                    "{}: {} control points from {} candidates ({} without DEM, {} not planar), ground pixel {:.3} m",
+                    out.display(),
+                    rep.points,
+                    rep.candidates,
+                    rep.outside_dem,
+                    rep.not_planar,
+                    rep.gsd_m
                 );
             }
             Ok(())
