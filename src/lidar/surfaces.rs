@@ -87,7 +87,25 @@ pub fn lidar_surfaces(
     Ok(GroundSurface {
         ground: g,
         surface: s,
-        max_above_ground_m: 0.3,
-        radius_m: 2.0,
+        max_above_ground_m: MAX_ABOVE_GROUND_M,
+        radius_m: BARE_RADIUS_M,
     })
+}
+
+/// [`GroundSurface::max_above_ground_m`] of the LiDAR's surfaces.
+const MAX_ABOVE_GROUND_M: f64 = 0.3;
+/// [`GroundSurface::radius_m`]: the matching chip's footprint on the ground.
+const BARE_RADIUS_M: f64 = 2.0;
+
+impl GroundSurface {
+    /// A DEM alone as the control surface (no LiDAR): it tells nothing of what stands on
+    /// the ground, so every place is taken as bare and planarity alone selects control.
+    pub fn from_dem(dem: Dem) -> Self {
+        Self {
+            ground: dem.clone(),
+            surface: dem,
+            max_above_ground_m: MAX_ABOVE_GROUND_M,
+            radius_m: BARE_RADIUS_M,
+        }
+    }
 }

@@ -127,14 +127,7 @@ impl ControlGround<'_> {
                 let dem = control_dem(self.project)?
                     .shifted(self.origin)
                     .map_err(crate::formats::FormatError::Geometry)?;
-                // A DEM tells nothing of what stands on the ground: every place is taken
-                // as bare, and the orthophoto's control points are where it is planar.
-                GroundSurface {
-                    ground: dem.clone(),
-                    surface: dem,
-                    max_above_ground_m: 0.3,
-                    radius_m: 2.0,
-                }
+                GroundSurface::from_dem(dem)
             }
         };
         Ok(self.surface.get_or_init(|| s))
