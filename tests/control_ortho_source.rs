@@ -142,31 +142,29 @@ fn autzen_orthophoto_and_lidar_dem_give_control_on_chip_centres() {
     assert!(worst_height < 0.25, "height {worst_height} m from the DEM");
 }
 
-/// An orthophoto in another projection, or one without any CRS, is refused naming it.
+/// An orthophoto and a DEM in another projection than the package's are reprojected by
+/// GDAL's warper: the Autzen rasters (Oregon Lambert, feet) into UTM 10N. Each control
+/// point, taken back into the original orthophoto through the world file, shows there
+/// what its chip shows at its centre. An orthophoto without any CRS is refused naming it.
 #[test]
-fn orthophoto_in_another_projection_or_without_crs_is_refused() {
+fn orthophoto_in_another_projection_is_reprojected_and_one_without_crs_refused() {
     let d = data();
     let wkt = std::fs::read_to_string(d.join("autzen-srs.wkt")).unwrap();
+    let feet = Crs::parse(&wkt).unwrap();
     let tmp = tempfile::tempdir().unwrap();
     let dem_path = tmp.path().join("dem.tif");
     let pts = las::read_points(&d.join("autzen_trim.laz"), None, Some(&[2])).unwrap();
     let dem = grid_dem(
         &pts.xyz,
         &DemOptions {
-            cell: 10.0,
+            cell: 1.0 / FOOT,
             ..DemOptions::default()
         },
     )
     .unwrap();
-    raster::write_dem(
-        &dem_path,
-        &dem,
-        &Crs::parse(&wkt).unwrap(),
-        &GeoTiffOptions::default(),
-    )
-    .unwrap();
+    raster::write_dem(&dem_path, &dem, &feet, &GeoTiffOptions::default()).unwrap();
     let ortho = d.join("autzen.jpg");
-    let run = |ortho_crs: Option<&str>, crs: &str| {
+    let run = |ortho_crs: Option<&str>, out: &Path| {
         orthophoto_dcp(
             &OrthoSource {
                 orthophoto: &ortho,
@@ -178,19 +176,75 @@ fn orthophoto_in_another_projection_or_without_crs_is_refused() {
                     date: None,
                 },
             },
-            crs,
-            &tmp.path().join("o.dcp"),
+            "EPSG:32610",
+            out,
             &OrthoControlOptions::default(),
         )
-        .map(|_| ())
-        .unwrap_err()
-        .to_string()
     };
-    let e = run(None, "EPSG:32610");
+    let e = run(None, &tmp.path().join("none.dcp"))
+        .unwrap_err()
+        .to_string();
     assert!(e.contains("autzen.jpg") && e.contains("no CRS"), "{e}");
-    let e = run(Some(&wkt), "EPSG:32610");
-    assert!(e.contains("autzen.jpg") && e.contains("reproject"), "{e}");
-    assert!(!tmp.path().join("o.dcp").exists());
+    assert!(!tmp.path().join("none.dcp").exists());
+
+    let (pkg, rep) = run(Some(&wkt), &tmp.path().join("utm.dcp")).unwrap();
+    eprintln!("{rep:#?}");
+    assert!(rep.reprojected);
+    assert!((rep.gsd_m - FOOT).abs() < 0.01 * FOOT, "{}", rep.gsd_m);
+    assert!(rep.points >= 12, "{} points", rep.points);
+    // No temporary reprojection is left behind.
+    let left: Vec<_> = std::fs::read_dir(std::env::temp_dir())
+        .unwrap()
+        .filter_map(|e| e.ok())
+        .filter(|e| {
+            e.file_name()
+                .to_string_lossy()
+                .starts_with(&format!("cloudcontrol-warp-{}-", std::process::id()))
+        })
+        .collect();
+    assert!(left.is_empty(), "{left:?}");
+    let utm = Crs::parse("EPSG:32610").unwrap();
+    let back = cloudcontrol::formats::crs::Transformer::new(&utm, &feet).unwrap();
+    let wld: Vec<f64> = std::fs::read_to_string(d.join("autzen.wld"))
+        .unwrap()
+        .split_whitespace()
+        .map(|v| v.parse().unwrap())
+        .collect();
+    let original = image::open(&ortho).unwrap().to_luma8();
+    let mut worst: f64 = 1.0;
+    for p in &pkg.manifest.points {
+        let q = back.transform_point(p.xyz).unwrap();
+        let col = (q[0] - wld[4]) / wld[0] + 0.5;
+        let row = (q[1] - wld[5]) / wld[3] + 0.5;
+        let ch = &p.measurements[0].chip;
+        let chip = pkg.chip(ch).unwrap().to_luma8();
+        // 15 × 15 px around the point in both (the maps turn by < 2°: < 0.3 px at the rim).
+        let (mut a, mut b) = (Vec::new(), Vec::new());
+        for j in -7i64..=7 {
+            for i in -7i64..=7 {
+                a.push(chip.get_pixel((96 + i) as u32, (96 + j) as u32)[0] as f64);
+                let (c, r) = (
+                    (col.floor() as i64 + i) as u32,
+                    (row.floor() as i64 + j) as u32,
+                );
+                b.push(original.get_pixel(c, r)[0] as f64);
+            }
+        }
+        let mean = |v: &[f64]| v.iter().sum::<f64>() / v.len() as f64;
+        let (ma, mb) = (mean(&a), mean(&b));
+        let cov: f64 = a.iter().zip(&b).map(|(x, y)| (x - ma) * (y - mb)).sum();
+        let va: f64 = a.iter().map(|x| (x - ma).powi(2)).sum();
+        let vb: f64 = b.iter().map(|y| (y - mb).powi(2)).sum();
+        worst = worst.min(cov / (va * vb).sqrt());
+    }
+    eprintln!(
+        "{} points, worst NCC chip centre vs original orthophoto {worst:.3}",
+        rep.points
+    );
+    assert!(
+        worst > 0.8,
+        "a chip does not show the orthophoto at its point: NCC {worst}"
+    );
 }
 
 /// The same through the CLI, the CRS read from the WKT file beside the world file; `dcp

@@ -12,7 +12,8 @@
 //! and an archive photo is what the chip alignment through the DEM plane predicts.
 //!
 //! Points lie at orthophoto pixel centres, so each chip (odd, on the pixel grid) is
-//! centred on its point.
+//! centred on its point. An orthophoto or DEM in the package CRS's projection is used as
+//! it is (feet converted); one in another CRS is first reprojected by GDAL's warper.
 
 use super::cloud::{self, CloudPoint, ControlSurface, ExportInfo};
 use super::dcp::{Accuracy, DcpPackage, EpochInfo};
@@ -79,8 +80,11 @@ pub struct OrthoControlReport {
     /// The orthophoto's CRS as found (file or option) and the package's.
     pub orthophoto_crs: String,
     pub crs: String,
-    /// Metres per orthophoto CRS unit.
+    /// Metres per orthophoto CRS unit (1 when it was reprojected).
     pub unit_m: f64,
+    /// The orthophoto was in another projection and was reprojected into the package's by
+    /// GDAL's warper (bilinear) before its control points were taken.
+    pub reprojected: bool,
     pub size_px: [usize; 2],
     pub gsd_m: f64,
     /// Height of the virtual nadir camera above the mean DEM height (m).
@@ -128,21 +132,23 @@ fn raster_crs(
     }
 }
 
-/// Metres per unit of `crs`'s horizontal axes, after checking that `crs` is `target` but
-/// for its unit over `extent` (x0, y0, x1, y1 in `crs`): a projection in feet is the same
-/// map scaled; another projection would turn and bend the raster, which a reprojection
-/// must do first. Checked by transforming the extent's corners and centre, so that one
-/// CRS described two ways (a WKT and what GDAL wrote of it into a GeoTIFF) is one.
-fn unit_to(path: &Path, crs: &Crs, target: &Crs, extent: [f64; 4]) -> Result<f64, EpochError> {
+/// Metres per unit of `crs`'s horizontal axes when `crs` is `target` but for its unit
+/// over `extent` (x0, y0, x1, y1 in `crs`): a projection in feet is the same map scaled.
+/// None when it is another map, which turns and bends the raster. Checked by transforming
+/// the extent's corners and centre, so that one CRS described two ways (a WKT and what
+/// GDAL wrote of it into a GeoTIFF) is one.
+fn same_projection(
+    path: &Path,
+    crs: &Crs,
+    target: &Crs,
+    extent: [f64; 4],
+) -> Result<Option<f64>, EpochError> {
     let e = |x: crate::formats::FormatError| input_err(path, x.to_string());
     let unit = crs.horizontal_unit().map_err(e)?;
-    if !(unit.metres.is_finite() && unit.metres > 0.0) {
-        return Err(input_err(
-            path,
-            format!("its unit {} is not a length", unit.name),
-        ));
-    }
     let k = unit.metres;
+    if !(crs.is_projected() && k.is_finite() && k > 0.0) {
+        return Ok(None);
+    }
     let t = Transformer::new(crs, target).map_err(e)?;
     let [x0, y0, x1, y1] = extent;
     let samples = [
@@ -152,23 +158,72 @@ fn unit_to(path: &Path, crs: &Crs, target: &Crs, extent: [f64; 4]) -> Result<f64
         [x1, y1],
         [0.5 * (x0 + x1), 0.5 * (y0 + y1)],
     ];
-    for [x, y] in samples {
-        let same = match t.transform_point([x, y, 0.0]) {
-            Ok(p) => (p[0] - k * x).hypot(p[1] - k * y) < 1e-3,
-            Err(_) => false,
-        };
-        if !same {
-            return Err(input_err(
-                path,
-                format!(
-                    "is in {}, the package in {}: reproject it into the package CRS first (gdalwarp -t_srs)",
-                    crs.label(),
-                    target.label()
-                ),
-            ));
+    Ok(samples
+        .iter()
+        .all(|[x, y]| {
+            t.transform_point([*x, *y, 0.0])
+                .is_ok_and(|p| (p[0] - k * x).hypot(p[1] - k * y) < 1e-3)
+        })
+        .then_some(k))
+}
+
+/// A raster in the package CRS: the file itself when its CRS is the package's projection
+/// (`unit_m` metres per unit), else its reprojection by GDAL's warper into a temporary
+/// GeoTIFF, removed when this is dropped.
+struct Projected {
+    path: std::path::PathBuf,
+    unit_m: f64,
+    temporary: bool,
+}
+
+impl Drop for Projected {
+    fn drop(&mut self) {
+        if self.temporary {
+            let _ = std::fs::remove_file(&self.path);
         }
     }
-    Ok(k)
+}
+
+fn projected(
+    path: &Path,
+    crs: &Crs,
+    target: &Crs,
+    gt: &GeoTransform,
+    (w, h): (usize, usize),
+) -> Result<Projected, EpochError> {
+    let (x0, y1) = gt.pixel_to_world(0.0, 0.0);
+    let (x1, y0) = gt.pixel_to_world(w as f64, h as f64);
+    let extent = [x0.min(x1), y0.min(y1), x0.max(x1), y0.max(y1)];
+    if let Some(unit_m) = same_projection(path, crs, target, extent)? {
+        return Ok(Projected {
+            path: path.to_path_buf(),
+            unit_m,
+            temporary: false,
+        });
+    }
+    // The cell keeps the raster's ground size: one pixel step at its centre, measured in
+    // the target CRS.
+    let e = |x: crate::formats::FormatError| input_err(path, x.to_string());
+    let t = Transformer::new(crs, target).map_err(e)?;
+    let at = |c: f64, r: f64| {
+        let (x, y) = gt.pixel_to_world(c, r);
+        t.transform_point([x, y, 0.0]).map_err(e)
+    };
+    let (c, r) = (w as f64 / 2.0, h as f64 / 2.0);
+    let (p, px, py) = (at(c, r)?, at(c + 1.0, r)?, at(c, r + 1.0)?);
+    let step = |q: [f64; 3]| (q[0] - p[0]).hypot(q[1] - p[1]);
+    let pixel = step(px).min(step(py));
+    static WARPS: std::sync::atomic::AtomicUsize = std::sync::atomic::AtomicUsize::new(0);
+    let n = WARPS.fetch_add(1, std::sync::atomic::Ordering::Relaxed);
+    let tmp =
+        std::env::temp_dir().join(format!("cloudcontrol-warp-{}-{n}.tif", std::process::id()));
+    tracing::info!(raster = %path.display(), from = %crs.label(), to = %target.label(), pixel, "reprojecting");
+    raster::warp_to(path, crs, target, pixel, &tmp).map_err(e)?;
+    Ok(Projected {
+        path: tmp,
+        unit_m: 1.0,
+        temporary: true,
+    })
 }
 
 /// The DEM at `path` (its CRS the file's, or `given`) in `target`'s metres (heights in
@@ -177,15 +232,19 @@ fn unit_to(path: &Path, crs: &Crs, target: &Crs, extent: [f64; 4]) -> Result<f64
 pub fn dem_in_metres(path: &Path, given: Option<&str>, target: &Crs) -> Result<Dem, EpochError> {
     let (dem, file_crs) = raster::read_dem(path).map_err(|e| input_err(path, e.to_string()))?;
     let crs = raster_crs(path, file_crs.map(|c| c.definition().to_string()), given)?;
-    let (x0, y1) = dem.transform.pixel_to_world(0.0, 0.0);
-    let (x1, y0) = dem
-        .transform
-        .pixel_to_world(dem.width as f64, dem.height as f64);
-    let kh = unit_to(path, &crs, target, [x0, y0, x1, y1])?;
     let kv = match crs.vertical_unit() {
         Ok(Some(u)) => u.metres,
-        _ => kh,
+        _ => crs.horizontal_unit().map_or(1.0, |u| u.metres),
     };
+    let p = projected(path, &crs, target, &dem.transform, (dem.width, dem.height))?;
+    let dem = if p.temporary {
+        raster::read_dem(&p.path)
+            .map_err(|e| input_err(path, format!("reprojected: {e}")))?
+            .0
+    } else {
+        dem
+    };
+    let kh = p.unit_m;
     if !dem.transform.is_north_up() {
         return Err(input_err(path, "is not a north-up grid"));
     }
@@ -231,11 +290,21 @@ pub fn orthophoto_dcp(
     })?;
     let ortho_crs = raster_crs(path, srs_of(&ds), src.orthophoto_crs)?;
     drop(ds);
-    let native = GeoTransform(gt);
-    let (x0, y1) = native.pixel_to_world(0.0, 0.0);
-    let (x1, y0) = native.pixel_to_world(w as f64, h as f64);
-    let k = unit_to(path, &ortho_crs, &target, [x0, y0, x1, y1])?;
-    let gt = GeoTransform(gt.map(|v| v * k));
+    let proj = projected(path, &ortho_crs, &target, &GeoTransform(gt), (w, h))?;
+    let (w, h, gt) = if proj.temporary {
+        let ds = image_open::open_raster(&proj.path).map_err(|e| input_err(path, e.to_string()))?;
+        let (w, h) = ds.raster_size();
+        let gt = ds
+            .geo_transform()
+            .map_err(|e| input_err(path, e.to_string()))?;
+        (w, h, gt)
+    } else {
+        (w, h, gt)
+    };
+    // Chips and interest come from the raster in the package CRS; the package names the
+    // orthophoto as given.
+    let pixels = proj.path.as_path();
+    let gt = GeoTransform(gt.map(|v| v * proj.unit_m));
     if !gt.is_north_up() {
         return Err(input_err(
             path,
@@ -291,14 +360,14 @@ pub fn orthophoto_dcp(
         },
     );
     let mut photo = Photo::new(1, name.clone(), 1, pose).oriented();
-    photo.image = Some(path.to_path_buf());
+    photo.image = Some(pixels.to_path_buf());
     photo.date = src.epoch.date.clone();
     photo.provenance = "orthophoto georeferencing".into();
     block.photos.insert(1, photo);
 
     // Interest at the archive photos' scale, one point per cell, snapped to the pixel
     // centre it falls in so that its chip is centred on it.
-    let full = GreyImage::load(path).map_err(|e| input_err(path, e.to_string()))?;
+    let full = GreyImage::load(pixels).map_err(|e| input_err(path, e.to_string()))?;
     let pyr = Pyramid::new(&full, opts.interest_level + 1, 32);
     drop(full);
     let level = pyr.levels.len() - 1;
@@ -394,7 +463,7 @@ pub fn orthophoto_dcp(
         chip_size: opts.chip_size,
     };
     let (manifest, chips) =
-        cloud::export_records(&block, &records, &info, |_| orthophoto_image(path))
+        cloud::export_records(&block, &records, &info, |_| orthophoto_image(pixels))
             .map_err(|e| input_err(out, e))?;
     let package = DcpPackage::write(out, manifest, &chips)?;
     let report = OrthoControlReport {
@@ -402,7 +471,8 @@ pub fn orthophoto_dcp(
         dem: src.dem.display().to_string(),
         orthophoto_crs: ortho_crs.label(),
         crs: target.label(),
-        unit_m: k,
+        unit_m: proj.unit_m,
+        reprojected: proj.temporary,
         size_px: [w, h],
         gsd_m,
         virtual_height_m: height,

@@ -127,6 +127,95 @@ pub fn write_grey(
     })
 }
 
+/// Reprojects the raster at `path` (in `source`, which the file may lack: a world file
+/// gives none) into `target`, north-up with square `pixel` cells (target units) over the
+/// source's whole extent, written as a GeoTIFF at `out`: GDAL's warper (bilinear), with
+/// the bands' type and no-data value kept and cells outside the source left no-data
+/// (0 for bands without one).
+pub fn warp_to(path: &Path, source: &Crs, target: &Crs, pixel: f64, out: &Path) -> Result<()> {
+    use super::crs::Transformer;
+    use gdal::raster::GdalDataType;
+    let src = image_open::open_raster(path)?;
+    let (w, h) = src.raster_size();
+    image_open::check_pixels(path, w as u64, h as u64)?;
+    let gt = src
+        .geo_transform()
+        .map_err(|e| FormatError::gdal(path, e))?;
+    let bands = src.raster_count();
+    let band_type = src
+        .rasterband(1)
+        .map_err(|e| FormatError::gdal(path, e))?
+        .band_type();
+    let nodata = src.rasterband(1).ok().and_then(|b| b.no_data_value());
+    // An in-memory copy carries the CRS the file may not state.
+    let mem = DriverManager::get_driver_by_name("MEM").map_err(|e| FormatError::gdal(path, e))?;
+    let mut copy = src
+        .create_copy(&mem, "", &RasterCreationOptions::default())
+        .map_err(|e| FormatError::gdal(path, e))?;
+    drop(src);
+    copy.set_spatial_ref(source.spatial_ref())
+        .map_err(|e| FormatError::gdal(path, e))?;
+    // The target extent: the source's border, sampled densely (projections bend it).
+    let t = Transformer::new(source, target)?;
+    let (mut x0, mut y0, mut x1, mut y1) = (f64::MAX, f64::MAX, f64::MIN, f64::MIN);
+    for k in 0..=64 {
+        let f = k as f64 / 64.0;
+        for (c, r) in [
+            (f * w as f64, 0.0),
+            (f * w as f64, h as f64),
+            (0.0, f * h as f64),
+            (w as f64, f * h as f64),
+        ] {
+            let p = t.transform_point([
+                gt[0] + c * gt[1] + r * gt[2],
+                gt[3] + c * gt[4] + r * gt[5],
+                0.0,
+            ])?;
+            (x0, y0, x1, y1) = (x0.min(p[0]), y0.min(p[1]), x1.max(p[0]), y1.max(p[1]));
+        }
+    }
+    if !(pixel > 0.0 && x0 < x1 && y0 < y1) {
+        return Err(FormatError::invalid(
+            path,
+            "its extent does not map into the target CRS",
+        ));
+    }
+    let (tw, th) = (
+        ((x1 - x0) / pixel).ceil() as usize,
+        ((y1 - y0) / pixel).ceil() as usize,
+    );
+    image_open::check_pixels(path, tw as u64, th as u64)?;
+    write_atomically(out, |tmp| {
+        let driver =
+            DriverManager::get_driver_by_name("GTiff").map_err(|e| FormatError::gdal(path, e))?;
+        let co = creation_options(&GeoTiffOptions::default(), tw, th)?;
+        let mut dst = match band_type {
+            GdalDataType::UInt8 => {
+                driver.create_with_band_type_with_options::<u8, _>(tmp, tw, th, bands, &co)
+            }
+            GdalDataType::UInt16 => {
+                driver.create_with_band_type_with_options::<u16, _>(tmp, tw, th, bands, &co)
+            }
+            _ => driver.create_with_band_type_with_options::<f32, _>(tmp, tw, th, bands, &co),
+        }
+        .map_err(|e| FormatError::gdal(path, e))?;
+        dst.set_geo_transform(&[x0, pixel, 0.0, y1, 0.0, -pixel])
+            .map_err(|e| FormatError::gdal(path, e))?;
+        dst.set_spatial_ref(target.spatial_ref())
+            .map_err(|e| FormatError::gdal(path, e))?;
+        for b in 1..=bands {
+            let mut band = dst.rasterband(b).map_err(|e| FormatError::gdal(path, e))?;
+            band.set_no_data_value(Some(nodata.unwrap_or(0.0)))
+                .map_err(|e| FormatError::gdal(path, e))?;
+            band.fill(nodata.unwrap_or(0.0), None)
+                .map_err(|e| FormatError::gdal(path, e))?;
+        }
+        gdal::raster::reproject(&copy, &dst).map_err(|e| FormatError::gdal(path, e))?;
+        dst.flush_cache().map_err(|e| FormatError::gdal(path, e))?;
+        Ok(())
+    })
+}
+
 /// Width, height and geotransform of a DEM raster from its header, without reading the
 /// heights (the size query of `ccp_dem_read`).
 pub fn dem_size(path: &Path) -> Result<(usize, usize, [f64; 6])> {

@@ -82,8 +82,8 @@ pub enum DcpCommand {
     /// where the orthophoto is textured and the DEM planar, chips from the orthophoto
     /// (formats/dcp/, "Orthophoto and DEM").
     ///
-    /// The orthophoto is a GeoTIFF or an image with a world file (then give its CRS); both
-    /// rasters must be in the package CRS's projection (feet are converted).
+    /// The orthophoto is a GeoTIFF or an image with a world file (then give its CRS); a
+    /// raster in another CRS than the package's is reprojected (GDAL's warper).
     ///
     /// Example:
     ///   cloudcontrol dcp from-orthophoto --orthophoto autzen.jpg --orthophoto-crs-file autzen-srs.wkt --dem dem.tif --crs EPSG:4547 --out ortho.dcp
