@@ -1,7 +1,8 @@
 //! An orthophoto with a DEM as the only control (issue 20): the small synthetic block's
 //! `project_orthophoto.toml` (no LiDAR, no reference flight) orients its digital and film
 //! epochs from the orthophoto's control points, each epoch's report names what controlled
-//! it, and the products carry the given DEM under its own name. Project keys of the
+//! it, and the products carry the given DEM under its own name; with the LiDAR and the
+//! reference flight as well, the archive epochs take both. Project keys of the
 //! orthophoto source are checked before any work.
 
 use serde_json::Value;
@@ -77,6 +78,43 @@ fn the_small_block_is_oriented_from_its_orthophoto_and_dem_alone() {
         .unwrap_or("")
         .contains("4547"));
     assert!(run.join("outputs-film_1978/orthophoto.tif").is_file());
+
+    // Any combination with the LiDAR works: the block's own project (LiDAR and reference
+    // flight) with the orthophoto added; the archive epochs take both packages.
+    let text = std::fs::read_to_string(blk.join("project.toml"))
+        .unwrap()
+        .replace("output = \"../run\"", "output = \"../run_both\"")
+        .replace(
+            "lidar = [\"lidar\"]\n",
+            "lidar = [\"lidar\"]\northophoto = \"orthophoto/orthophoto.tif\"\ndem = \"orthophoto/dem.tif\"\ndem_sigma_m = 0.1\n",
+        );
+    std::fs::write(blk.join("project_both.toml"), text).unwrap();
+    let out = Command::new(exe())
+        .args(["--json", "run"])
+        .arg(blk.join("project_both.toml"))
+        .output()
+        .unwrap();
+    let v = json_of(&out);
+    let report = &v["report"];
+    let r = epoch(report, "reference_2024");
+    assert!(control(r).contains("LiDAR"), "{}", control(r));
+    assert!(px(r, "check_rmse_plan_m") <= 1.0 && px(r, "check_rmse_height_m") <= 1.0);
+    for name in ["digital_2012", "film_1978"] {
+        let e = epoch(report, name);
+        eprintln!(
+            "LiDAR + reference + orthophoto, {name}: {}/{} oriented, plan {:.2} GSD, height {:.2} GSD",
+            e["photos_oriented"],
+            e["photos_total"],
+            px(e, "check_rmse_plan_m"),
+            px(e, "check_rmse_height_m")
+        );
+        assert!(control(e).contains("orthophoto") && control(e).contains("reference_2024"));
+        assert!(oriented(e) >= 0.8, "{name}");
+        assert!(px(e, "check_rmse_plan_m") <= 1.0 && px(e, "check_rmse_height_m") <= 1.5);
+    }
+    let both = tmp.path().join("run_both");
+    assert!(both.join("outputs-film_1978/lidar_dem.tif").is_file());
+    assert!(both.join("dcp-orthophoto/package/manifest.json").is_file());
 }
 
 /// The keys of the orthophoto source are checked before any work, naming the key.
