@@ -341,6 +341,24 @@ enum CcpStatus ccp_dcp_export(const char *block_json,
                               const struct CcpDcpExportOptions *opts,
                               struct CcpDcp **out_dcp);
 
+// Writes a DCP package at `out_dir` from a georeferenced orthophoto (GeoTIFF, or an image
+// with a world file) and a DEM GeoTIFF: control points where the orthophoto is textured
+// and the DEM planar, chips from the orthophoto, in the CRS `crs` (projected, metres;
+// rasters in another CRS are reprojected). `orthophoto_crs` / `dem_crs` give a raster's
+// CRS when its file has none (NULL: the file's); `name` (NULL: the folder's name) and
+// `date` (NULL: unknown) describe the orthophoto's flight. Default selection options
+// (formats/dcp/, "Orthophoto and DEM"). Returns the package opened in `*out_dcp`
+// (release with `ccp_dcp_free`).
+enum CcpStatus ccp_dcp_from_orthophoto(const char *orthophoto,
+                                       const char *orthophoto_crs,
+                                       const char *dem,
+                                       const char *dem_crs,
+                                       const char *crs,
+                                       const char *out_dir,
+                                       const char *name,
+                                       const char *date,
+                                       struct CcpDcp **out_dcp);
+
 // Verifies the package `package` in full and copies it into the store folder
 // `store_dir` (created when missing) as `store_dir/<package folder name>`, returning the
 // stored copy opened in `*out_dcp`. A damaged package, or one whose CRS differs from

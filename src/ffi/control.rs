@@ -11,6 +11,7 @@ use crate::control::cloud::CloudOptions;
 use crate::control::dcp::{Accuracy, DcpError, DcpIndex, DcpPackage, EpochInfo};
 use crate::control::epoch::EpochError;
 use crate::control::export::{self, DcpExportOptions, OrientedBlock};
+use crate::control::ortho_source::{orthophoto_dcp, OrthoControlOptions, OrthoSource};
 use crate::control::predict;
 use nalgebra::{Matrix3, SMatrix, Vector3};
 use std::ffi::{c_char, CStr, CString};
@@ -246,6 +247,52 @@ pub unsafe extern "C" fn ccp_dcp_export(
         let (opts, epoch, cell) = export_options(o, &out)?;
         let b = OrientedBlock::load(&block, &images, &lidar, cell)?;
         let package = b.export(epoch, &out, &opts)?;
+        hand_out(package, out_dcp);
+        Ok(())
+    })
+}
+
+/// Writes a DCP package at `out_dir` from a georeferenced orthophoto (GeoTIFF, or an image
+/// with a world file) and a DEM GeoTIFF: control points where the orthophoto is textured
+/// and the DEM planar, chips from the orthophoto, in the CRS `crs` (projected, metres;
+/// rasters in another CRS are reprojected). `orthophoto_crs` / `dem_crs` give a raster's
+/// CRS when its file has none (NULL: the file's); `name` (NULL: the folder's name) and
+/// `date` (NULL: unknown) describe the orthophoto's flight. Default selection options
+/// (formats/dcp/, "Orthophoto and DEM"). Returns the package opened in `*out_dcp`
+/// (release with `ccp_dcp_free`).
+#[no_mangle]
+#[allow(clippy::too_many_arguments)]
+pub unsafe extern "C" fn ccp_dcp_from_orthophoto(
+    orthophoto: *const c_char,
+    orthophoto_crs: *const c_char,
+    dem: *const c_char,
+    dem_crs: *const c_char,
+    crs: *const c_char,
+    out_dir: *const c_char,
+    name: *const c_char,
+    date: *const c_char,
+    out_dcp: *mut *mut CcpDcp,
+) -> CcpStatus {
+    guard(|| {
+        out_handle(out_dcp)?;
+        let ortho = non_empty_path(orthophoto, "orthophoto")?;
+        let dem = non_empty_path(dem, "dem")?;
+        let out = non_empty_path(out_dir, "out_dir")?;
+        let crs = opt_str(crs, "crs")?
+            .ok_or_else(|| FfiError::new(CcpStatus::NullPointer, "crs is null or empty"))?;
+        let ortho_crs = opt_str(orthophoto_crs, "orthophoto_crs")?;
+        let dem_crs = opt_str(dem_crs, "dem_crs")?;
+        let src = OrthoSource {
+            orthophoto: &ortho,
+            orthophoto_crs: ortho_crs.as_deref(),
+            dem: &dem,
+            dem_crs: dem_crs.as_deref(),
+            epoch: EpochInfo {
+                name: opt_str(name, "name")?.unwrap_or_else(|| export::package_epoch_name(&out)),
+                date: opt_str(date, "date")?,
+            },
+        };
+        let (package, _) = orthophoto_dcp(&src, &crs, &out, &OrthoControlOptions::default())?;
         hand_out(package, out_dcp);
         Ok(())
     })

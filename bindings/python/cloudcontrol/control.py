@@ -48,6 +48,8 @@ lib.ccp_dcp_export.argtypes = [ctypes.c_char_p, ctypes.c_char_p, ctypes.POINTER(
 lib.ccp_dcp_export.restype = ctypes.c_int
 lib.ccp_dcp_import.argtypes = [ctypes.c_char_p, ctypes.c_char_p, ctypes.POINTER(_DcpP)]
 lib.ccp_dcp_import.restype = ctypes.c_int
+lib.ccp_dcp_from_orthophoto.argtypes = [ctypes.c_char_p] * 8 + [ctypes.POINTER(_DcpP)]
+lib.ccp_dcp_from_orthophoto.restype = ctypes.c_int
 lib.ccp_dcp_path.argtypes = [_DcpP, ctypes.POINTER(ctypes.c_void_p)]
 lib.ccp_dcp_path.restype = ctypes.c_int
 lib.ccp_string_free.argtypes = [ctypes.c_void_p]
@@ -104,6 +106,22 @@ class DcpPackage:
         h = _DcpP()
         check(lib.ccp_dcp_export(os.fsencode(block_json), os.fsencode(images_json), arr, len(enc),
                                  os.fsencode(out_dir), ctypes.byref(opts), ctypes.byref(h)))
+        return cls._adopt(h)
+
+    @classmethod
+    def from_orthophoto(cls, orthophoto: str | os.PathLike, dem: str | os.PathLike, crs: str,
+                        out_dir: str | os.PathLike, *, orthophoto_crs: str | None = None,
+                        dem_crs: str | None = None, name: str | None = None,
+                        date: str | None = None) -> "DcpPackage":
+        """Writes a package at ``out_dir`` from a georeferenced orthophoto (GeoTIFF, or an
+        image with a world file: then give ``orthophoto_crs``) and a DEM GeoTIFF, in the
+        projected CRS ``crs`` (rasters in another CRS are reprojected); returns it opened."""
+        enc = lambda v: None if v is None else str(v).encode()  # noqa: E731
+        h = _DcpP()
+        check(lib.ccp_dcp_from_orthophoto(os.fsencode(orthophoto), enc(orthophoto_crs),
+                                          os.fsencode(dem), enc(dem_crs), enc(crs),
+                                          os.fsencode(out_dir), enc(name), enc(date),
+                                          ctypes.byref(h)))
         return cls._adopt(h)
 
     @classmethod

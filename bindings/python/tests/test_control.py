@@ -186,3 +186,39 @@ def test_import_copies_a_valid_package_and_refuses_an_edited_one(oriented, tmp_p
         assert chip in str(e.value) and "edited.dcp" in str(e.value)
     assert sorted(p.name for p in store.iterdir()) == ["ref.dcp"]
     assert not (tmp_path / "new_store").exists()
+
+
+# --- A package from an orthophoto with a DEM (the tiny block's orthophoto/) -----------
+
+def test_package_from_orthophoto_has_points_on_chip_centres_at_dem_heights(oriented, tmp_path):
+    """The tiny block's true orthophoto and DEM as a control source: every point, taken into
+    the orthophoto through the geotransform gdalinfo reads, lies on its chip's centre, and
+    its height is the DEM's there (read with OpenCV)."""
+    import subprocess
+    cv2 = pytest.importorskip("cv2")
+    block_dir = oriented[1].parent
+    ortho, dem = block_dir / "orthophoto/orthophoto.tif", block_dir / "orthophoto/dem.tif"
+    pkg = cc.DcpPackage.from_orthophoto(ortho, dem, "EPSG:4547", tmp_path / "ortho.dcp",
+                                        name="ortho", date="2024")
+    m = json.loads((pkg.path / "manifest.json").read_text())
+    assert m["epoch"] == {"name": "ortho", "date": "2024"}
+    # 400 × 300 px at 0.3 m: room for a few 193-px chips only.
+    assert len(m["points"]) >= 3
+    gt = json.loads(subprocess.run(["gdalinfo", "-json", str(ortho)], capture_output=True,
+                                   check=True).stdout)["geoTransform"]
+    dgt = json.loads(subprocess.run(["gdalinfo", "-json", str(dem)], capture_output=True,
+                                    check=True).stdout)["geoTransform"]
+    heights = cv2.imread(str(dem), cv2.IMREAD_UNCHANGED)
+    for p in m["points"]:
+        x, y, z = p["xyz"]
+        col, row = (x - gt[0]) / gt[1], (y - gt[3]) / gt[5]
+        ch = p["measurements"][0]["chip"]
+        assert abs(col - (ch["x0"] + ch["width"] / 2)) < 1e-6
+        assert abs(row - (ch["y0"] + ch["height"] / 2)) < 1e-6
+        c, r = int((x - dgt[0]) / dgt[1]), int((y - dgt[3]) / dgt[5])
+        assert abs(heights[r, c] - z) < 0.3, (p["name"], heights[r, c], z)
+    # A raster without any CRS in its file, and none given, is refused naming it.
+    plain = tmp_path / "plain.png"
+    cv2.imwrite(str(plain), cv2.imread(str(ortho), cv2.IMREAD_GRAYSCALE))
+    with pytest.raises(cc.CloudControlError, match="plain.png"):
+        cc.DcpPackage.from_orthophoto(plain, dem, "EPSG:4547", tmp_path / "plain.dcp")
