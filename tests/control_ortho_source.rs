@@ -25,6 +25,26 @@ fn data() -> PathBuf {
 
 const FOOT: f64 = 0.3048;
 
+/// The Autzen LiDAR's ground returns gridded at 1 m into a DEM GeoTIFF in `dir`, in feet as
+/// the LiDAR is; with the CRS of the orthophoto's WKT (feet).
+fn autzen_dem(dir: &Path) -> (PathBuf, Crs) {
+    let d = data();
+    let feet = Crs::parse(&std::fs::read_to_string(d.join("autzen-srs.wkt")).unwrap()).unwrap();
+    let pts = las::read_points(&d.join("autzen_trim.laz"), None, Some(&[2])).unwrap();
+    assert!(pts.xyz.len() > 10_000, "{} ground points", pts.xyz.len());
+    let dem = grid_dem(
+        &pts.xyz,
+        &DemOptions {
+            cell: 1.0 / FOOT,
+            ..DemOptions::default()
+        },
+    )
+    .unwrap();
+    let path = dir.join("autzen_dem_ft.tif");
+    raster::write_dem(&path, &dem, &feet, &GeoTiffOptions::default()).unwrap();
+    (path, feet)
+}
+
 #[test]
 fn autzen_orthophoto_and_lidar_dem_give_control_on_chip_centres() {
     let d = data();
@@ -36,19 +56,7 @@ fn autzen_orthophoto_and_lidar_dem_give_control_on_chip_centres() {
     let tmp = tempfile::tempdir().unwrap();
 
     // The DEM: the LiDAR's ground returns gridded at 1 m, in feet as the LiDAR is.
-    let pts = las::read_points(&d.join("autzen_trim.laz"), None, Some(&[2])).unwrap();
-    assert!(pts.xyz.len() > 10_000, "{} ground points", pts.xyz.len());
-    let dem = grid_dem(
-        &pts.xyz,
-        &DemOptions {
-            cell: 1.0 / FOOT,
-            ..DemOptions::default()
-        },
-    )
-    .unwrap();
-    let dem_path = tmp.path().join("autzen_dem_ft.tif");
-    raster::write_dem(&dem_path, &dem, &feet, &GeoTiffOptions::default()).unwrap();
-
+    let (dem_path, _) = autzen_dem(tmp.path());
     let out = tmp.path().join("autzen.dcp");
     let (pkg, rep) = orthophoto_dcp(
         &OrthoSource {
@@ -150,19 +158,8 @@ fn autzen_orthophoto_and_lidar_dem_give_control_on_chip_centres() {
 fn orthophoto_in_another_projection_is_reprojected_and_one_without_crs_refused() {
     let d = data();
     let wkt = std::fs::read_to_string(d.join("autzen-srs.wkt")).unwrap();
-    let feet = Crs::parse(&wkt).unwrap();
     let tmp = tempfile::tempdir().unwrap();
-    let dem_path = tmp.path().join("dem.tif");
-    let pts = las::read_points(&d.join("autzen_trim.laz"), None, Some(&[2])).unwrap();
-    let dem = grid_dem(
-        &pts.xyz,
-        &DemOptions {
-            cell: 1.0 / FOOT,
-            ..DemOptions::default()
-        },
-    )
-    .unwrap();
-    raster::write_dem(&dem_path, &dem, &feet, &GeoTiffOptions::default()).unwrap();
+    let (dem_path, feet) = autzen_dem(tmp.path());
     let ortho = d.join("autzen.jpg");
     let run = |ortho_crs: Option<&str>, out: &Path| {
         orthophoto_dcp(
@@ -253,18 +250,7 @@ fn orthophoto_in_another_projection_is_reprojected_and_one_without_crs_refused()
 fn cli_writes_the_orthophoto_package() {
     let d = data();
     let tmp = tempfile::tempdir().unwrap();
-    let feet = Crs::parse(&std::fs::read_to_string(d.join("autzen-srs.wkt")).unwrap()).unwrap();
-    let pts = las::read_points(&d.join("autzen_trim.laz"), None, Some(&[2])).unwrap();
-    let dem = grid_dem(
-        &pts.xyz,
-        &DemOptions {
-            cell: 1.0 / FOOT,
-            ..DemOptions::default()
-        },
-    )
-    .unwrap();
-    let dem_path = tmp.path().join("dem.tif");
-    raster::write_dem(&dem_path, &dem, &feet, &GeoTiffOptions::default()).unwrap();
+    let (dem_path, feet) = autzen_dem(tmp.path());
     let metres = feet.with_units(Some(&LinearUnit::metre()), None).unwrap();
     let out = tmp.path().join("autzen.dcp");
     let o = std::process::Command::new(env!("CARGO_BIN_EXE_cloudcontrol"))
