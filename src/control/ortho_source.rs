@@ -29,8 +29,8 @@ use std::collections::BTreeMap;
 use std::path::Path;
 
 /// The orthophoto and the DEM, each with its CRS when the file does not state one (a
-/// JPEG with a world file has none). Units may be feet: they are converted to the
-/// package CRS, which must be the same projection in metres.
+/// JPEG with a world file has none). A raster in the package CRS's projection is taken
+/// as it is (feet converted), one in another CRS is reprojected.
 #[derive(Debug, Clone)]
 pub struct OrthoSource<'a> {
     pub orthophoto: &'a Path,
