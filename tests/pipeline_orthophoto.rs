@@ -10,18 +10,13 @@ use std::path::Path;
 use std::process::Command;
 
 mod common;
-use common::{epoch, exe, json_of, px};
+use common::{epoch, exe, json_of, px, synth_block};
 
 #[test]
 fn the_small_block_is_oriented_from_its_orthophoto_and_dem_alone() {
     let tmp = tempfile::tempdir().unwrap();
     let blk = tmp.path().join("block");
-    let o = Command::new(exe())
-        .args(["synth", "--preset", "small", "--seed", "2", "--out"])
-        .arg(&blk)
-        .output()
-        .unwrap();
-    assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+    synth_block(&blk, "small", 2);
     let project = std::fs::read_to_string(blk.join("project_orthophoto.toml")).unwrap();
     assert!(!project.contains("lidar") && !project.contains("[reference]"));
     let out = Command::new(exe())

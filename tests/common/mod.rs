@@ -53,6 +53,23 @@ pub fn cli_in(dir: &std::path::Path, args: &[&str]) -> (bool, String, String) {
     )
 }
 
+/// `cloudcontrol synth --preset PRESET --seed SEED --out DIR`, asserting it succeeded.
+pub fn synth_block(dir: &std::path::Path, preset: &str, seed: u64) {
+    let o = std::process::Command::new(exe())
+        .args([
+            "synth",
+            "--preset",
+            preset,
+            "--seed",
+            &seed.to_string(),
+            "--out",
+        ])
+        .arg(dir)
+        .output()
+        .unwrap();
+    assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+}
+
 /// A synthetic block's checkpoints as an evaluation takes them: the image measurements of
 /// `epoch` (`truth/checkpoint_images.csv`, standing for an operator's) and the surveyed
 /// points (`checkpoints.csv`, world).
