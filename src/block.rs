@@ -122,6 +122,13 @@ pub enum PhotoFailure {
         first: Box<PhotoFailure>,
         second: Box<PhotoFailure>,
     },
+    /// Not oriented from control (`before`), nor through tie points with the epoch's
+    /// oriented photos (`ties`).
+    #[error("{before}; through tie points with the epoch's oriented photos: {ties}")]
+    TiePass {
+        before: Box<PhotoFailure>,
+        ties: Box<PhotoFailure>,
+    },
 }
 
 /// Where a photo stands.

@@ -363,3 +363,66 @@ fn image_tie_points_join_the_digital_block_when_enabled() {
     }
     assert_accuracy(&o, "digital_2012 with image ties");
 }
+
+#[test]
+fn a_photo_without_control_in_its_footprint_is_oriented_through_tie_points() {
+    let s = rough();
+    let epoch = "digital_2012";
+    let truth = synth_truth_block(&s.dir, epoch).unwrap();
+    // A strip-end photo, and the package without any point in its footprint: what a
+    // photo beyond the control area, or over ground changed since, gets from the DCPs.
+    let target = truth
+        .photos
+        .values()
+        .find(|p| p.name.ends_with("_s01_001"))
+        .unwrap();
+    let cam = &truth.camera_of(target).unwrap().model;
+    let (w, h) = cam.image_size();
+    let origin = nalgebra::Vector3::from(truth.origin);
+    let mut reference = s.reference.clone();
+    let before = reference.manifest.points.len();
+    reference.manifest.points.retain(|p| {
+        let x = nalgebra::Vector3::from(p.xyz) - origin;
+        cloudcontrol::geometry::project(cam, &target.pose, &x).map_or(true, |q| {
+            q.pixel.x < -50.0
+                || q.pixel.y < -50.0
+                || q.pixel.x > w as f64 + 50.0
+                || q.pixel.y > h as f64 + 50.0
+        })
+    });
+    println!(
+        "{} of {before} DCP points left outside {}",
+        reference.manifest.points.len(),
+        target.name
+    );
+    assert!(reference.manifest.points.len() < before);
+    let o = orient(
+        s,
+        epoch,
+        std::slice::from_ref(&reference),
+        &ArchiveOptions::default(),
+    );
+    let rep = o
+        .result
+        .photos
+        .iter()
+        .find(|p| p.name == target.name)
+        .unwrap();
+    assert!(rep.oriented && rep.tie_pass, "{rep:?}");
+    assert_eq!(rep.control_matches, 0);
+    // Held by tie points with its neighbours in the adjustment: its centre within a
+    // ground pixel's worth of metres of the truth (the navigation alone is 10 m off).
+    let b = &o.result.block;
+    let got = b.photos.values().find(|p| p.name == target.name).unwrap();
+    assert!(got.is_oriented() && got.provenance.contains("tie pass"));
+    let dc = (got.pose.center - target.pose.center).norm();
+    println!("{}: centre {dc:.3} m from the truth", target.name);
+    assert!(dc < 1.0, "centre {dc:.3} m from the truth");
+    let ties = b
+        .points
+        .values()
+        .filter(|p| p.kind == PointKind::Tie && p.observations.iter().any(|o| o.photo == got.id))
+        .count();
+    assert!(ties >= 6, "{ties} tie points in the photo");
+    assert_accuracy(&o, "digital_2012, one photo through tie points");
+}

@@ -20,6 +20,7 @@ fn sample_report() -> Report {
             gsd_m: *gsd,
             photos_total: 12,
             photos_oriented: 12 - k,
+            photos_through_ties: 0,
             check_rmse_plan_m: 0.0,
             check_rmse_height_m: 0.0,
             check_max_m: 0.0,

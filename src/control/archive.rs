@@ -1,8 +1,10 @@
 //! Orientation of an archive epoch from Digital Control Photos (seed 001 whole, seed 000
 //! §2.2 (3)–(5)): every photo oriented from the control patches of the packages
 //! ([`super::photo::orient_photo`]), a second pass for the photos left over with the
-//! control points as the epoch's own oriented photos show them, optional tie points among
-//! the oriented photos, and the robust archive block adjustment with rejection at k·σ0.
+//! control points as the epoch's own oriented photos show them, the tie pass for those
+//! still left (oriented through tie points with their oriented neighbours,
+//! [`super::epoch_ties`]), optional tie points among all oriented photos, and the robust
+//! archive block adjustment with rejection at k·σ0.
 //! The result is the epoch's [`Block`]: every photo with its image, approximate
 //! orientation, status (oriented, or failed with its reason) and provenance.
 
@@ -11,9 +13,8 @@ use super::dcp::DcpPackage;
 use super::epoch::{
     approximate_orientations, EpochCamera, EpochError, EpochInput, NavigationSigma,
 };
-use super::orient::ControlPatch;
+use super::epoch_ties::{epoch_ties, tie_pass, TieParams};
 use super::photo::{orient_photo, PhotoOptions, PhotoOrientation, PhotoReport};
-use super::predict::Prediction;
 use crate::adjust::support::{take_unsupported, MIN_POINTS_PER_PHOTO};
 use crate::adjust::{self, AdjustOptions, AdjustReport, Loss, Rejection};
 use crate::block::{
@@ -21,9 +22,9 @@ use crate::block::{
     PointKind,
 };
 use crate::formats::crs::Crs;
-use crate::geometry::{self, Camera, Dem};
-use crate::matching::{forstner, ForstnerOptions, GreyImage, MatchOptions, Pyramid};
-use nalgebra::{Matrix3, Vector2, Vector3};
+use crate::geometry::{Camera, Dem};
+use crate::matching::GreyImage;
+use nalgebra::{Vector2, Vector3};
 use rayon::prelude::*;
 use serde::Serialize;
 use std::collections::BTreeMap;
@@ -44,8 +45,13 @@ pub struct ArchiveOptions {
     /// Photos not oriented from the packages try again with the control points as the
     /// epoch's own oriented photos show them.
     pub epoch_second_pass: bool,
+    /// Photos that neither pass oriented are oriented through tie points with the epoch's
+    /// oriented photos ([`super::epoch_ties::tie_pass`]), one per `tie_interval_px` cell
+    /// of the source photo, and held by them in the block adjustment.
+    pub tie_pass: bool,
     /// Image tie points among the oriented photos of the epoch in the block adjustment,
     /// one per `tie_interval_px` cell, searched ±`tie_window_px` around their prediction
+    /// (the tie pass uses the same interval, window and NCC threshold)
     /// (off by default: the DCP points observed in several photos already tie the block).
     pub ties: bool,
     pub tie_interval_px: f64,
@@ -62,6 +68,7 @@ impl Default for ArchiveOptions {
             loss: Loss::Huber(2.0),
             self_calibration: vec!["fx".into(), "fy".into(), "k1".into(), "k2".into()],
             epoch_second_pass: true,
+            tie_pass: true,
             // Measured on the small synthetic block: no gain yet over the DCP points seen
             // in several photos, and worse heights in the time series (see the report).
             ties: false,
@@ -186,6 +193,24 @@ pub fn orient_epoch(
             &mut keyed,
         );
     }
+    let tie_params = TieParams {
+        cell_px: opts.tie_interval_px,
+        window_px: opts.tie_window_px,
+        ncc_threshold: opts.tie_ncc_threshold,
+    };
+    let pass_ties = if opts.tie_pass {
+        tie_pass(
+            input,
+            &priors,
+            dem,
+            &photo_opts,
+            &tie_params,
+            &mut outcomes,
+            &mut keyed,
+        )
+    } else {
+        Vec::new()
+    };
 
     // The archive block: oriented photos, DCP control points with all their matches.
     let mut block = Block {
@@ -233,28 +258,30 @@ pub fn orient_epoch(
             },
         );
     }
+    let mut ties = pass_ties;
     if opts.ties {
-        let ties = epoch_ties(input, &outcomes, dem, opts);
+        let among = epoch_ties(input, &outcomes, dem, &photo_opts, &tie_params);
         tracing::info!(
             epoch = input.name,
-            ties = ties.len(),
+            ties = among.len(),
             "tie points among the epoch's photos"
         );
-        for (x, obs) in ties {
-            let id = block.next_point_id();
-            block.points.insert(
+        ties.extend(among);
+    }
+    for (x, obs) in ties {
+        let id = block.next_point_id();
+        block.points.insert(
+            id,
+            ObjectPoint {
                 id,
-                ObjectPoint {
-                    id,
-                    name: String::new(),
-                    kind: PointKind::Tie,
-                    position: x,
-                    sigma: None,
-                    color: [0; 3],
-                    observations: obs,
-                },
-            );
-        }
+                name: String::new(),
+                kind: PointKind::Tie,
+                position: x,
+                sigma: None,
+                color: [0; 3],
+                observations: obs,
+            },
+        );
     }
     let mut photos: Vec<PhotoReport> = outcomes.iter().map(|o| o.report.clone()).collect();
     // A resected photo whose points the block cannot use (too few control points and tie
@@ -389,20 +416,27 @@ fn add_photo(
     // thin. On the small block's film epoch it brought the centres from 0.91 to 0.44 m of
     // the truth (tests of bindings/python/tests/test_orient_photo.py, seed 2).
     photo.prior = prior.copied();
-    photo.provenance = format!(
-        "resection from {} control patches{}{}",
-        o.report.control_matches,
-        if o.report.relaxed {
-            " (relaxed retry)"
-        } else {
-            ""
-        },
-        if o.report.second_pass {
-            " (second pass, chips of the epoch's own photos)"
-        } else {
-            ""
-        }
-    );
+    photo.provenance = if o.report.tie_pass {
+        format!(
+            "resection from {} tie points with the epoch's oriented photos (tie pass)",
+            o.matches.len()
+        )
+    } else {
+        format!(
+            "resection from {} control patches{}{}",
+            o.report.control_matches,
+            if o.report.relaxed {
+                " (relaxed retry)"
+            } else {
+                ""
+            },
+            if o.report.second_pass {
+                " (second pass, chips of the epoch's own photos)"
+            } else {
+                ""
+            }
+        )
+    };
     block.photos.insert(pid, photo);
 }
 
@@ -481,145 +515,6 @@ fn second_pass(
         }
     }
 }
-
-/// Tie points among the oriented photos of the epoch: Förstner points of each photo, put
-/// on the DEM through their ray, predicted in every other oriented photo and matched
-/// there with the same alignment, NCC and LSM as the control patches (the chip is cut
-/// from the source photo). Points off the DEM (roofs, trees) are still true
-/// correspondences; the block adjustment intersects them anew. Returns each tie's
-/// approximate block-local position and its observations (photo ids).
-fn epoch_ties(
-    input: &EpochInput,
-    outcomes: &[PhotoOrientation],
-    dem: &Dem,
-    opts: &ArchiveOptions,
-) -> Vec<(Vector3<f64>, Vec<Observation>)> {
-    let oriented: Vec<usize> = (0..outcomes.len())
-        .filter(|&n| outcomes[n].report.oriented && outcomes[n].camera.is_some())
-        .collect();
-    if oriented.len() < 2 {
-        return Vec::new();
-    }
-    let mut pyramids: BTreeMap<usize, Pyramid> = BTreeMap::new();
-    let half = opts.photo.patch.template_half + 8;
-    let mut points: Vec<ControlPoint> = Vec::new();
-    for &a in &oriented {
-        let (Ok(img), Some(cam)) = (GreyImage::load(&input.photos[a].image), &outcomes[a].camera)
-        else {
-            continue;
-        };
-        let pose = &outcomes[a].pose;
-        let cell = opts.tie_interval_px.max(16.0);
-        let fo = ForstnerOptions {
-            grid: (
-                ((img.width as f64 / cell).ceil() as usize).max(1),
-                ((img.height as f64 / cell).ceil() as usize).max(1),
-            ),
-            per_cell: 1,
-            border: half + 2,
-            ..ForstnerOptions::default()
-        };
-        for ip in forstner(&img, &fo) {
-            let Ok(ray) = geometry::back_project(cam, pose, [ip.x, ip.y]) else {
-                continue;
-            };
-            let Ok(x) = dem.intersect(&ray) else {
-                continue;
-            };
-            let Some(view) = ChipView::cut(cam, pose, &img, [ip.x, ip.y], half, Some(a)) else {
-                continue;
-            };
-            points.push(ControlPoint {
-                key: None,
-                label: String::new(),
-                position: x,
-                sigma: [1.0; 3],
-                normal: Vector3::z(),
-                views: vec![view],
-            });
-        }
-        pyramids.insert(a, Pyramid::new(&img, 6, 16));
-    }
-    let store = ChipStore::from_points(Vector3::from(input.origin), points);
-    // Same epoch, same scene: a tie must correlate clearly and unambiguously, there is no
-    // resection behind it to catch a mismatch.
-    let tie_patch = super::chips::ChipMatchOptions {
-        matching: MatchOptions {
-            ncc_threshold: opts.tie_ncc_threshold,
-            max_ambiguity: 0.8,
-            ..opts.photo.patch.matching.clone()
-        },
-        template_half: opts.photo.patch.template_half.min(15),
-        ..opts.photo.patch.clone()
-    };
-    let sigma_floor = opts.photo.sigma_floor_px;
-    // Every oriented photo looks for the points of all the others.
-    let found: Vec<Vec<TieFind>> = oriented
-        .par_iter()
-        .filter_map(|&b| {
-            let pyr = pyramids.get(&b)?;
-            let cam = outcomes[b].camera.as_ref()?;
-            let pose = &outcomes[b].pose;
-            let (w, h) = cam.image_size();
-            let mut matcher = super::chips::ChipMatcher::new(cam, pyr, &store, &tie_patch);
-            let margin = opts.tie_window_px + opts.photo.patch.template_half as f64 + 1.0;
-            let mut out = Vec::new();
-            for (i, p) in store.points.iter().enumerate() {
-                if p.views[0].photo == Some(b) {
-                    continue;
-                }
-                let Ok(px) = geometry::project(cam, pose, &p.position) else {
-                    continue;
-                };
-                let px = px.pixel;
-                if px.x < margin
-                    || px.y < margin
-                    || px.x > w as f64 - margin
-                    || px.y > h as f64 - margin
-                {
-                    continue;
-                }
-                let pred = Prediction {
-                    pixel: px,
-                    covariance: nalgebra::Matrix2::identity(),
-                };
-                let patch = ControlPatch {
-                    id: i,
-                    position: p.position,
-                    covariance: Matrix3::zeros(),
-                };
-                use super::orient::PatchMatcher;
-                if let Some(mt) = matcher.find(&patch, pose, &pred, [opts.tie_window_px; 2]) {
-                    out.push((i, b, mt.pixel, mt.sigma_px.max(sigma_floor)));
-                }
-            }
-            Some(out)
-        })
-        .collect();
-    let obs = |n: usize, px: Vector2<f64>, s: f64| Observation {
-        photo: n as PhotoId + 1,
-        pixel: [px.x, px.y],
-        sigma_px: s,
-        provenance: "tie".into(),
-    };
-    let mut tracks: BTreeMap<usize, (Vector3<f64>, Vec<Observation>)> = BTreeMap::new();
-    for (i, b, px, s) in found.into_iter().flatten() {
-        let t = tracks.entry(i).or_insert_with(|| {
-            let p = &store.points[i];
-            let v = &p.views[0];
-            let src = v.photo.unwrap_or(0);
-            (
-                p.position,
-                vec![obs(src, Vector2::from(v.pixel), sigma_floor)],
-            )
-        });
-        t.1.push(obs(b, px, s));
-    }
-    tracks.into_values().collect()
-}
-
-/// A tie point found in a photo: (store point, photo, pixel, σ px).
-type TieFind = (usize, usize, Vector2<f64>, f64);
 
 /// Mean ground pixel (m) of a block's oriented photos over a DEM: flying height above the
 /// ground under the projection centre over the focal length in pixels.

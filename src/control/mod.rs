@@ -20,6 +20,7 @@ pub mod cloud;
 pub mod dcp;
 pub mod dcp_files;
 pub mod epoch;
+pub mod epoch_ties;
 pub mod existing;
 pub mod export;
 pub mod orient;

@@ -87,6 +87,9 @@ pub struct PhotoReport {
     pub relaxed: bool,
     /// Oriented in the second pass, from the epoch's own oriented photos.
     pub second_pass: bool,
+    /// Oriented through tie points with the epoch's oriented photos only (no control
+    /// patch of its own).
+    pub tie_pass: bool,
 }
 
 /// A film scan's fiducial interior orientation, as reported.
@@ -133,6 +136,7 @@ impl PhotoReport {
             matching: MatchStats::default(),
             relaxed: false,
             second_pass: false,
+            tie_pass: false,
         }
     }
 }
@@ -718,6 +722,7 @@ fn orient_with_camera(
             matching: matcher.stats.clone(),
             relaxed: false,
             second_pass: false,
+            tie_pass: false,
         },
         camera: Some(camera),
         pose: if oriented { o.pose } else { *prior },

@@ -124,6 +124,11 @@ pub fn epoch_report(
         gsd_m: result.gsd_m,
         photos_total: result.photos.len(),
         photos_oriented: result.photos.iter().filter(|p| p.oriented).count(),
+        photos_through_ties: result
+            .photos
+            .iter()
+            .filter(|p| p.oriented && p.tie_pass)
+            .count(),
         check_rmse_plan_m: f64::NAN,
         check_rmse_height_m: f64::NAN,
         check_max_m: f64::NAN,

@@ -64,6 +64,10 @@ pub struct EpochReport {
     pub gsd_m: f64,
     pub photos_total: usize,
     pub photos_oriented: usize,
+    /// Of the oriented photos, those oriented through tie points with the epoch's other
+    /// photos only (no control patch of their own).
+    #[serde(default)]
+    pub photos_through_ties: usize,
     #[serde(deserialize_with = "nan_if_null")]
     pub check_rmse_plan_m: f64,
     #[serde(deserialize_with = "nan_if_null")]
@@ -487,12 +491,17 @@ pub fn render_html(report: &Report) -> Result<String, String> {
     html.push_str("<h2>Accuracy through time</h2><table><tr><th>epoch</th><th>date</th><th>GSD (m)</th><th>photos oriented</th><th>check RMSE plan (m)</th><th>height (m)</th><th>plan (px)</th><th>height (px)</th><th>max (m)</th><th>σ0</th><th>image RMSE (px)</th><th>time (s)</th><th>controlled by</th></tr>");
     for e in &report.epochs {
         html.push_str(&format!(
-            "<tr><td>{}</td><td>{}</td><td>{}</td><td>{}/{}</td><td>{}</td><td>{}</td><td>{}</td><td>{}</td><td>{}</td><td>{}</td><td>{}</td><td>{}</td><td>{}</td></tr>",
+            "<tr><td>{}</td><td>{}</td><td>{}</td><td>{}/{}{}</td><td>{}</td><td>{}</td><td>{}</td><td>{}</td><td>{}</td><td>{}</td><td>{}</td><td>{}</td><td>{}</td></tr>",
             esc(&e.name),
             esc(&e.date),
             fmt(e.gsd_m, 2),
             e.photos_oriented,
             e.photos_total,
+            if e.photos_through_ties > 0 {
+                format!(" ({} through tie points)", e.photos_through_ties)
+            } else {
+                String::new()
+            },
             fmt(e.check_rmse_plan_m, 3),
             fmt(e.check_rmse_height_m, 3),
             fmt(e.check_rmse_plan_m / e.gsd_m, 2),

@@ -1,0 +1,423 @@
+//! Tie points of an archive epoch: Förstner points of its oriented photos, put on the DEM
+//! through their ray, each with a chip cut from its photo (seed 003: points where the
+//! image is textured, spread over the frame).
+//!
+//! They serve twice. [`epoch_ties`] ties the oriented photos to one another in the block
+//! adjustment (optional). [`tie_pass`] orients the photos that no control patch reached:
+//! a strip-end photo over changed ground, a photo beyond the control area. Its oriented
+//! neighbours show the same scene state, with the same film or sensor, so their points
+//! are matched in it (search windows from its navigation, the same NCC, LSM and
+//! resection as the control patches), and the block adjustment then holds it through
+//! those tie points, as aerial triangulation bridges a photo without control. A photo
+//! oriented that way can itself pass points on in the next round.
+
+use super::chips::{ChipMatchOptions, ChipStore, ChipView, ControlPoint, PointKey};
+use super::epoch::{EpochCamera, EpochInput};
+use super::orient::ControlPatch;
+use super::photo::{orient_photo, PhotoOptions, PhotoOrientation};
+use super::predict::Prediction;
+use crate::adjust::rays::{intersect_rays, Ray};
+use crate::block::{Observation, PhotoFailure, PhotoId, PosPrior};
+use crate::geometry::{self, Camera, Dem, Pose};
+use crate::matching::{forstner, ForstnerOptions, GreyImage, MatchOptions, Pyramid};
+use nalgebra::{Matrix3, Vector2, Vector3};
+use rayon::prelude::*;
+use std::collections::BTreeMap;
+
+/// A tie point's approximate block-local position and its observations (photo ids).
+pub type TieTrack = (Vector3<f64>, Vec<Observation>);
+
+/// At most this many tie points a side of a photo: a film scan of 5.5k pixels would
+/// otherwise give thousands of chips per photo at the frame camera's interval.
+const MAX_POINTS_PER_SIDE: f64 = 32.0;
+
+/// How far (m) a tie point's DEM height may be from the epoch's ground: its ray meets the
+/// DEM of the present, and the point may sit on a roof or tree of its own time.
+const TIE_HEIGHT_SIGMA_M: f64 = 2.0;
+
+/// How tie points are placed and matched: one per `cell_px` cell of the source photo,
+/// searched ±`window_px` around their prediction where the poses are known, accepted at
+/// `ncc_threshold`.
+#[derive(Debug, Clone, Copy)]
+pub(super) struct TieParams {
+    pub cell_px: f64,
+    pub window_px: f64,
+    pub ncc_threshold: f64,
+}
+
+/// Same epoch, same scene: a tie found where the poses predict it must correlate clearly
+/// and unambiguously, there is no resection behind it to catch a mismatch.
+fn tie_match_options(opts: &PhotoOptions, ties: &TieParams) -> ChipMatchOptions {
+    ChipMatchOptions {
+        matching: MatchOptions {
+            ncc_threshold: ties.ncc_threshold,
+            max_ambiguity: 0.8,
+            ..opts.patch.matching.clone()
+        },
+        template_half: opts.patch.template_half.min(15),
+        ..opts.patch.clone()
+    }
+}
+
+/// Förstner points of oriented photo `n` (one per cell of `cell` px, at most
+/// [`MAX_POINTS_PER_SIDE`] a side) on the DEM, each with a chip of half size `half`, that
+/// `keep` accepts; with the photo's image, `None` when it cannot be read.
+fn photo_points(
+    input: &EpochInput,
+    n: usize,
+    o: &PhotoOrientation,
+    dem: &Dem,
+    cell: f64,
+    half: usize,
+    keep: &(dyn Fn(&Vector3<f64>) -> bool + Sync),
+) -> Option<(GreyImage, Vec<ControlPoint>)> {
+    let cam = o.camera.as_ref()?;
+    let img = GreyImage::load(&input.photos[n].image).ok()?;
+    let pose = &o.pose;
+    let side = img.width.max(img.height) as f64;
+    let cell = cell.max(16.0).max(side / MAX_POINTS_PER_SIDE);
+    let gsd = ground_pixel(cam, pose, dem);
+    let fo = ForstnerOptions {
+        grid: (
+            ((img.width as f64 / cell).ceil() as usize).max(1),
+            ((img.height as f64 / cell).ceil() as usize).max(1),
+        ),
+        per_cell: 1,
+        border: half + 2,
+        ..ForstnerOptions::default()
+    };
+    let mut points = Vec::new();
+    for ip in forstner(&img, &fo) {
+        let Ok(ray) = geometry::back_project(cam, pose, [ip.x, ip.y]) else {
+            continue;
+        };
+        let Ok(x) = dem.intersect(&ray) else {
+            continue;
+        };
+        if !keep(&x) {
+            continue;
+        }
+        let Some(view) = ChipView::cut(cam, pose, &img, [ip.x, ip.y], half, Some(n)) else {
+            continue;
+        };
+        points.push(ControlPoint {
+            key: None,
+            label: format!("tie:{}:{}", input.photos[n].name, points.len()),
+            position: x,
+            sigma: [gsd, gsd, TIE_HEIGHT_SIGMA_M],
+            normal: Vector3::z(),
+            views: vec![view],
+        });
+    }
+    Some((img, points))
+}
+
+/// Ground pixel (m) of a photo: its height above the DEM under its centre over the
+/// focal length in pixels.
+fn ground_pixel(cam: &Camera, pose: &Pose, dem: &Dem) -> f64 {
+    let (z0, z1) = dem.z_range();
+    let g = dem
+        .height_at(pose.center.x, pose.center.y)
+        .unwrap_or(0.5 * (z0 + z1));
+    (pose.center.z - g).abs() / cam.focal_px()
+}
+
+fn observation(n: usize, px: Vector2<f64>, sigma_px: f64) -> Observation {
+    Observation {
+        photo: n as PhotoId + 1,
+        pixel: [px.x, px.y],
+        sigma_px,
+        provenance: "tie".into(),
+    }
+}
+
+/// Tie points among the oriented photos of the epoch: each photo's points predicted in
+/// every other oriented photo and matched there, ±`window_px` around the prediction,
+/// with the same alignment, NCC and LSM as the control patches (the chip is cut from the
+/// source photo). Points off the DEM (roofs, trees) are still true correspondences; the
+/// block adjustment intersects them anew.
+pub(super) fn epoch_ties(
+    input: &EpochInput,
+    outcomes: &[PhotoOrientation],
+    dem: &Dem,
+    opts: &PhotoOptions,
+    ties: &TieParams,
+) -> Vec<TieTrack> {
+    let oriented: Vec<usize> = (0..outcomes.len())
+        .filter(|&n| outcomes[n].report.oriented && outcomes[n].camera.is_some())
+        .collect();
+    if oriented.len() < 2 {
+        return Vec::new();
+    }
+    let half = opts.patch.template_half + 8;
+    let points: Vec<ControlPoint> = oriented
+        .par_iter()
+        .filter_map(|&a| photo_points(input, a, &outcomes[a], dem, ties.cell_px, half, &|_| true))
+        .flat_map(|(_, p)| p)
+        .collect();
+    let store = ChipStore::from_points(Vector3::from(input.origin), points);
+    let mut tracks: Vec<(usize, TieTrack)> = store
+        .points
+        .iter()
+        .enumerate()
+        .map(|(i, p)| (i, source_track(p, opts.sigma_floor_px)))
+        .collect();
+    extend_tracks(input, outcomes, &oriented, &store, &mut tracks, opts, ties);
+    tracks
+        .into_iter()
+        .map(|(_, t)| t)
+        .filter(|t| t.1.len() >= 2)
+        .collect()
+}
+
+/// Adds to each track (a point of `store` and its observations) its match in every photo
+/// of `photos` that does not observe it yet: predicted from the track's position through
+/// the photo's pose, searched ±`window_px`. One photo's image is in memory at a time per
+/// thread, so a film epoch's scans are never all held at once.
+fn extend_tracks(
+    input: &EpochInput,
+    outcomes: &[PhotoOrientation],
+    photos: &[usize],
+    store: &ChipStore,
+    tracks: &mut [(usize, TieTrack)],
+    opts: &PhotoOptions,
+    ties: &TieParams,
+) {
+    let tie_patch = tie_match_options(opts, ties);
+    let floor = opts.sigma_floor_px;
+    let margin = ties.window_px + opts.patch.template_half as f64 + 1.0;
+    // (track, photo) candidates: where the track's position falls inside the photo.
+    let predict = |b: usize, x: &Vector3<f64>| -> Option<Vector2<f64>> {
+        let cam = outcomes[b].camera.as_ref()?;
+        let (w, h) = cam.image_size();
+        let px = geometry::project(cam, &outcomes[b].pose, x).ok()?.pixel;
+        (px.x >= margin && px.y >= margin && px.x <= w as f64 - margin && px.y <= h as f64 - margin)
+            .then_some(px)
+    };
+    let found: Vec<(usize, usize, Vector2<f64>, f64)> = photos
+        .par_iter()
+        .flat_map_iter(|&b| {
+            let pid = b as PhotoId + 1;
+            let wanted: Vec<(usize, Vector2<f64>)> = tracks
+                .iter()
+                .enumerate()
+                .filter(|(_, (_, t))| t.1.iter().all(|o| o.photo != pid))
+                .filter_map(|(k, (_, t))| Some((k, predict(b, &t.0)?)))
+                .collect();
+            let mut out = Vec::new();
+            let (Some(cam), false) = (outcomes[b].camera.as_ref(), wanted.is_empty()) else {
+                return out;
+            };
+            let Ok(img) = GreyImage::load(&input.photos[b].image) else {
+                return out;
+            };
+            let pyr = Pyramid::new(&img, 6, 16);
+            drop(img);
+            let pose = &outcomes[b].pose;
+            let mut matcher = super::chips::ChipMatcher::new(cam, &pyr, store, &tie_patch);
+            for (k, px) in wanted {
+                let (i, t) = &tracks[k];
+                let pred = Prediction {
+                    pixel: px,
+                    covariance: nalgebra::Matrix2::identity(),
+                };
+                let patch = ControlPatch {
+                    id: *i,
+                    position: t.0,
+                    covariance: Matrix3::zeros(),
+                };
+                use super::orient::PatchMatcher;
+                if let Some(mt) = matcher.find(&patch, pose, &pred, [ties.window_px; 2]) {
+                    out.push((k, b, mt.pixel, mt.sigma_px.max(floor)));
+                }
+            }
+            out
+        })
+        .collect();
+    for (k, b, px, s) in found {
+        tracks[k].1 .1.push(observation(b, px, s));
+    }
+}
+
+/// A track holding a tie point's source observation: the Förstner point in the photo its
+/// chip was cut from.
+fn source_track(p: &ControlPoint, sigma_px: f64) -> TieTrack {
+    let v = &p.views[0];
+    (
+        p.position,
+        vec![observation(
+            v.photo.unwrap_or(0),
+            Vector2::from(v.pixel),
+            sigma_px,
+        )],
+    )
+}
+
+/// The least-squares intersection of a track's rays through the photos' current poses.
+fn intersect_track(outcomes: &[PhotoOrientation], obs: &[Observation]) -> Option<Vector3<f64>> {
+    let rays: Vec<Ray> = obs
+        .iter()
+        .filter_map(|o| {
+            let n = (o.photo as usize).checked_sub(1)?;
+            let out = outcomes.get(n)?;
+            Some(Ray {
+                camera: out.camera.as_ref()?,
+                pose: out.pose,
+                pixel: o.pixel,
+                sigma_px: o.sigma_px,
+            })
+        })
+        .collect();
+    if rays.len() < 2 {
+        return None;
+    }
+    intersect_rays(&rays.iter().collect::<Vec<_>>())
+}
+
+/// Whether a photo's failure is one that points of its neighbours can help: the photo was
+/// read, has a camera and navigation, and only its control was missing or weak.
+fn ties_can_help(reason: Option<&PhotoFailure>) -> bool {
+    match reason {
+        None => false,
+        Some(PhotoFailure::SecondPass { second, .. }) => ties_can_help(Some(second)),
+        Some(
+            PhotoFailure::NoNavigation
+            | PhotoFailure::Image { .. }
+            | PhotoFailure::ImageSize { .. }
+            | PhotoFailure::InteriorOrientation { .. }
+            | PhotoFailure::Chip { .. }
+            | PhotoFailure::TiePass { .. },
+        ) => false,
+        Some(_) => true,
+    }
+}
+
+/// The tie pass: rounds in which every photo still without an orientation that ties can
+/// help is oriented from the tie points of the epoch's oriented photos that fall in its
+/// approximate footprint, until a round orients none. A photo oriented so gets
+/// `tie_pass` in its report and no control matches; the returned tracks (the source
+/// photo's point and the new photo's match) are its observations for the adjustment. A
+/// photo that fails keeps its reason, with what the tie pass found added.
+pub(super) fn tie_pass(
+    input: &EpochInput,
+    priors: &BTreeMap<String, PosPrior>,
+    dem: &Dem,
+    opts: &PhotoOptions,
+    ties: &TieParams,
+    outcomes: &mut [PhotoOrientation],
+    keyed: &mut [Vec<(PointKey, Vector2<f64>, f64)>],
+) -> Vec<TieTrack> {
+    let half = opts.patch.template_half + 8;
+    let floor = opts.sigma_floor_px;
+    let mut tracks = Vec::new();
+    let mut tried: BTreeMap<usize, PhotoFailure> = BTreeMap::new();
+    loop {
+        // The photos waiting, with the camera and approximate pose their footprint is
+        // predicted with (a film scan's camera comes from its interior orientation).
+        let waiting: Vec<(usize, Camera, Pose)> = (0..outcomes.len())
+            .filter(|&i| ties_can_help(outcomes[i].report.reason.as_ref()))
+            .filter_map(|i| {
+                let prior = priors.get(&input.photos[i].name)?;
+                let cam = match (&outcomes[i].camera, &input.camera) {
+                    (Some(c), _) => c.clone(),
+                    (None, EpochCamera::Frame(f)) => Camera::Frame(f.clone()),
+                    (None, EpochCamera::Film(_)) => return None,
+                };
+                Some((i, cam, prior.pose()))
+            })
+            .collect();
+        let sources: Vec<usize> = (0..outcomes.len())
+            .filter(|&n| outcomes[n].report.oriented && outcomes[n].camera.is_some())
+            .collect();
+        if waiting.is_empty() || sources.is_empty() {
+            break;
+        }
+        // A point is worth a chip when it falls in some waiting photo's approximate
+        // footprint (its navigation is off by its σ: the frame is widened by a tenth).
+        let keep = |x: &Vector3<f64>| {
+            waiting.iter().any(|(_, cam, pose)| {
+                let (w, h) = cam.image_size();
+                let (mx, my) = (0.1 * w as f64, 0.1 * h as f64);
+                geometry::project(cam, pose, x).is_ok_and(|p| {
+                    p.pixel.x > -mx
+                        && p.pixel.y > -my
+                        && p.pixel.x < w as f64 + mx
+                        && p.pixel.y < h as f64 + my
+                })
+            })
+        };
+        let points: Vec<ControlPoint> = sources
+            .par_iter()
+            .filter_map(|&n| photo_points(input, n, &outcomes[n], dem, ties.cell_px, half, &keep))
+            .flat_map(|(_, p)| p)
+            .collect();
+        if points.is_empty() {
+            break;
+        }
+        let store = ChipStore::from_points(Vector3::from(input.origin), points);
+        let results: Vec<(usize, PhotoOrientation)> = waiting
+            .par_iter()
+            .map(|(i, _, _)| {
+                let ph = &input.photos[*i];
+                let o = orient_photo(ph, &input.camera, priors.get(&ph.name), &store, dem, opts);
+                (*i, o)
+            })
+            .collect();
+        let mut round: BTreeMap<usize, TieTrack> = BTreeMap::new();
+        let mut oriented_any = false;
+        for (i, mut o) in results {
+            if !o.report.oriented {
+                if let Some(r) = o.report.reason.take() {
+                    tried.insert(i, r);
+                }
+                continue;
+            }
+            oriented_any = true;
+            for (j, px, s) in &o.matches {
+                let t = round
+                    .entry(*j)
+                    .or_insert_with(|| source_track(&store.points[*j], floor));
+                t.1.push(observation(i, *px, s.max(floor)));
+            }
+            tracing::info!(
+                epoch = input.name,
+                photo = input.photos[i].name,
+                ties = o.matches.len(),
+                "oriented through tie points with the epoch's oriented photos"
+            );
+            o.report.tie_pass = true;
+            o.report.control_matches = 0;
+            keyed[i].clear();
+            outcomes[i] = o;
+        }
+        // A track of the source and the new photo alone has two rays: they fix the new
+        // photo's relative orientation to the source, but not its distance along the
+        // base, which only the point's position gives. Every other oriented photo that
+        // sees the point adds its ray, from where the two rays put it.
+        let mut round: Vec<(usize, TieTrack)> = round
+            .into_iter()
+            .map(|(j, (x, obs))| (j, (intersect_track(outcomes, &obs).unwrap_or(x), obs)))
+            .collect();
+        let oriented: Vec<usize> = (0..outcomes.len())
+            .filter(|&n| outcomes[n].report.oriented && outcomes[n].camera.is_some())
+            .collect();
+        extend_tracks(input, outcomes, &oriented, &store, &mut round, opts, ties);
+        tracks.extend(round.into_iter().map(|(_, t)| t));
+        if !oriented_any {
+            break;
+        }
+    }
+    for (i, ties) in tried {
+        let o = &mut outcomes[i];
+        if o.report.oriented {
+            continue;
+        }
+        if let Some(before) = o.report.reason.take() {
+            o.report.reason = Some(PhotoFailure::TiePass {
+                before: Box::new(before),
+                ties: Box::new(ties),
+            });
+        }
+    }
+    tracks
+}
