@@ -194,10 +194,11 @@ fn film_epoch_with_rough_pos_is_oriented_to_a_ground_pixel() {
         b.photos.len(),
         o.result.photos.iter().filter(|p| p.oriented).count()
     );
-    // DCP control points only (image ties are off by default); the points seen in both
-    // scans tie them.
-    assert!(b.points.values().all(|p| p.kind == PointKind::Control));
-    assert!(b.points.values().any(|p| p.observations.len() >= 2));
+    // DCP control points, and image tie points among the scans, each seen at least twice.
+    assert!(b.points.values().any(|p| p.kind == PointKind::Control));
+    let ties = b.points.values().filter(|p| p.kind == PointKind::Tie);
+    assert!(ties.clone().count() >= 50);
+    assert!(ties.clone().all(|p| p.observations.len() >= 2));
     let rep = o.result.adjustment.as_ref().unwrap();
     assert!(rep.sigma0 < 3.0, "σ0 {}", rep.sigma0);
 }
@@ -217,7 +218,7 @@ fn film_epoch_without_pos_is_oriented_from_strip_end_points() {
 }
 
 #[test]
-fn digital_archive_epoch_is_oriented_with_self_calibration() {
+fn digital_archive_epoch_is_oriented_with_self_calibration_and_ties() {
     let s = rough();
     let o = orient(
         s,
@@ -226,6 +227,22 @@ fn digital_archive_epoch_is_oriented_with_self_calibration() {
         &ArchiveOptions::default(),
     );
     assert_accuracy(&o, "digital_2012, POS 10 m / 3°");
+    // Image tie points among the photos join the block, each joining different photos.
+    let ties: Vec<_> = o
+        .result
+        .block
+        .points
+        .values()
+        .filter(|p| p.kind == PointKind::Tie && p.observations.len() >= 2)
+        .collect();
+    println!("digital_2012: {} tie points", ties.len());
+    assert!(ties.len() >= 50, "{} tie points", ties.len());
+    for t in &ties {
+        let mut ph: Vec<u32> = t.observations.iter().map(|o| o.photo).collect();
+        ph.sort_unstable();
+        ph.dedup();
+        assert_eq!(ph.len(), t.observations.len(), "{t:?}");
+    }
 }
 
 #[test]
@@ -335,33 +352,6 @@ fn a_chip_damaged_after_opening_stops_the_orientation_with_a_clear_error() {
         .unwrap_err()
         .to_string()
         .contains("checksum mismatch"));
-}
-
-#[test]
-fn image_tie_points_join_the_digital_block_when_enabled() {
-    let s = rough();
-    let opts = ArchiveOptions {
-        ties: true,
-        ..ArchiveOptions::default()
-    };
-    let o = orient(s, "digital_2012", std::slice::from_ref(&s.reference), &opts);
-    let ties: Vec<_> = o
-        .result
-        .block
-        .points
-        .values()
-        .filter(|p| p.kind == PointKind::Tie && p.observations.len() >= 2)
-        .collect();
-    println!("digital_2012 with image ties: {} tie points", ties.len());
-    assert!(ties.len() >= 50, "{} tie points", ties.len());
-    // Each tie joins different photos.
-    for t in &ties {
-        let mut ph: Vec<u32> = t.observations.iter().map(|o| o.photo).collect();
-        ph.sort_unstable();
-        ph.dedup();
-        assert_eq!(ph.len(), t.observations.len(), "{t:?}");
-    }
-    assert_accuracy(&o, "digital_2012 with image ties");
 }
 
 #[test]

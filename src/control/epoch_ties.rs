@@ -19,6 +19,7 @@ use super::predict::Prediction;
 use crate::adjust::rays::{intersect_rays, Ray};
 use crate::block::{Observation, PhotoFailure, PhotoId, PosPrior};
 use crate::geometry::{self, Camera, Dem, Pose};
+use crate::matching::pyramid::downsample;
 use crate::matching::{forstner, ForstnerOptions, GreyImage, MatchOptions, Pyramid};
 use nalgebra::{Matrix3, Vector2, Vector3};
 use rayon::prelude::*;
@@ -59,9 +60,17 @@ fn tie_match_options(opts: &PhotoOptions, ties: &TieParams) -> ChipMatchOptions 
     }
 }
 
+/// Förstner's working arrays take about 48 bytes a pixel: on a 5.5k-pixel film scan at
+/// full resolution that is 1.5 GB a photo, and the small block's film epoch peaked at
+/// 4.5 GB with two threads. Interest is found on the first pyramid level of at most this
+/// many pixels (a film scan's level 2, a frame photo's level 0). A tie's observation in
+/// its source photo is the centre of its chip, matched by LSM in the other photos, so the
+/// coarser level's precision does not enter the adjustment.
+const INTEREST_MAX_PIXELS: usize = 4_000_000;
+
 /// Förstner points of oriented photo `n` (one per cell of `cell` px, at most
 /// [`MAX_POINTS_PER_SIDE`] a side) on the DEM, each with a chip of half size `half`, that
-/// `keep` accepts; with the photo's image, `None` when it cannot be read.
+/// `keep` accepts; `None` when the photo has no camera or its image cannot be read.
 fn photo_points(
     input: &EpochInput,
     n: usize,
@@ -70,25 +79,33 @@ fn photo_points(
     cell: f64,
     half: usize,
     keep: &(dyn Fn(&Vector3<f64>) -> bool + Sync),
-) -> Option<(GreyImage, Vec<ControlPoint>)> {
+) -> Option<Vec<ControlPoint>> {
     let cam = o.camera.as_ref()?;
     let img = GreyImage::load(&input.photos[n].image).ok()?;
     let pose = &o.pose;
     let side = img.width.max(img.height) as f64;
     let cell = cell.max(16.0).max(side / MAX_POINTS_PER_SIDE);
     let gsd = ground_pixel(cam, pose, dem);
+    let mut interest: Option<GreyImage> = None;
+    let mut f = 1.0;
+    while interest.as_ref().unwrap_or(&img).data.len() > INTEREST_MAX_PIXELS {
+        interest = Some(downsample(interest.as_ref().unwrap_or(&img)));
+        f *= 2.0;
+    }
     let fo = ForstnerOptions {
         grid: (
             ((img.width as f64 / cell).ceil() as usize).max(1),
             ((img.height as f64 / cell).ceil() as usize).max(1),
         ),
         per_cell: 1,
-        border: half + 2,
+        border: ((half + 2) as f64 / f).ceil() as usize,
         ..ForstnerOptions::default()
     };
     let mut points = Vec::new();
-    for ip in forstner(&img, &fo) {
-        let Ok(ray) = geometry::back_project(cam, pose, [ip.x, ip.y]) else {
+    for ip in forstner(interest.as_ref().unwrap_or(&img), &fo) {
+        // Level-L pixel i is centred on level-0 pixels 2^L·i … 2^L·i + 2^L − 1.
+        let px = [(ip.x + 0.5) * f - 0.5, (ip.y + 0.5) * f - 0.5];
+        let Ok(ray) = geometry::back_project(cam, pose, px) else {
             continue;
         };
         let Ok(x) = dem.intersect(&ray) else {
@@ -97,7 +114,7 @@ fn photo_points(
         if !keep(&x) {
             continue;
         }
-        let Some(view) = ChipView::cut(cam, pose, &img, [ip.x, ip.y], half, Some(n)) else {
+        let Some(view) = ChipView::cut(cam, pose, &img, px, half, Some(n)) else {
             continue;
         };
         points.push(ControlPoint {
@@ -109,7 +126,7 @@ fn photo_points(
             views: vec![view],
         });
     }
-    Some((img, points))
+    Some(points)
 }
 
 /// Ground pixel (m) of a photo: its height above the DEM under its centre over the
@@ -153,7 +170,7 @@ pub(super) fn epoch_ties(
     let points: Vec<ControlPoint> = oriented
         .par_iter()
         .filter_map(|&a| photo_points(input, a, &outcomes[a], dem, ties.cell_px, half, &|_| true))
-        .flat_map(|(_, p)| p)
+        .flatten()
         .collect();
     let store = ChipStore::from_points(Vector3::from(input.origin), points);
     let mut tracks: Vec<(usize, TieTrack)> = store
@@ -349,7 +366,7 @@ pub(super) fn tie_pass(
         let points: Vec<ControlPoint> = sources
             .par_iter()
             .filter_map(|&n| photo_points(input, n, &outcomes[n], dem, ties.cell_px, half, &keep))
-            .flat_map(|(_, p)| p)
+            .flatten()
             .collect();
         if points.is_empty() {
             break;
