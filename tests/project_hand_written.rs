@@ -10,6 +10,7 @@
 
 use cloudcontrol::formats::crs::{Crs, Transformer};
 use cloudcontrol::geometry::opk_from_matrix;
+use cloudcontrol::pipeline::products::LIDAR_DEM;
 use cloudcontrol::synth::{self, PosQuality, Preset, SynthConfig};
 use serde_json::Value;
 use std::fmt::Write as _;
@@ -191,7 +192,7 @@ chip_size_px = 193
 colmap = true
 blocks_exchange = true
 orthophoto = false
-dem = false
+dem = true
 html_report = false
 "#
     );
@@ -275,18 +276,12 @@ fn hand_written_project_runs_end_to_end_and_every_entry_orients_alike() {
         assert!(d.iter().all(|a| a.abs() < 0.5), "{}: {d:?}", ph.name);
     }
 
-    // The same digital epoch through `cloudcontrol orient` with the run's reference DCPs:
-    // the same orientation (the one epoch builder and the same options).
-    let dem = tmp.join("dem.tif");
-    json_of(
-        &Command::new(exe())
-            .args(["--json", "lidar", "dem", "--lidar"])
-            .arg(pr.root.join("lidar"))
-            .args(["--crs", "EPSG:4547", "--out"])
-            .arg(&dem)
-            .output()
-            .unwrap(),
-    );
+    // The same digital epoch through `cloudcontrol orient` with the run's reference DCPs
+    // over the run's own ground (its `lidar_dem.tif`): the same orientation (the one epoch
+    // builder and the same options). Tie points are put on the DEM, so the ground must be
+    // the run's: over a DEM gridded by `lidar dem` from the cleaned tiles, a few tie
+    // points differ and the poses were up to 0.018 m and 1.3e-4 rad apart.
+    let dem = out.join("outputs-digital_2012").join(LIDAR_DEM);
     let pkg = out.join("dcp-reference_2024/package");
     let oout = tmp.join("orient");
     let g = pr.gen.join("epochs/digital_2012");
@@ -322,8 +317,8 @@ fn hand_written_project_runs_end_to_end_and_every_entry_orients_alike() {
         let da =
             (p.pose.rotation.transpose() * q.pose.rotation - nalgebra::Matrix3::identity()).norm();
         println!("run vs orient {}: {dc:.4} m, {da:.2e} rad", p.name);
-        // The DEMs differ (cleaned vs raw tiles): footprints only, hence a small tolerance.
-        assert!(dc < 0.05 * gsd && da < 1e-4, "{}: {dc} m, {da} rad", p.name);
+        // The same inputs give the same poses (the DEM's float32 heights are exact).
+        assert!(dc < 1e-6 * gsd && da < 1e-9, "{}: {dc} m, {da} rad", p.name);
         compared += 1;
     }
     assert!(compared >= 1);
