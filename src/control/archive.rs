@@ -516,10 +516,19 @@ fn second_pass(
     }
 }
 
+/// Ground pixel (m) of a photo: its height above the DEM under its centre (the DEM's
+/// middle height where it has none) over the focal length in pixels.
+pub(crate) fn ground_pixel(cam: &Camera, pose: &crate::geometry::Pose, dem: &Dem) -> f64 {
+    let (z0, z1) = dem.z_range();
+    let g = dem
+        .height_at(pose.center.x, pose.center.y)
+        .unwrap_or(0.5 * (z0 + z1));
+    (pose.center.z - g).abs() / cam.focal_px()
+}
+
 /// Mean ground pixel (m) of a block's oriented photos over a DEM: flying height above the
 /// ground under the projection centre over the focal length in pixels.
 pub fn mean_gsd(block: &Block, dem: &Dem) -> f64 {
-    let (z0, z1) = dem.z_range();
     // The oriented photos' poses, or the approximate ones when none could be oriented
     // (the ground pixel is the flight's, known to a few percent from its navigation).
     let any_oriented = block.photos.values().any(|p| p.is_oriented());
@@ -528,11 +537,11 @@ pub fn mean_gsd(block: &Block, dem: &Dem) -> f64 {
         .values()
         .filter(|p| p.is_oriented() || !any_oriented)
         .filter_map(|p| {
-            let cam = &block.cameras.get(&p.camera)?.model;
-            let g = dem
-                .height_at(p.pose.center.x, p.pose.center.y)
-                .unwrap_or(0.5 * (z0 + z1));
-            Some((p.pose.center.z - g).abs() / cam.focal_px())
+            Some(ground_pixel(
+                &block.cameras.get(&p.camera)?.model,
+                &p.pose,
+                dem,
+            ))
         })
         .collect();
     if v.is_empty() {

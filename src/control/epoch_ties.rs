@@ -11,6 +11,7 @@
 //! those tie points, as aerial triangulation bridges a photo without control. A photo
 //! oriented that way can itself pass points on in the next round.
 
+use super::archive::ground_pixel;
 use super::chips::{ChipMatchOptions, ChipStore, ChipView, ControlPoint, PointKey};
 use super::epoch::{EpochCamera, EpochInput};
 use super::orient::ControlPatch;
@@ -127,16 +128,6 @@ fn photo_points(
         });
     }
     Some(points)
-}
-
-/// Ground pixel (m) of a photo: its height above the DEM under its centre over the
-/// focal length in pixels.
-fn ground_pixel(cam: &Camera, pose: &Pose, dem: &Dem) -> f64 {
-    let (z0, z1) = dem.z_range();
-    let g = dem
-        .height_at(pose.center.x, pose.center.y)
-        .unwrap_or(0.5 * (z0 + z1));
-    (pose.center.z - g).abs() / cam.focal_px()
 }
 
 fn observation(n: usize, px: Vector2<f64>, sigma_px: f64) -> Observation {
