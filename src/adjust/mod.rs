@@ -271,7 +271,7 @@ pub struct AdjustReport {
     /// The gross-error test used, e.g. "baarda_data_snooping alpha=0.001 sigma=a_priori",
     /// "baarda_data_snooping alpha=0.001 sigma=first_round 1.83" (the a-priori image σ was
     /// too optimistic: the test used the first solution's robust σ0, fixed for all rounds),
-    /// "threshold k=3 sigma=robust_sigma0" or "none"; ", control sigma x4.2" when the
+    /// "threshold k=3 sigma=max(robust_sigma0, 1)" or "none"; ", control sigma x4.2" when the
     /// control group's σ were scaled (see `control_sigma_scale`); ", final sweep n" when
     /// the rounds ran out and n remaining exceedances were rejected at once.
     #[serde(default)]

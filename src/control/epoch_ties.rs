@@ -17,7 +17,7 @@ use super::epoch::{EpochCamera, EpochInput};
 use super::orient::ControlPatch;
 use super::photo::{orient_photo, PhotoOptions, PhotoOrientation};
 use super::predict::Prediction;
-use crate::adjust::rays::{intersect_rays, Ray};
+use crate::adjust::rays::{intersect_rays, intersect_robust, intersection_cofactor, Ray};
 use crate::block::{Observation, PhotoFailure, PhotoId, PosPrior};
 use crate::geometry::{self, Camera, Dem, Pose};
 use crate::matching::pyramid::downsample;
@@ -28,6 +28,9 @@ use std::collections::BTreeMap;
 
 /// A tie point's approximate block-local position and its observations (photo ids).
 pub type TieTrack = (Vector3<f64>, Vec<Observation>);
+
+/// Where a track is searched in a photo: the predicted pixel and the window's half size.
+type Search = (Vector2<f64>, [f64; 2]);
 
 /// At most this many tie points a side of a photo: a film scan of 5.5k pixels would
 /// otherwise give thousands of chips per photo at the frame camera's interval.
@@ -69,9 +72,54 @@ fn tie_match_options(opts: &PhotoOptions, ties: &TieParams) -> ChipMatchOptions 
 /// coarser level's precision does not enter the adjustment.
 const INTEREST_MAX_PIXELS: usize = 4_000_000;
 
+/// The points of one photo: those whose ray meets the DEM, placed there, and those
+/// beyond it, placed on the middle of the [`Band`] until other rays intersect them.
+#[derive(Default)]
+struct PhotoPoints {
+    on_dem: Vec<ControlPoint>,
+    beyond: Vec<ControlPoint>,
+}
+
+/// The heights a tie point beyond the DEM is searched over. The DEM of the present is
+/// the only ground known; the terrain beyond it is taken to lie within its height range
+/// widened by half that range either side (at least [`BAND_MIN_HALF_M`]): a film block of
+/// kilometres reaches far beyond a LiDAR survey of a few hundred metres, over the same
+/// landscape.
+#[derive(Debug, Clone, Copy)]
+struct Band {
+    lo: f64,
+    hi: f64,
+}
+
+/// Half the height band beyond the DEM at least (m): a flat DEM says little about the
+/// hills a kilometre away.
+const BAND_MIN_HALF_M: f64 = 10.0;
+
+impl Band {
+    fn of(dem: &Dem) -> Self {
+        let (lo, hi) = dem.z_range();
+        let half = (hi - lo).max(2.0 * BAND_MIN_HALF_M);
+        let mid = 0.5 * (lo + hi);
+        Self {
+            lo: mid - half,
+            hi: mid + half,
+        }
+    }
+
+    fn mid(&self) -> f64 {
+        0.5 * (self.lo + self.hi)
+    }
+
+    /// Where a ray meets the horizontal plane at height `z`, if in front of its origin.
+    fn at(ray: &geometry::Ray, z: f64) -> Option<Vector3<f64>> {
+        let t = (z - ray.origin.z) / ray.direction.z;
+        (t.is_finite() && t > 0.0).then(|| ray.at(t))
+    }
+}
+
 /// Förstner points of oriented photo `n` (one per cell of `cell` px, at most
-/// [`MAX_POINTS_PER_SIDE`] a side) on the DEM, each with a chip of half size `half`, that
-/// `keep` accepts; `None` when the photo has no camera or its image cannot be read.
+/// [`MAX_POINTS_PER_SIDE`] a side), each with a chip of half size `half`, that `keep`
+/// accepts; `None` when the photo has no camera or its image cannot be read.
 fn photo_points(
     input: &EpochInput,
     n: usize,
@@ -80,7 +128,7 @@ fn photo_points(
     cell: f64,
     half: usize,
     keep: &(dyn Fn(&Vector3<f64>) -> bool + Sync),
-) -> Option<Vec<ControlPoint>> {
+) -> Option<PhotoPoints> {
     let cam = o.camera.as_ref()?;
     let img = GreyImage::load(&input.photos[n].image).ok()?;
     let pose = &o.pose;
@@ -102,15 +150,22 @@ fn photo_points(
         border: ((half + 2) as f64 / f).ceil() as usize,
         ..ForstnerOptions::default()
     };
-    let mut points = Vec::new();
+    let band = Band::of(dem);
+    let mut points = PhotoPoints::default();
     for ip in forstner(interest.as_ref().unwrap_or(&img), &fo) {
         // Level-L pixel i is centred on level-0 pixels 2^L·i … 2^L·i + 2^L − 1.
         let px = [(ip.x + 0.5) * f - 0.5, (ip.y + 0.5) * f - 0.5];
         let Ok(ray) = geometry::back_project(cam, pose, px) else {
             continue;
         };
-        let Ok(x) = dem.intersect(&ray) else {
-            continue;
+        let (x, on_dem) = match dem.intersect(&ray) {
+            Ok(x) => (x, true),
+            Err(_) => match Band::at(&ray, band.mid()) {
+                // Beyond the DEM only: a ray that misses it inside its extent is not
+                // guessed at.
+                Some(x) if dem.height_at(x.x, x.y).is_none() => (x, false),
+                _ => continue,
+            },
         };
         if !keep(&x) {
             continue;
@@ -118,17 +173,143 @@ fn photo_points(
         let Some(view) = ChipView::cut(cam, pose, &img, px, half, Some(n)) else {
             continue;
         };
-        points.push(ControlPoint {
+        let k = points.on_dem.len() + points.beyond.len();
+        let p = ControlPoint {
             key: None,
-            label: format!("tie:{}:{}", input.photos[n].name, points.len()),
+            label: format!("tie:{}:{}", input.photos[n].name, k),
             position: x,
             sigma: [gsd, gsd, TIE_HEIGHT_SIGMA_M],
             normal: Vector3::z(),
             views: vec![view],
-        });
+        };
+        if on_dem {
+            points.on_dem.push(p);
+        } else {
+            points.beyond.push(ControlPoint {
+                sigma: [gsd, gsd, 0.5 * (band.hi - band.lo)],
+                ..p
+            });
+        }
     }
     Some(points)
 }
+
+/// Tie points beyond the DEM, intersected: each point is searched in the other oriented
+/// `photos` along its ray between the band's heights (the window spans the parallax of
+/// the band), and kept where at least two rays agree, at their intersection with the σ
+/// the rays give. These are the points a photo beyond the control is oriented from: in a
+/// strip, the triple overlap of two oriented photos and the next; across strips, the side
+/// lap seen by two photos of the oriented strip.
+fn intersect_beyond(
+    input: &EpochInput,
+    outcomes: &[PhotoOrientation],
+    photos: &[usize],
+    points: Vec<ControlPoint>,
+    band: Band,
+    opts: &PhotoOptions,
+    ties: &TieParams,
+) -> Vec<(ControlPoint, TieTrack)> {
+    if points.is_empty() {
+        return Vec::new();
+    }
+    let floor = opts.sigma_floor_px;
+    let mut store = ChipStore::from_points(Vector3::from(input.origin), points);
+    let mut tracks: Vec<(usize, TieTrack)> = store
+        .points
+        .iter()
+        .enumerate()
+        .map(|(i, p)| (i, source_track(p, floor)))
+        .collect();
+    extend_tracks(
+        input,
+        outcomes,
+        photos,
+        &store,
+        &mut tracks,
+        opts,
+        ties,
+        Some(band),
+    );
+    let mut points = std::mem::take(&mut store.points);
+    tracks
+        .into_iter()
+        .filter(|(_, t)| t.1.len() >= 2)
+        .filter_map(|(i, (_, obs))| {
+            let (x, obs, cof) = intersect_consistent(outcomes, obs)?;
+            if !(band.lo..=band.hi).contains(&x.z) {
+                return None;
+            }
+            let mut p = std::mem::replace(&mut points[i], placeholder());
+            let gsd = p.sigma[0];
+            p.position = x;
+            p.sigma = [0, 1, 2].map(|k| cof[(k, k)].max(0.0).sqrt().max(gsd));
+            Some((p, (x, obs)))
+        })
+        .collect()
+}
+
+/// A point taken out of a store's vector (never read).
+fn placeholder() -> ControlPoint {
+    ControlPoint {
+        key: None,
+        label: String::new(),
+        position: Vector3::zeros(),
+        sigma: [0.0; 3],
+        normal: Vector3::z(),
+        views: Vec::new(),
+    }
+}
+
+/// The consistent rays of a track beyond the DEM: its robust intersection (each ray at
+/// least [`CONSISTENCY_PX`] σ, since the poses are still single resections), the source
+/// ray among the inliers, with the point's covariance (m²) from those rays and σ.
+fn intersect_consistent(
+    outcomes: &[PhotoOrientation],
+    obs: Vec<Observation>,
+) -> Option<(Vector3<f64>, Vec<Observation>, Matrix3<f64>)> {
+    let rays: Vec<Ray> = obs
+        .iter()
+        .filter_map(|o| {
+            let out = outcomes.get((o.photo as usize).checked_sub(1)?)?;
+            Some(Ray {
+                camera: out.camera.as_ref()?,
+                pose: out.pose,
+                pixel: o.pixel,
+                sigma_px: o.sigma_px.max(CONSISTENCY_PX),
+            })
+        })
+        .collect();
+    if rays.len() != obs.len() {
+        return None;
+    }
+    let r = intersect_robust(&rays, CHI2_2_999, 0)?;
+    if !r.inliers[0] {
+        return None;
+    }
+    let kept: Vec<Ray> = rays
+        .iter()
+        .zip(&r.inliers)
+        .filter(|(_, &ok)| ok)
+        .map(|(ray, _)| *ray)
+        .collect();
+    let refs: Vec<&Ray> = kept.iter().collect();
+    let cof = intersection_cofactor(&refs, &r.position)?;
+    let obs = obs
+        .into_iter()
+        .zip(&r.inliers)
+        .filter(|(_, &ok)| ok)
+        .map(|(o, _)| o)
+        .collect();
+    Some((r.position, obs, cof))
+}
+
+/// The σ (px) a ray of a tie beyond the DEM is at least given when its consistency with
+/// the others is tested: the poses are the photos' own resections, not yet adjusted
+/// together, and disagree by a fraction of a pixel where LSM measures to a tenth.
+const CONSISTENCY_PX: f64 = 1.0;
+
+/// √χ²₂(0.999): the normalised residual a consistent ray stays below.
+const CHI2_2_999: f64 = 3.72;
 
 fn observation(n: usize, px: Vector2<f64>, sigma_px: f64) -> Observation {
     Observation {
@@ -143,7 +324,8 @@ fn observation(n: usize, px: Vector2<f64>, sigma_px: f64) -> Observation {
 /// every other oriented photo and matched there, ±`window_px` around the prediction,
 /// with the same alignment, NCC and LSM as the control patches (the chip is cut from the
 /// source photo). Points off the DEM (roofs, trees) are still true correspondences; the
-/// block adjustment intersects them anew.
+/// block adjustment intersects them anew. Points beyond the DEM are searched along their
+/// ray ([`intersect_beyond`]): they tie the photos beyond the control to one another.
 pub(super) fn epoch_ties(
     input: &EpochInput,
     outcomes: &[PhotoOrientation],
@@ -158,30 +340,65 @@ pub(super) fn epoch_ties(
         return Vec::new();
     }
     let half = opts.patch.template_half + 8;
-    let points: Vec<ControlPoint> = oriented
-        .par_iter()
-        .filter_map(|&a| photo_points(input, a, &outcomes[a], dem, ties.cell_px, half, &|_| true))
-        .flatten()
-        .collect();
-    let store = ChipStore::from_points(Vector3::from(input.origin), points);
+    let (on_dem, beyond) = points_of(input, outcomes, &oriented, dem, ties, half, &|_| true);
+    let store = ChipStore::from_points(Vector3::from(input.origin), on_dem);
     let mut tracks: Vec<(usize, TieTrack)> = store
         .points
         .iter()
         .enumerate()
         .map(|(i, p)| (i, source_track(p, opts.sigma_floor_px)))
         .collect();
-    extend_tracks(input, outcomes, &oriented, &store, &mut tracks, opts, ties);
+    extend_tracks(
+        input,
+        outcomes,
+        &oriented,
+        &store,
+        &mut tracks,
+        opts,
+        ties,
+        None,
+    );
+    let band = Band::of(dem);
+    let beyond = intersect_beyond(input, outcomes, &oriented, beyond, band, opts, ties);
     tracks
         .into_iter()
         .map(|(_, t)| t)
         .filter(|t| t.1.len() >= 2)
+        .chain(beyond.into_iter().map(|(_, t)| t))
         .collect()
+}
+
+/// The points of photos `photos` that `keep` accepts (on the DEM, beyond it), read a
+/// photo at a time per thread.
+fn points_of(
+    input: &EpochInput,
+    outcomes: &[PhotoOrientation],
+    photos: &[usize],
+    dem: &Dem,
+    ties: &TieParams,
+    half: usize,
+    keep: &(dyn Fn(&Vector3<f64>) -> bool + Sync),
+) -> (Vec<ControlPoint>, Vec<ControlPoint>) {
+    let all: Vec<PhotoPoints> = photos
+        .par_iter()
+        .filter_map(|&n| photo_points(input, n, &outcomes[n], dem, ties.cell_px, half, keep))
+        .collect();
+    let mut on_dem = Vec::new();
+    let mut beyond = Vec::new();
+    for p in all {
+        on_dem.extend(p.on_dem);
+        beyond.extend(p.beyond);
+    }
+    (on_dem, beyond)
 }
 
 /// Adds to each track (a point of `store` and its observations) its match in every photo
 /// of `photos` that does not observe it yet: predicted from the track's position through
-/// the photo's pose, searched ±`window_px`. One photo's image is in memory at a time per
-/// thread, so a film epoch's scans are never all held at once.
+/// the photo's pose, searched ±`window_px`; with a `band`, the track's height is unknown
+/// within it, and the search spans where the source ray's stretch between the band's
+/// heights falls in the photo. One photo's image is in memory at a time per thread, so a
+/// film epoch's scans are never all held at once.
+#[allow(clippy::too_many_arguments)]
 fn extend_tracks(
     input: &EpochInput,
     outcomes: &[PhotoOrientation],
@@ -190,27 +407,51 @@ fn extend_tracks(
     tracks: &mut [(usize, TieTrack)],
     opts: &PhotoOptions,
     ties: &TieParams,
+    band: Option<Band>,
 ) {
     let tie_patch = tie_match_options(opts, ties);
     let floor = opts.sigma_floor_px;
-    let margin = ties.window_px + opts.patch.template_half as f64 + 1.0;
-    // (track, photo) candidates: where the track's position falls inside the photo.
-    let predict = |b: usize, x: &Vector3<f64>| -> Option<Vector2<f64>> {
+    let margin = opts.patch.template_half as f64 + 1.0;
+    // (track, photo) candidates: where the track's position (or the stretch of its
+    // source ray) falls inside the photo, with the search window's half size.
+    let predict = |b: usize, t: &TieTrack| -> Option<Search> {
         let cam = outcomes[b].camera.as_ref()?;
+        let pose = &outcomes[b].pose;
+        let (px, half) = match band {
+            None => (geometry::project(cam, pose, &t.0).ok()?.pixel, [0.0; 2]),
+            Some(band) => {
+                let src = t.1.first()?;
+                let o = outcomes.get((src.photo as usize).checked_sub(1)?)?;
+                let ray = geometry::back_project(o.camera.as_ref()?, &o.pose, src.pixel).ok()?;
+                let a = geometry::project(cam, pose, &Band::at(&ray, band.lo)?)
+                    .ok()?
+                    .pixel;
+                let b = geometry::project(cam, pose, &Band::at(&ray, band.hi)?)
+                    .ok()?
+                    .pixel;
+                (
+                    0.5 * (a + b),
+                    [0.5 * (a.x - b.x).abs(), 0.5 * (a.y - b.y).abs()],
+                )
+            }
+        };
+        let half = half.map(|v| v + ties.window_px);
         let (w, h) = cam.image_size();
-        let px = geometry::project(cam, &outcomes[b].pose, x).ok()?.pixel;
-        (px.x >= margin && px.y >= margin && px.x <= w as f64 - margin && px.y <= h as f64 - margin)
-            .then_some(px)
+        (px.x >= margin + half[0]
+            && px.y >= margin + half[1]
+            && px.x <= w as f64 - margin - half[0]
+            && px.y <= h as f64 - margin - half[1])
+            .then_some((px, half))
     };
     let found: Vec<(usize, usize, Vector2<f64>, f64)> = photos
         .par_iter()
         .flat_map_iter(|&b| {
             let pid = b as PhotoId + 1;
-            let wanted: Vec<(usize, Vector2<f64>)> = tracks
+            let wanted: Vec<(usize, Search)> = tracks
                 .iter()
                 .enumerate()
                 .filter(|(_, (_, t))| t.1.iter().all(|o| o.photo != pid))
-                .filter_map(|(k, (_, t))| Some((k, predict(b, &t.0)?)))
+                .filter_map(|(k, (_, t))| Some((k, predict(b, t)?)))
                 .collect();
             let mut out = Vec::new();
             let (Some(cam), false) = (outcomes[b].camera.as_ref(), wanted.is_empty()) else {
@@ -223,7 +464,7 @@ fn extend_tracks(
             drop(img);
             let pose = &outcomes[b].pose;
             let mut matcher = super::chips::ChipMatcher::new(cam, &pyr, store, &tie_patch);
-            for (k, px) in wanted {
+            for (k, (px, half)) in wanted {
                 let (i, t) = &tracks[k];
                 let pred = Prediction {
                     pixel: px,
@@ -235,7 +476,7 @@ fn extend_tracks(
                     covariance: Matrix3::zeros(),
                 };
                 use super::orient::PatchMatcher;
-                if let Some(mt) = matcher.find(&patch, pose, &pred, [ties.window_px; 2]) {
+                if let Some(mt) = matcher.find(&patch, pose, &pred, half) {
                     out.push((k, b, mt.pixel, mt.sigma_px.max(floor)));
                 }
             }
@@ -354,11 +595,10 @@ pub(super) fn tie_pass(
                 })
             })
         };
-        let points: Vec<ControlPoint> = sources
-            .par_iter()
-            .filter_map(|&n| photo_points(input, n, &outcomes[n], dem, ties.cell_px, half, &keep))
-            .flatten()
-            .collect();
+        let (mut points, beyond) = points_of(input, outcomes, &sources, dem, ties, half, &keep);
+        let band = Band::of(dem);
+        let beyond = intersect_beyond(input, outcomes, &sources, beyond, band, opts, ties);
+        points.extend(beyond.into_iter().map(|(p, _)| p));
         if points.is_empty() {
             break;
         }
@@ -409,7 +649,9 @@ pub(super) fn tie_pass(
         let oriented: Vec<usize> = (0..outcomes.len())
             .filter(|&n| outcomes[n].report.oriented && outcomes[n].camera.is_some())
             .collect();
-        extend_tracks(input, outcomes, &oriented, &store, &mut round, opts, ties);
+        extend_tracks(
+            input, outcomes, &oriented, &store, &mut round, opts, ties, None,
+        );
         tracks.extend(round.into_iter().map(|(_, t)| t));
         if !oriented_any {
             break;
