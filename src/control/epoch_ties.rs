@@ -1,6 +1,7 @@
 //! Tie points of an archive epoch: Förstner points of its oriented photos, put on the DEM
-//! through their ray, each with a chip cut from its photo (seed 003: points where the
-//! image is textured, spread over the frame).
+//! through their ray, or beyond it where two rays of oriented photos meet, each with a
+//! chip cut from its photo (seed 003: points where the image is textured, spread over the
+//! frame).
 //!
 //! They serve twice. [`epoch_ties`] ties the oriented photos to one another in the block
 //! adjustment (optional). [`tie_pass`] orients the photos that no control patch reached:
@@ -230,34 +231,22 @@ fn intersect_beyond(
         ties,
         Some(band),
     );
-    let mut points = std::mem::take(&mut store.points);
-    tracks
+    // The tracks are in the store's order, one a point.
+    std::mem::take(&mut store.points)
         .into_iter()
-        .filter(|(_, t)| t.1.len() >= 2)
-        .filter_map(|(i, (_, obs))| {
+        .zip(tracks)
+        .filter(|(_, (_, t))| t.1.len() >= 2)
+        .filter_map(|(mut p, (_, (_, obs)))| {
             let (x, obs, cof) = intersect_consistent(outcomes, obs)?;
             if !(band.lo..=band.hi).contains(&x.z) {
                 return None;
             }
-            let mut p = std::mem::replace(&mut points[i], placeholder());
             let gsd = p.sigma[0];
             p.position = x;
             p.sigma = [0, 1, 2].map(|k| cof[(k, k)].max(0.0).sqrt().max(gsd));
             Some((p, (x, obs)))
         })
         .collect()
-}
-
-/// A point taken out of a store's vector (never read).
-fn placeholder() -> ControlPoint {
-    ControlPoint {
-        key: None,
-        label: String::new(),
-        position: Vector3::zeros(),
-        sigma: [0.0; 3],
-        normal: Vector3::z(),
-        views: Vec::new(),
-    }
 }
 
 /// The consistent rays of a track beyond the DEM: its robust intersection (each ray at
