@@ -15,6 +15,7 @@ use super::epoch::{
 };
 use super::epoch_ties::{epoch_ties, tie_pass, TieParams};
 use super::photo::{orient_photo, PhotoOptions, PhotoOrientation, PhotoReport};
+use super::scan_cameras::ScanCameras;
 use crate::adjust::support::{take_unsupported, MIN_POINTS_PER_PHOTO};
 use crate::adjust::{self, AdjustOptions, AdjustReport, Loss, Rejection};
 use crate::block::{
@@ -142,15 +143,16 @@ pub fn orient_epoch(
     if let Some(um) = input.scan_pixel_um {
         photo_opts.io.pixel_mm = Some(um / 1000.0);
     }
-    if let (EpochCamera::Film(def), None) = (&input.camera, photo_opts.io.orientation) {
-        photo_opts.io.fallback_orientation = crate::matching::fiducial::epoch_orientation(
-            def,
-            &input.photos,
-            |ph| Ok((ph.name.clone(), GreyImage::load(&ph.image)?)),
-            &photo_opts.io,
-        )
-        .map(|m| m.0);
-    }
+    let scans = match &input.camera {
+        EpochCamera::Film(def) => {
+            let s = ScanCameras::measure(def, &input.photos, &photo_opts.io);
+            if photo_opts.io.orientation.is_none() {
+                photo_opts.io.fallback_orientation = s.majority;
+            }
+            Some(s)
+        }
+        EpochCamera::Frame(_) => None,
+    };
     let mut outcomes: Vec<PhotoOrientation> = input
         .photos
         .par_iter()
@@ -162,6 +164,7 @@ pub fn orient_epoch(
                 &store,
                 dem,
                 &photo_opts,
+                scans.as_ref(),
             )
         })
         .collect();
@@ -189,6 +192,7 @@ pub fn orient_epoch(
             &priors,
             dem,
             &photo_opts,
+            scans.as_ref(),
             &mut outcomes,
             &mut keyed,
         );
@@ -204,6 +208,7 @@ pub fn orient_epoch(
             &priors,
             dem,
             &photo_opts,
+            scans.as_ref(),
             &tie_params,
             &mut outcomes,
             &mut keyed,
@@ -443,12 +448,14 @@ fn add_photo(
 /// Photos left unoriented (scene change, ambiguity) try again with the control points as
 /// the epoch's own oriented photos show them — same scene state, same radiometry, similar
 /// scale — with chips cut from those photos.
+#[allow(clippy::too_many_arguments)]
 fn second_pass(
     input: &EpochInput,
     store: &ChipStore,
     priors: &BTreeMap<String, crate::block::PosPrior>,
     dem: &Dem,
     opts: &PhotoOptions,
+    scans: Option<&ScanCameras>,
     outcomes: &mut [PhotoOrientation],
     keyed: &mut [Vec<(PointKey, Vector2<f64>, f64)>],
 ) {
@@ -492,7 +499,15 @@ fn second_pass(
             let ph = &input.photos[i];
             (
                 i,
-                orient_photo(ph, &input.camera, priors.get(&ph.name), &own, dem, opts),
+                orient_photo(
+                    ph,
+                    &input.camera,
+                    priors.get(&ph.name),
+                    &own,
+                    dem,
+                    opts,
+                    scans,
+                ),
             )
         })
         .collect();

@@ -18,6 +18,7 @@ use super::epoch::{EpochCamera, EpochInput};
 use super::orient::ControlPatch;
 use super::photo::{orient_photo, PhotoOptions, PhotoOrientation};
 use super::predict::Prediction;
+use super::scan_cameras::ScanCameras;
 use crate::adjust::rays::{intersect_rays, intersect_robust, intersection_cofactor, Ray};
 use crate::block::{Observation, PhotoFailure, PhotoId, PosPrior};
 use crate::geometry::{self, Camera, Dem, Pose};
@@ -449,8 +450,7 @@ fn extend_tracks(
             let Ok(img) = GreyImage::load(&input.photos[b].image) else {
                 return out;
             };
-            let pyr = Pyramid::new(&img, 6, 16);
-            drop(img);
+            let pyr = Pyramid::from_image(img, 6, 16);
             let pose = &outcomes[b].pose;
             let mut matcher = super::chips::ChipMatcher::new(cam, &pyr, store, &tie_patch);
             for (k, (px, half)) in wanted {
@@ -536,11 +536,13 @@ fn ties_can_help(reason: Option<&PhotoFailure>) -> bool {
 /// `tie_pass` in its report and no control matches; the returned tracks (the source
 /// photo's point and the new photo's match) are its observations for the adjustment. A
 /// photo that fails keeps its reason, with what the tie pass found added.
+#[allow(clippy::too_many_arguments)]
 pub(super) fn tie_pass(
     input: &EpochInput,
     priors: &BTreeMap<String, PosPrior>,
     dem: &Dem,
     opts: &PhotoOptions,
+    scans: Option<&ScanCameras>,
     ties: &TieParams,
     outcomes: &mut [PhotoOrientation],
     keyed: &mut [Vec<(PointKey, Vector2<f64>, f64)>],
@@ -596,7 +598,15 @@ pub(super) fn tie_pass(
             .par_iter()
             .map(|(i, _, _)| {
                 let ph = &input.photos[*i];
-                let o = orient_photo(ph, &input.camera, priors.get(&ph.name), &store, dem, opts);
+                let o = orient_photo(
+                    ph,
+                    &input.camera,
+                    priors.get(&ph.name),
+                    &store,
+                    dem,
+                    opts,
+                    scans,
+                );
                 (*i, o)
             })
             .collect();

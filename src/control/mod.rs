@@ -10,6 +10,7 @@
 //!   [`ortho_source`]: control points of an orthophoto with a DEM, as a package;
 //! - [`dcp`]: the package format, its store and index;
 //! - [`chips`], [`predict`], [`orient`], [`photo`]: one photo from control patches;
+//!   [`scan_cameras`]: a film epoch's fiducial interior orientations, measured once;
 //! - [`archive`]: an archive epoch; [`checkpoints`]: the checkpoint evaluation;
 //! - [`strips`]: approximate orientation from strip end points.
 
@@ -29,6 +30,7 @@ pub mod photo;
 pub mod plan_index;
 pub mod predict;
 pub mod reference;
+pub mod scan_cameras;
 pub mod strips;
 
 pub use dcp::{DcpError, DcpIndex, DcpPackage, Manifest};

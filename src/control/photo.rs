@@ -10,12 +10,13 @@ use super::chips::{ChipMatchOptions, ChipMatcher, ChipStore, MatchStats};
 use super::epoch::{EpochCamera, PhotoInput};
 use super::orient::{self, IterationRecord, OrientOptions, Resection, Resector};
 use super::predict;
+use super::scan_cameras::ScanCameras;
 use crate::adjust;
 use crate::block::{PhotoFailure, PosPrior};
 use crate::estimators::similarity2::{Similarity2, Similarity2Estimator};
 use crate::estimators::{RobustMethod, RobustOptions};
-use crate::geometry::{Brown, Camera, Dem, FilmCamera, Pose};
-use crate::matching::{self, CameraDefinition, GreyImage, IoOptions, MatchOptions, Pyramid};
+use crate::geometry::{Camera, Dem, Pose};
+use crate::matching::{GreyImage, IoOptions, MatchOptions, Pyramid};
 use nalgebra::{Matrix3, SMatrix, Vector2, Vector3};
 use serde::Serialize;
 
@@ -222,56 +223,6 @@ impl Resector for AdjustResector {
     }
 }
 
-/// Film cameras of one scan: the best fiducial interior orientation first, then, when the
-/// fiducial layout is symmetric, every other scan orientation whose marks fit within
-/// twice the best RMSE (plus 10 µm).
-pub fn film_cameras(
-    def: &CameraDefinition,
-    img: &GreyImage,
-    name: &str,
-    io: &IoOptions,
-) -> Result<Vec<(FilmCamera, ScanIo)>, String> {
-    let r = matching::interior_orientation(def, img, name, io).map_err(|e| e.to_string())?;
-    let mut out = vec![(film_from_io(def, img, &r), scan_io(&r))];
-    if r.orientation_ambiguous && io.orientation.is_none() {
-        for o in matching::ScanOrientation::all() {
-            if o == r.orientation {
-                continue;
-            }
-            let forced = IoOptions {
-                orientation: Some(o),
-                ..io.clone()
-            };
-            if let Ok(r2) = matching::interior_orientation(def, img, name, &forced) {
-                if r2.rmse_um <= 2.0 * r.rmse_um + 10.0 {
-                    out.push((film_from_io(def, img, &r2), scan_io(&r2)));
-                }
-            }
-        }
-    }
-    Ok(out)
-}
-
-fn scan_io(r: &matching::IoResult) -> ScanIo {
-    ScanIo {
-        rmse_um: r.rmse_um,
-        pixel_um: r.pixel_um,
-        pixel_source: r.pixel_source.clone(),
-    }
-}
-
-fn film_from_io(def: &CameraDefinition, img: &GreyImage, r: &matching::IoResult) -> FilmCamera {
-    let d = &def.distortion;
-    FilmCamera {
-        width: img.width as u32,
-        height: img.height as u32,
-        focal_mm: def.focal_mm,
-        principal_point_mm: def.principal_point_mm,
-        distortion: Brown::from_array([d.k1, d.k2, d.k3, d.p1, d.p2]),
-        interior: r.transform.clone(),
-    }
-}
-
 /// The polygon pushed outwards from its centroid by `margin` (m): the footprint of an
 /// uncertain orientation may be off by the centre σ.
 fn grow(poly: &[[f64; 2]], margin: f64) -> Vec<[f64; 2]> {
@@ -289,7 +240,9 @@ fn grow(poly: &[[f64; 2]], margin: f64) -> Vec<[f64; 2]> {
 }
 
 /// Orients one photo from the control points of `store` (block-local, over the
-/// block-local `dem`), starting from its approximate orientation `prior`.
+/// block-local `dem`), starting from its approximate orientation `prior`. A film scan
+/// takes its candidate cameras from `scans` when the epoch measured them, else measures
+/// its fiducials here.
 pub fn orient_photo(
     photo: &PhotoInput,
     camera: &EpochCamera,
@@ -297,6 +250,7 @@ pub fn orient_photo(
     store: &ChipStore,
     dem: &Dem,
     opts: &PhotoOptions,
+    scans: Option<&ScanCameras>,
 ) -> PhotoOrientation {
     let name = photo.name.as_str();
     let unknown = Pose::new(Matrix3::identity(), Vector3::zeros());
@@ -342,7 +296,11 @@ pub fn orient_photo(
             }
             vec![(Camera::Frame(f.clone()), None)]
         }
-        EpochCamera::Film(def) => match film_cameras(def, &img, name, &opts.io) {
+        EpochCamera::Film(def) => match scans
+            .and_then(|s| s.of(name))
+            .cloned()
+            .unwrap_or_else(|| super::scan_cameras::cameras_of(def, &img, name, &opts.io))
+        {
             Ok(v) => v
                 .into_iter()
                 .map(|(c, r)| (Camera::Film(c), Some(r)))
@@ -356,7 +314,7 @@ pub fn orient_photo(
             }
         },
     };
-    let pyramid = Pyramid::new(&img, 6, 16);
+    let pyramid = Pyramid::from_image(img, 6, 16);
     let mut best: Option<PhotoOrientation> = None;
     for (camera, io) in candidates {
         let out = orient_with_camera(

@@ -130,7 +130,7 @@ pub unsafe extern "C" fn ccp_orient_photo(
                 .unwrap_or_default(),
             image,
         };
-        let orientation = orient_photo(&photo, &camera, Some(&prior), &store, &dem, &opts);
+        let orientation = orient_photo(&photo, &camera, Some(&prior), &store, &dem, &opts, None);
         if let Some(reason) = &orientation.report.reason {
             return Err(FfiError::new(
                 CcpStatus::NotOriented,

@@ -289,29 +289,3 @@ pub fn interior_orientation_epoch<S>(
     }
     out
 }
-
-/// The orientation an epoch's undecided scans should take
-/// ([`IoOptions::fallback_orientation`]): every scan's interior orientation measured
-/// (in parallel, one scan per thread in memory) and the majority of the decided ones
-/// ([`majority_orientation`]), with its votes and the number of decided scans.
-pub fn epoch_orientation<S: Sync>(
-    cam: &CameraDefinition,
-    scans: &[S],
-    load: impl Fn(&S) -> Result<(String, GreyImage)> + Sync,
-    opts: &IoOptions,
-) -> Option<(ScanOrientation, usize, usize)> {
-    use rayon::prelude::*;
-    let opts = IoOptions {
-        orientation: None,
-        fallback_orientation: None,
-        ..opts.clone()
-    };
-    let results: Vec<Result<IoResult>> = scans
-        .par_iter()
-        .map(|s| {
-            let (name, img) = load(s)?;
-            super::interior_orientation(cam, &img, &name, &opts)
-        })
-        .collect();
-    majority_orientation(&results)
-}
