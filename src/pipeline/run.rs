@@ -523,8 +523,15 @@ pub fn run_project(
         let lidar_dir = dir.join("lidar");
         std::fs::create_dir_all(&lidar_dir)
             .map_err(|x| crate::formats::FormatError::io(&lidar_dir, x))?;
-        let clean =
+        let mut clean =
             lidar::clean::clean_tiles(&cat, &lidar_dir, &lidar::clean::CleanOptions::default())?;
+        // The stage is written in a temporary folder that is renamed when it is done: the
+        // report names the cleaned tiles inside the stage folder, not where they were made.
+        for t in &mut clean.tiles {
+            if let Ok(rel) = t.output.strip_prefix(dir) {
+                t.output = rel.to_path_buf();
+            }
+        }
         write_json(&dir.join("clean.json"), &clean)?;
         if let Some(cps) = &checkpoints {
             let cleaned = Catalogue::scan(std::slice::from_ref(&lidar_dir), &scan)?;
