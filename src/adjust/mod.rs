@@ -10,8 +10,10 @@
 //! Check points never enter the solution: they are intersected afterwards with the
 //! adjusted orientations and compared with their surveyed coordinates.
 
-mod chi2;
-mod datum;
+#[doc(hidden)]
+pub mod chi2;
+#[doc(hidden)]
+pub mod datum;
 pub mod georef;
 mod precision;
 mod problem;

@@ -17,7 +17,8 @@
 //! atomically.
 
 mod images;
-mod tiles;
+#[doc(hidden)]
+pub mod tiles;
 
 pub use images::{PhotoImages, RgbImage};
 

@@ -18,7 +18,7 @@ const EDGE_SAMPLES: usize = 16;
 /// between samples. `None` when a border ray does not descend to both planes in front of
 /// the camera (horizon in the frame, camera below the terrain): the photo may then see
 /// any cell.
-pub(super) fn footprint(
+pub fn footprint(
     camera: &Camera,
     rotation: &Matrix3<f64>,
     center: &Vector3<f64>,
@@ -63,14 +63,14 @@ pub(super) fn footprint(
 }
 
 /// Whether two boxes `[x_min, y_min, x_max, y_max]` overlap (touching counts).
-pub(super) fn overlaps(a: &[f64; 4], b: &[f64; 4]) -> bool {
+pub fn overlaps(a: &[f64; 4], b: &[f64; 4]) -> bool {
     a[0] <= b[2] && b[0] <= a[2] && a[1] <= b[3] && b[1] <= a[3]
 }
 
 /// The tiles `(column, row)` of an `nx` × `ny` grid in the order of a Hilbert curve over
 /// the enclosing power-of-two square: each tile is followed by a neighbour wherever the
 /// grid allows, so the photos needed change slowly from tile to tile.
-pub(super) fn hilbert_order(nx: usize, ny: usize) -> Vec<(usize, usize)> {
+pub fn hilbert_order(nx: usize, ny: usize) -> Vec<(usize, usize)> {
     let n = nx.max(ny).max(1).next_power_of_two() as u64;
     let mut tiles: Vec<(u64, (usize, usize))> = (0..ny)
         .flat_map(|r| (0..nx).map(move |c| (hilbert_index(n, c as u64, r as u64), (c, r))))
@@ -98,43 +98,4 @@ fn hilbert_index(n: u64, mut x: u64, mut y: u64) -> u64 {
         s /= 2;
     }
     d
-}
-
-#[cfg(test)]
-mod tests {
-    use super::*;
-    use crate::geometry::FrameCamera;
-
-    #[test]
-    fn hilbert_order_visits_every_tile_once_stepping_to_neighbours() {
-        for (nx, ny) in [(1, 1), (8, 8), (5, 3), (13, 7)] {
-            let o = hilbert_order(nx, ny);
-            let mut seen = o.clone();
-            seen.sort_unstable();
-            seen.dedup();
-            assert_eq!(seen.len(), nx * ny);
-            if nx == ny && nx.is_power_of_two() {
-                for w in o.windows(2) {
-                    let d = w[0].0.abs_diff(w[1].0) + w[0].1.abs_diff(w[1].1);
-                    assert_eq!(d, 1, "{:?}", w);
-                }
-            }
-        }
-    }
-
-    #[test]
-    fn footprint_holds_the_ground_the_frame_sees_and_refuses_the_horizon() {
-        let cam = Camera::Frame(FrameCamera::pinhole(400, 300, 500.0));
-        // Nadir at 100 m over terrain 0–20 m: the frame spans ±40 m × ±30 m at z = 0.
-        let nadir = Matrix3::from_diagonal(&Vector3::new(1.0, -1.0, -1.0));
-        let c = Vector3::new(10.0, 20.0, 100.0);
-        let b = footprint(&cam, &nadir, &c, (0.0, 20.0)).unwrap();
-        assert!(b[0] < 10.0 - 40.0 && b[2] > 10.0 + 40.0 && b[1] < 20.0 - 30.0);
-        assert!(b[0] > 10.0 - 40.0 * 1.2 && b[3] < 20.0 + 30.0 * 1.2);
-        // Tilted 80° the upper frame edge sees above the horizon.
-        let tilt =
-            crate::geometry::rotation_from_vector(&Vector3::new(80f64.to_radians(), 0.0, 0.0))
-                * nadir;
-        assert!(footprint(&cam, &tilt, &c, (0.0, 20.0)).is_none());
-    }
 }

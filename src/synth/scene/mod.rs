@@ -64,7 +64,7 @@ pub struct Building {
     pub albedo: f64,
     /// (sin, cos) of `angle`, cached for the per-ray footprint test.
     #[serde(skip)]
-    axis: [f64; 2],
+    pub axis: [f64; 2],
 }
 
 impl Building {
@@ -446,6 +446,3 @@ fn random_point(rng: &mut ChaCha8Rng, extent: [f64; 4], margin: [f64; 2]) -> [f6
         rng.gen_range(extent[1] + margin[1]..extent[3] - margin[1]),
     ]
 }
-
-#[cfg(test)]
-mod tests;

@@ -94,7 +94,7 @@ impl Scene {
     /// Re-texture decision for an object or parcel: (hash, changed?). Its texture is the
     /// one of the oldest change step that re-textured it (before that step it looked
     /// like that), else today's.
-    pub(super) fn salt_for(&self, kind: u64, a: i64, b: i64) -> (u64, bool) {
+    pub fn salt_for(&self, kind: u64, a: i64, b: i64) -> (u64, bool) {
         for &(salt, fraction) in self.retexture.iter().rev() {
             if unit(hash3(salt ^ kind, a, b)) < fraction {
                 return (hash3(salt ^ kind ^ 0xC4A6, a, b), true);

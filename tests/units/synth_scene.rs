@@ -1,5 +1,7 @@
-use super::*;
-use crate::synth::render::RayCaster;
+//! Unit tests of `synth::scene`.
+
+use cloudcontrol::synth::render::RayCaster;
+use cloudcontrol::synth::scene::*;
 use nalgebra::Vector3;
 
 const EXTENT: [f64; 4] = [-150.0, -110.0, 150.0, 110.0];
@@ -117,7 +119,7 @@ fn change_steps_nest_back_in_time() {
 
 #[test]
 fn render_photo_shows_a_target_where_it_projects() {
-    use crate::geometry::{Camera, FrameCamera, Pose};
+    use cloudcontrol::geometry::{Camera, FrameCamera, Pose};
     let s = Scene::generate(3, EXTENT);
     let t = &s.targets[0];
     let cam = Camera::Frame(FrameCamera::pinhole(200, 160, 900.0));
@@ -127,8 +129,11 @@ fn render_photo_shows_a_target_where_it_projects() {
         0.3,
         Vector3::new(t.center[0] + 3.0, t.center[1] - 2.0, t.center[2] + 90.0),
     );
-    let img = crate::synth::render_photo(&s, &cam, &pose, 1).unwrap();
-    assert_eq!(img, crate::synth::render_photo(&s, &cam, &pose, 1).unwrap());
+    let img = cloudcontrol::synth::render_photo(&s, &cam, &pose, 1).unwrap();
+    assert_eq!(
+        img,
+        cloudcontrol::synth::render_photo(&s, &cam, &pose, 1).unwrap()
+    );
     let px = cam
         .project(&pose.to_camera(&Vector3::from(t.center)))
         .unwrap();

@@ -1,0 +1,33 @@
+//! Tests of single modules, kept out of the library so that `cargo test` does not compile
+//! the whole library a second time with `cfg(test)` (on CI's 2 cores that build took as
+//! long as the library's own).
+
+mod adjust_chi2;
+mod adjust_datum;
+mod adjust_rays;
+mod adjust_resection;
+mod adjust_support;
+mod cache;
+mod control_checkpoints;
+mod control_epoch;
+mod control_photo;
+mod control_predict;
+mod control_strips;
+mod estimators;
+mod estimators_similarity2;
+mod estimators_similarity3;
+mod formats_crs_input;
+mod formats_csv;
+mod formats_ortho_tiles;
+mod formats_pos;
+mod geometry_serde_matrix;
+mod lidar_grid_index;
+mod lidar_las;
+mod matching_fiducial_frame_image;
+mod matching_pyramid;
+mod pipeline_bench;
+mod pipeline_run;
+mod pipeline_stages;
+mod synth_noise;
+mod synth_scene;
+mod synth_truth;
