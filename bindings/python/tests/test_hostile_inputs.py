@@ -10,7 +10,7 @@ a hang or a runaway allocation fails one test with a message instead of taking p
 down; the child reports the call's time and its peak RSS.
 
 PLY sources (`element vertex 99999999999`, 2⁶¹) are not here: only the CLI
-(`icp --source`) reads PLY, the C ABI has no entry for it (tests/hostile_inputs.rs covers
+(`icp --source`) reads PLY, the C ABI has no entry for it (tests/quick/hostile_inputs.rs covers
 it through the CLI).
 """
 from __future__ import annotations

@@ -1,12 +1,12 @@
 //! The `cloudcontrol lidar ...` and `cloudcontrol icp` commands end to end on synthetic
 //! tiles: JSON outputs, files written, errors naming the input.
 
-mod lidar_synth;
+use crate::lidar_synth;
 
 use lidar_synth::*;
 use std::path::Path;
 
-mod common;
+use crate::common;
 use common::cli;
 
 fn json(args: &[&str]) -> serde_json::Value {

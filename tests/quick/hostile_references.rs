@@ -4,7 +4,7 @@
 //! Every file is written here from the format documents (formats/dcp, formats/blocks-
 //! exchange, formats/lidar, formats/project).
 
-mod common;
+use crate::common;
 use common::{cli_fails, last_error, says};
 use std::ffi::CString;
 use std::net::TcpListener;

@@ -1,7 +1,7 @@
 //! DEM gridding of ground points against the true surface, hole filling, and the GeoTIFF
 //! written through formats::raster (CRS, nodata) read back.
 
-mod lidar_synth;
+use crate::lidar_synth;
 
 use cloudcontrol::formats::crs::Crs;
 use cloudcontrol::formats::raster::{read_dem, write_dem, GeoTiffOptions};

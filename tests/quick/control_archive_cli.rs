@@ -13,7 +13,7 @@ use cloudcontrol::synth::{self, PosQuality, Preset, SynthConfig};
 use std::path::{Path, PathBuf};
 use std::process::Command;
 
-mod common;
+use crate::common;
 use common::synth_checkpoints;
 
 fn bin() -> Command {

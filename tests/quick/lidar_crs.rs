@@ -9,7 +9,7 @@ use cloudcontrol::lidar::{Catalogue, CrsSource, LasStream, LidarError, ScanOptio
 use cloudcontrol::synth::lidar::{write_tiles, LidarPoint};
 use std::path::{Path, PathBuf};
 
-mod common;
+use crate::common;
 use common::cli;
 
 fn samples() -> Option<PathBuf> {

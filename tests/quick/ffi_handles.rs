@@ -4,7 +4,7 @@
 //! threads at once gives the single-threaded result; freeing a block while other threads
 //! adjust it is safe.
 
-mod common;
+use crate::common;
 use cloudcontrol::ffi::*;
 use common::last_error;
 use std::ptr::{null, null_mut};

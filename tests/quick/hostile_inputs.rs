@@ -3,7 +3,7 @@
 //! the claim, through the library and through the CLI. Every file is written here, byte
 //! by byte, from the format documents (formats/colmap, formats/lidar, ...).
 
-mod common;
+use crate::common;
 use common::{cli_fails, last_error, says};
 use std::path::Path;
 
@@ -147,8 +147,7 @@ fn ply_vertex_count_beyond_the_file_is_refused() {
 // LAS / LAZ
 // ---------------------------------------------------------------------------------------
 
-#[path = "lidar_synth/mod.rs"]
-mod lidar_synth;
+use crate::lidar_synth;
 
 /// A LAS 1.2 (227-byte header) or 1.4 (375-byte header) file by hand (ASPRS LAS 1.4 R15
 /// §2.4): point format 0 (20-byte records), `count` declared, the given VLRs (user id,

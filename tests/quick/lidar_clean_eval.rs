@@ -1,7 +1,7 @@
 //! Cleaning and checkpoint evaluation on synthetic LiDAR with a known strip offset
 //! (strip 2 lifted 0.25 m), σ 5 cm noise and isolated low noise points.
 
-mod lidar_synth;
+use crate::lidar_synth;
 
 use cloudcontrol::lidar::clean::OffsetModel;
 use cloudcontrol::lidar::eval::evaluate_checkpoints_store;

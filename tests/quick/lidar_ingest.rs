@@ -1,7 +1,7 @@
 //! LAS/LAZ ingestion, catalogue and tile store against a known synthetic source, and the
 //! bad-input errors (each must name the file).
 
-mod lidar_synth;
+use crate::lidar_synth;
 
 use cloudcontrol::lidar::las::read_points;
 use cloudcontrol::lidar::{Bbox, Catalogue, LasStream, LidarError, ScanOptions, TileStore};

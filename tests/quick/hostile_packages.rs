@@ -5,7 +5,7 @@
 //! and the chip, on open, on `dcp import` and through the C ABI — within seconds, without
 //! following the link, reading the device or waiting on the FIFO.
 
-mod common;
+use crate::common;
 use cloudcontrol::control::dcp::DcpPackage;
 use common::{cli, last_error};
 use sha2::{Digest, Sha256};

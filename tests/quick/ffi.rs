@@ -1,6 +1,6 @@
 //! The C ABI refuses bad arguments with a status and a message, never a crash.
 
-mod common;
+use crate::common;
 use cloudcontrol::ffi::*;
 use common::last_error;
 use std::ffi::CStr;

@@ -4,7 +4,7 @@
 //! WKT VLR) read in the CRS given for files without one. (Leftover stage folders of killed
 //! runs: pipeline::stages unit tests and tests/pipeline_run.rs.)
 
-mod common;
+use crate::common;
 use cloudcontrol::lidar::{Catalogue, CrsSource};
 use common::{cli_in as run_in, last_error};
 use std::ffi::{CStr, CString};
