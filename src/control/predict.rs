@@ -122,7 +122,7 @@ impl Plane {
         }
     }
 
-    fn intersect(&self, ray: &geometry::Ray) -> Result<Vector3<f64>> {
+    pub fn intersect(&self, ray: &geometry::Ray) -> Result<Vector3<f64>> {
         let den = self.normal.dot(&ray.direction);
         if den.abs() < 1e-12 {
             return Err(GeometryError::NoIntersection(

@@ -479,6 +479,22 @@ pub fn standard_positions(width: usize, height: usize) -> [[f64; 2]; 9] {
     out
 }
 
+/// How many of `pixels` lie near each standard position: within one sixth of the image's
+/// shorter side of it in both axes (a point can count for two neighbouring positions).
+pub fn standard_position_counts(width: usize, height: usize, pixels: &[[f64; 2]]) -> [usize; 9] {
+    let pos = standard_positions(width, height);
+    let rad = (width.min(height) as f64) / 6.0;
+    let mut counts = [0usize; 9];
+    for p in pixels {
+        for (k, q) in pos.iter().enumerate() {
+            if (p[0] - q[0]).abs() <= rad && (p[1] - q[1]).abs() <= rad {
+                counts[k] += 1;
+            }
+        }
+    }
+    counts
+}
+
 /// Per-photo coverage of the standard positions: for each photo, each of the nine
 /// positions, whether it is required (it lies in the overlap with some other photo,
 /// judged with the pair predictions) and how many tie points lie within one sixth of the
@@ -529,22 +545,14 @@ pub fn coverage(
                     }
                 }
             }
-            let mut counts = [0usize; 9];
-            let mut total = 0;
-            let rad = (w.min(h) as f64) / 6.0;
-            for t in tracks {
-                for (ph, p) in &t.observations {
-                    if *ph != i {
-                        continue;
-                    }
-                    total += 1;
-                    for (k, q) in pos.iter().enumerate() {
-                        if (p[0] - q[0]).abs() <= rad && (p[1] - q[1]).abs() <= rad {
-                            counts[k] += 1;
-                        }
-                    }
-                }
-            }
+            let mine: Vec<[f64; 2]> = tracks
+                .iter()
+                .flat_map(|t| &t.observations)
+                .filter(|(ph, _)| *ph == i)
+                .map(|(_, p)| *p)
+                .collect();
+            let counts = standard_position_counts(w, h, &mine);
+            let total = mine.len();
             Coverage {
                 photo: i,
                 required,

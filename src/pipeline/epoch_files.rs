@@ -4,6 +4,7 @@
 //! report rows) and `checkpoints.json`; and the report rows made from an epoch's result.
 
 use super::report::{CheckpointError, EpochReport, IcpIteration, PhotoSummary};
+use super::tie_statistics::tie_statistics;
 use crate::adjust::ObservationRef;
 use crate::block::{Block, PhotoId};
 use crate::control::archive::EpochResult;
@@ -78,6 +79,7 @@ pub fn epoch_report(
             }
         }
     }
+    let (ties, mut photo_ties) = tie_statistics(block);
     let by_name: BTreeMap<&str, &PhotoReport> =
         result.photos.iter().map(|p| (p.name.as_str(), p)).collect();
     let photos = block
@@ -96,6 +98,7 @@ pub fn epoch_report(
                 rmse_px: rep.map_or(f64::NAN, |r| r.sigma_px),
                 patches_predicted: rep.map_or(0, |r| r.predicted),
                 patches_matched: rep.map_or(0, |r| r.control_matches),
+                ties: photo_ties.remove(&p.name).unwrap_or_default(),
             }
         })
         .collect();
@@ -139,6 +142,12 @@ pub fn epoch_report(
         photos,
         icp,
         control: Vec::new(),
+        ties,
+        variance_components: result
+            .adjustment
+            .as_ref()
+            .map(|a| a.variance_components.clone())
+            .unwrap_or_default(),
     };
     rep.set_check_statistics();
     rep

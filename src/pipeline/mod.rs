@@ -10,3 +10,4 @@ pub mod project;
 pub mod report;
 pub mod run;
 pub mod stages;
+pub mod tie_statistics;

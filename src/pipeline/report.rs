@@ -4,6 +4,8 @@
 //! time series of accuracy). Plots are SVG drawn with plotters and inlined, so the page
 //! needs no network and no companion files.
 
+use super::tie_statistics::{PhotoTies, TieStatistics};
+use crate::adjust::VarianceComponent;
 use crate::formats::{write_bytes_atomically, FormatError};
 use plotters::coord::Shift;
 use plotters::prelude::*;
@@ -44,6 +46,9 @@ pub struct PhotoSummary {
     /// Control patches predicted in the photo and matched (accepted).
     pub patches_predicted: usize,
     pub patches_matched: usize,
+    /// The photo's tie points and control in the adjusted block.
+    #[serde(default)]
+    pub ties: PhotoTies,
 }
 
 /// Statistics of one ICP iteration.
@@ -89,6 +94,12 @@ pub struct EpochReport {
     /// What controlled the epoch (LiDAR, an existing block, the DCP packages used).
     #[serde(default)]
     pub control: Vec<String>,
+    /// Tie points and control of the adjusted block.
+    #[serde(default)]
+    pub ties: TieStatistics,
+    /// σ0 per observation group of the epoch's adjustment.
+    #[serde(default)]
+    pub variance_components: Vec<VarianceComponent>,
 }
 
 impl EpochReport {
@@ -467,6 +478,82 @@ fn fmt(v: f64, digits: usize) -> String {
     }
 }
 
+/// An epoch's tie points, control and observation groups, and each photo's coverage of
+/// the standard positions (a required position short of points in red, one outside every
+/// overlap in grey).
+fn ties_html(e: &EpochReport) -> String {
+    let t = &e.ties;
+    let mult = t
+        .multiplicity
+        .iter()
+        .map(|(k, n)| format!("{n}×{k}"))
+        .collect::<Vec<_>>()
+        .join(", ");
+    let mean = if t.points > 0 {
+        t.observations as f64 / t.points as f64
+    } else {
+        f64::NAN
+    };
+    let mut h = format!(
+        "<h3>Tie points and control</h3><table><tr><th>tie points</th><th>observations</th>\
+         <th>mean photos per point</th><th>points × photos</th><th>control points</th>\
+         <th>control observations</th><th>photos through tie points only</th>\
+         <th>photos short of {} points at a standard position</th></tr>\
+         <tr><td>{}</td><td>{}</td><td>{}</td><td>{}</td><td>{}</td><td>{}</td><td>{}</td><td>{}</td></tr></table>",
+        t.min_per_position,
+        t.points,
+        t.observations,
+        fmt(mean, 2),
+        esc(&mult),
+        t.control_points,
+        t.control_observations,
+        e.photos_through_ties,
+        t.photos_short
+    );
+    if !e.variance_components.is_empty() {
+        h.push_str("<h3>Observation groups</h3><table><tr><th>group</th><th>observations</th><th>redundancy</th><th>σ0 (a-priori σ = 1)</th></tr>");
+        for v in &e.variance_components {
+            h.push_str(&format!(
+                "<tr><td>{}</td><td>{}</td><td>{}</td><td>{}</td></tr>",
+                esc(&v.group),
+                v.observations,
+                fmt(v.redundancy, 1),
+                v.sigma0.map_or("–".into(), |s| fmt(s, 2))
+            ));
+        }
+        h.push_str("</table>");
+    }
+    h.push_str("<h3>Standard positions per photo</h3><table><tr><th>photo</th><th>tie obs.</th><th>control obs.</th>");
+    for pos in ["TL", "TC", "TR", "ML", "MC", "MR", "BL", "BC", "BR"] {
+        h.push_str(&format!("<th>{pos}</th>"));
+    }
+    h.push_str("</tr>");
+    for p in &e.photos {
+        let name = if p.oriented {
+            esc(&p.name)
+        } else {
+            format!("{} (not oriented)", esc(&p.name))
+        };
+        h.push_str(&format!(
+            "<tr><td>{name}</td><td>{}</td><td>{}</td>",
+            p.ties.tie_observations, p.ties.control_observations
+        ));
+        for k in 0..9 {
+            let style = if !p.ties.required[k] {
+                " style=\"color:#999\""
+            } else if p.ties.positions[k] < e.ties.min_per_position {
+                " style=\"background:#f4b6b6\""
+            } else {
+                ""
+            };
+            h.push_str(&format!("<td{style}>{}</td>", p.ties.positions[k]));
+        }
+        h.push_str("</tr>");
+    }
+    h.push_str("</table>");
+    h
+}
+
 /// The self-contained HTML page.
 pub fn render_html(report: &Report) -> Result<String, String> {
     let mut html = String::new();
@@ -543,6 +630,7 @@ pub fn render_html(report: &Report) -> Result<String, String> {
             html.push_str(&format!("<div class=\"plot\">{}</div>", icp_svg(e)?));
         }
         html.push_str("</div>");
+        html.push_str(&ties_html(e));
     }
     html.push_str("</body></html>\n");
     Ok(html)

@@ -56,4 +56,11 @@ fn workflow_samples_are_read_by_the_library() {
     let epoch: cloudcontrol::pipeline::report::EpochReport =
         serde_json::from_slice(&sample("epoch.json")).unwrap();
     assert_eq!(epoch.photos_total, 2);
+    // Its tie statistics are those of the sample block (the only oriented photo sees the
+    // six control points and overlaps no other oriented photo).
+    let (ties, photos) = cloudcontrol::pipeline::tie_statistics::tie_statistics(&block);
+    assert_eq!(epoch.ties, ties);
+    for p in &epoch.photos {
+        assert_eq!(p.ties, photos[&p.name], "{}", p.name);
+    }
 }

@@ -49,3 +49,4 @@ mod matching_ties;
 mod pipeline_project;
 mod pipeline_report;
 mod synth;
+mod tie_statistics;

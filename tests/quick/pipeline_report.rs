@@ -1,7 +1,9 @@
 //! The report: JSON with the documented fields, and HTML whose plots render in headless
 //! Chromium (a screenshot with the plots' colours in it).
 
+use cloudcontrol::adjust::VarianceComponent;
 use cloudcontrol::pipeline::report::*;
+use cloudcontrol::pipeline::tie_statistics::{PhotoTies, TieStatistics};
 use std::process::Command;
 
 fn sample_report() -> Report {
@@ -47,6 +49,12 @@ fn sample_report() -> Report {
                     rmse_px: 0.4,
                     patches_predicted: 20,
                     patches_matched: 12 + i % 8,
+                    ties: PhotoTies {
+                        tie_observations: 40 + i,
+                        control_observations: 12 + i % 8,
+                        positions: [i % 5, 4, 4, 4, 6, 4, 4, 4, 4],
+                        required: [i != 0, true, true, true, true, true, true, true, true],
+                    },
                 })
                 .collect(),
             icp: (0..8)
@@ -60,6 +68,23 @@ fn sample_report() -> Report {
                 "LiDAR (tie points by ICP and plane constraints)".into()
             } else {
                 "DCPs of epoch reference".into()
+            }],
+            ties: TieStatistics {
+                points: 300,
+                observations: 780,
+                multiplicity: [(2, 120), (3, 150), (4, 30)].into_iter().collect(),
+                control_points: 40,
+                control_observations: 120,
+                photos_short: 3,
+                min_per_position: 3,
+            },
+            variance_components: vec![VarianceComponent {
+                group: "image".into(),
+                observations: 900,
+                components: 1800,
+                vtpv: 1500.0,
+                redundancy: 1200.0,
+                sigma0: Some(1.12),
             }],
         };
         e.set_check_statistics();
@@ -130,6 +155,13 @@ fn html_report_renders_in_headless_chromium() {
     // Each epoch says what controlled it.
     assert!(html.contains("<td>LiDAR (tie points by ICP and plane constraints)</td>"));
     assert!(html.contains("<td>DCPs of epoch reference</td>"));
+    // Tie statistics: points × photos, σ0 of each group, and the standard positions short
+    // of points (i % 5 < 3 at top-left for photos 1, 2, 5, 6, 7, 10, 11: photo 0's is not
+    // required) marked, in both epochs.
+    assert!(html.contains("<td>120×2, 150×3, 30×4</td>"));
+    assert!(html.contains("<td>image</td><td>900</td><td>1200.0</td><td>1.12</td>"));
+    assert_eq!(html.matches("background:#f4b6b6").count(), 2 * 7);
+    assert_eq!(html.matches("color:#999").count(), 2);
     let browser = chromium().expect("chromium is installed by setup.sh");
     let shot = dir.path().join("shot.png");
     let profile = dir.path().join("profile");

@@ -1,8 +1,10 @@
 """The workflow from Python: a project on the small synthetic block is run through the C
 ABI, its report meets the checkpoint targets, pycolmap reads the reference epoch's COLMAP
-model with the orientations of our block, the film epoch's model in its fiducial-frame
-images projects the true checkpoints onto their measurements, its BlocksExchange converts
-back to the same projections, and a bad project file fails naming the key."""
+model with the orientations of our block and every epoch's with the tie points and control
+the report counts, the film epoch's model in its fiducial-frame images projects the true
+checkpoints onto their measurements, its BlocksExchange converts back to the same
+projections, and a bad project file fails naming the key."""
+import collections
 import csv
 import json
 import pathlib
@@ -75,6 +77,23 @@ def test_run_meets_the_checkpoint_targets_and_pycolmap_reads_the_model(block):
     for img in rec.images.values():
         c = img.projection_center() + origin
         assert np.linalg.norm(c - centres[pathlib.Path(img.name).stem]) < 1e-6
+
+    # The report's tie statistics are what pycolmap reads in each epoch's COLMAP model:
+    # tie points by the number of images in their track, and the control points measured.
+    for name, e in epochs.items():
+        model = out / f"outputs-{name}" / "colmap"
+        rec = pycolmap.Reconstruction(str(model))
+        kinds = {p["id"]: p["kind"] for p in
+                 json.loads((model / "cloudcontrol_georef.json").read_text())["points"]}
+        tracks = {i: len({el.image_id for el in p.track.elements})
+                  for i, p in rec.points3D.items()}
+        ties = collections.Counter(n for i, n in tracks.items() if i not in kinds)
+        assert {str(k): v for k, v in ties.items()} == e["ties"]["multiplicity"], name
+        control = [i for i, n in tracks.items() if kinds.get(i) == "control" and n > 0]
+        assert len(control) == e["ties"]["control_points"], name
+        assert sum(len(rec.points3D[i].track.elements) for i in control) \
+            == e["ties"]["control_observations"], name
+    assert ref["ties"]["points"] > 100 and film["ties"]["control_points"] > 10
 
     # A second run skips every finished stage.
     again = cloudcontrol.run(block / "project.toml")
