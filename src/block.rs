@@ -22,6 +22,12 @@ pub struct BlockCamera {
     /// [`Camera::param_names`]); empty = all fixed.
     #[serde(default)]
     pub free_params: Vec<String>,
+    /// Cameras with the same group are one physical camera whose free parameters take one
+    /// value: the film camera behind scans that each have their own interior orientation
+    /// (focal length and principal point in mm are the camera's, the scan's affine
+    /// transformation is not). They must be of one kind with the same `free_params`.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub calibration_group: Option<String>,
 }
 
 /// Prior on a photo's exterior orientation from POS (GNSS/IMU) or an approximate source

@@ -341,13 +341,20 @@ pub fn adjust_determinable(
     *block = prior;
     let mut held = Vec::with_capacity(weak.len());
     for mut c in weak {
-        let Some(cam) = block.cameras.get_mut(&c.camera) else {
+        let Some(cam) = block.cameras.get(&c.camera) else {
             continue;
         };
-        cam.free_params.retain(|p| *p != c.param);
         let names = cam.model.param_names();
         if let Some(k) = names.iter().position(|n| *n == c.param) {
             c.value = cam.model.params()[k];
+        }
+        // Held for the whole calibration group: its cameras keep one list of free
+        // parameters.
+        let group = cam.calibration_group.clone();
+        for other in block.cameras.values_mut() {
+            if other.id == c.camera || (group.is_some() && other.calibration_group == group) {
+                other.free_params.retain(|p| *p != c.param);
+            }
         }
         tracing::info!(
             camera = c.camera,

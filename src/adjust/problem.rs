@@ -7,7 +7,7 @@ use super::{
     AdjustError, AdjustOptions, AdjustReport, Loss, ObservationRef, PlaneConstraint, PlaneRefitter,
     Rejected, Rejection,
 };
-use crate::block::{Block, PhotoId, PointId, PointKind};
+use crate::block::{Block, BlockCamera, PhotoId, PointId, PointKind};
 use nalgebra::{Vector2, Vector3};
 use std::collections::BTreeMap;
 use std::time::Instant;
@@ -27,6 +27,9 @@ pub(super) struct Problem {
     pub(super) refs: Vec<ObservationRef>,
     pub(super) photo_free: Vec<[bool; 6]>,
     pub(super) camera_free: Vec<Vec<usize>>,
+    /// Camera index → the first camera of its calibration group (itself when it has none):
+    /// the cameras of a group share one set of free interior parameters.
+    pub(super) camera_leader: Vec<usize>,
     pub(super) state: State,
     pub(super) datum: String,
 }
@@ -40,6 +43,7 @@ impl Problem {
             self.point_ids.len(),
             &self.photo_free,
             &self.camera_free,
+            &self.camera_leader,
         )
     }
 }
@@ -169,6 +173,32 @@ fn build(block: &Block, planes: &[PlaneConstraint]) -> Result<Problem, AdjustErr
         free.sort_unstable();
         free.dedup();
         camera_free.push(free);
+    }
+    let cameras: Vec<&BlockCamera> = block.cameras.values().collect();
+    let camera_leader: Vec<usize> = cameras
+        .iter()
+        .enumerate()
+        .map(|(i, c)| {
+            c.calibration_group.as_ref().map_or(i, |g| {
+                cameras
+                    .iter()
+                    .position(|o| o.calibration_group.as_ref() == Some(g))
+                    .unwrap_or(i)
+            })
+        })
+        .collect();
+    for (i, &l) in camera_leader.iter().enumerate() {
+        let (c, lc) = (cameras[i], cameras[l]);
+        if c.model.param_names() != lc.model.param_names() || camera_free[i] != camera_free[l] {
+            return Err(AdjustError::InvalidBlock(format!(
+                "camera {} is in calibration group {:?} with camera {} but differs in kind or free parameters ({:?} against {:?})",
+                c.id,
+                c.calibration_group.as_deref().unwrap_or(""),
+                lc.id,
+                c.free_params,
+                lc.free_params
+            )));
+        }
     }
     let mut res = Vec::new();
     let mut refs = Vec::new();
@@ -371,6 +401,21 @@ fn build(block: &Block, planes: &[PlaneConstraint]) -> Result<Problem, AdjustErr
         cameras: block.cameras.values().map(|c| c.model.clone()).collect(),
         points,
     };
+    // One value per group: a member's free parameters start at its group's first camera's.
+    let mut state = state;
+    for (i, &l) in camera_leader.iter().enumerate() {
+        if l == i {
+            continue;
+        }
+        let lead = state.cameras[l].params();
+        let mut p = state.cameras[i].params();
+        for &k in &camera_free[i] {
+            p[k] = lead[k];
+        }
+        state.cameras[i]
+            .set_params(&p)
+            .map_err(|e| AdjustError::InvalidBlock(format!("camera {}: {e}", cameras[i].id)))?;
+    }
     Ok(Problem {
         photo_ids,
         camera_ids,
@@ -380,6 +425,7 @@ fn build(block: &Block, planes: &[PlaneConstraint]) -> Result<Problem, AdjustErr
         refs,
         photo_free,
         camera_free,
+        camera_leader,
         state,
         datum: datum.join("+"),
     })

@@ -157,6 +157,10 @@ pub(super) fn finish(
         };
         for (ci, cb) in st.camera_block.iter().enumerate() {
             let Some(b) = cb else { continue };
+            // A calibration group is reported once, under its first camera.
+            if pb.camera_leader[ci] != ci {
+                continue;
+            }
             let params = pb.state.cameras[ci].params();
             for (j, &k) in st.free[*b].iter().enumerate() {
                 let g = st.offset[*b] + j;

@@ -46,14 +46,20 @@ impl Structure {
         n_points: usize,
         photo_free: &[[bool; 6]],
         camera_free: &[Vec<usize>],
+        camera_leader: &[usize],
     ) -> Self {
-        let mut camera_block = Vec::with_capacity(camera_free.len());
+        let mut camera_block: Vec<Option<usize>> = Vec::with_capacity(camera_free.len());
         let mut free: Vec<Vec<usize>> = photo_free
             .iter()
             .map(|f| (0..6).filter(|&k| f[k]).collect())
             .collect();
-        for cf in camera_free {
-            if cf.is_empty() {
+        for (c, cf) in camera_free.iter().enumerate() {
+            // A calibration group's cameras are one block: their Jacobians add into it and
+            // its update moves each of them alike.
+            let leader = camera_leader.get(c).copied().unwrap_or(c);
+            if leader < c {
+                camera_block.push(camera_block[leader]);
+            } else if cf.is_empty() {
                 camera_block.push(None);
             } else {
                 camera_block.push(Some(free.len()));

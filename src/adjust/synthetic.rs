@@ -108,6 +108,7 @@ pub fn generate(o: &SyntheticOptions) -> SyntheticBlock {
             name: "synthetic".into(),
             model: camera.clone(),
             free_params: Vec::new(),
+            calibration_group: None,
         },
     );
     let nadir = Matrix3::new(0.0, 1.0, 0.0, 1.0, 0.0, 0.0, 0.0, 0.0, -1.0);

@@ -41,8 +41,12 @@ pub struct ArchiveOptions {
     pub loss: Loss,
     /// Interior parameters of frame cameras adjusted with the block (archive cameras are
     /// rarely calibrated: the focal length too, since its error goes straight into the
-    /// heights, H·Δf/f); empty = fixed. Film cameras keep their certificate.
+    /// heights, H·Δf/f); empty = fixed.
     pub self_calibration: Vec<String>,
+    /// Interior parameters of a film camera adjusted with the block (`f_mm`, `x0_mm`,
+    /// `y0_mm`, `k1`…): one value for every scan, each scan keeping its own fiducial
+    /// interior orientation (one calibration group). Empty = the certificate holds.
+    pub film_self_calibration: Vec<String>,
     /// Photos not oriented from the packages try again with the control points as the
     /// epoch's own oriented photos show them.
     pub epoch_second_pass: bool,
@@ -70,6 +74,7 @@ impl Default for ArchiveOptions {
             reject_k: 2.5,
             loss: Loss::Huber(2.0),
             self_calibration: vec!["fx".into(), "fy".into(), "k1".into(), "k2".into()],
+            film_self_calibration: Vec::new(),
             epoch_second_pass: true,
             tie_pass: true,
             ties: true,
@@ -225,7 +230,7 @@ pub fn orient_epoch(
     };
     let free: Vec<String> = match &input.camera {
         EpochCamera::Frame(_) => opts.self_calibration.clone(),
-        EpochCamera::Film(_) => Vec::new(),
+        EpochCamera::Film(_) => opts.film_self_calibration.clone(),
     };
     let mut control: BTreeMap<PointKey, Vec<Observation>> = BTreeMap::new();
     for (n, (o, ph)) in outcomes.iter().zip(&input.photos).enumerate() {
@@ -363,6 +368,7 @@ pub fn orient_epoch(
             name: format!("{}_{cid}", input.name),
             model,
             free_params: Vec::new(),
+            calibration_group: None,
         });
         let mut photo = Photo::new(pid, ph.name.clone(), cid, o.pose);
         photo.status = PhotoStatus::Failed(
@@ -412,6 +418,9 @@ fn add_photo(
         name: format!("{}_{cid}", input.name),
         model: cam.clone(),
         free_params: free.to_vec(),
+        // Every scan is the one film camera behind them.
+        calibration_group: matches!(cam, Camera::Film(_))
+            .then(|| format!("{} film camera", input.name)),
     });
     let mut photo = Photo::new(pid, input.photos[n].name.clone(), cid, o.pose).oriented();
     photo.date = input.date.clone();

@@ -357,6 +357,7 @@ pub fn orthophoto_dcp(
             name: format!("vertical view of {name}"),
             model: camera.clone(),
             free_params: Vec::new(),
+            calibration_group: None,
         },
     );
     let mut photo = Photo::new(1, name.clone(), 1, pose).oriented();

@@ -160,6 +160,7 @@ fn pos_block(input: &EpochInput) -> Result<Block, EpochError> {
             name: format!("{}_camera", input.name),
             model: Camera::Frame(frame.clone()),
             free_params: Vec::new(),
+            calibration_group: None,
         },
     );
     let by_name: BTreeMap<&str, _> = records.iter().map(|r| (photo_key(&r.name), r)).collect();

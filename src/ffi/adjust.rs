@@ -157,6 +157,7 @@ pub unsafe extern "C" fn ccp_block_add_camera(
                 name: format!("camera {camera_id}"),
                 model: cam,
                 free_params: free,
+                calibration_group: None,
             },
         );
         Ok(())

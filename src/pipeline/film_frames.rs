@@ -107,6 +107,7 @@ pub fn to_frame_images(
                 name: camera_name.to_string(),
                 model: Camera::Frame(fc.clone()),
                 free_params: Vec::new(),
+                calibration_group: None,
             },
         );
     }

@@ -97,6 +97,13 @@ pub struct Epoch {
     /// orienting the photos against the LiDAR (then no `camera`, `pos` or `strips`).
     #[serde(default)]
     pub block: Option<ExistingBlock>,
+    /// Interior parameters adjusted with the epoch's block (self-calibration), by the
+    /// names of formats/cameras/: a frame camera's `fx`, `fy`, `cx`, `cy`, `k1`, `k2`,
+    /// `k3`, `p1`, `p2`; a film camera's `f_mm`, `x0_mm`, `y0_mm`, `k1`… (one value for all
+    /// its scans). Parameters the block cannot determine are held and reported. Default:
+    /// `fx`, `fy`, `k1`, `k2` for an archive frame camera; none for film and the reference.
+    #[serde(default)]
+    pub self_calibration: Option<Vec<String>>,
 }
 
 /// An existing oriented block (an earlier aerial triangulation) given as the reference.

@@ -269,8 +269,13 @@ fn dcp_options(project: &Project, reference_gsd: f64, gsd: f64, epoch: &str) -> 
     }
 }
 
-fn archive_options(project: &Project) -> ArchiveOptions {
-    project.thresholds.archive_options()
+fn archive_options(project: &Project, epoch: &Epoch) -> ArchiveOptions {
+    let mut o = project.thresholds.archive_options();
+    if let Some(sc) = &epoch.self_calibration {
+        o.self_calibration = sc.clone();
+        o.film_self_calibration = sc.clone();
+    }
+    o
 }
 
 /// Surveyed checkpoints converted to the project CRS, with the file of their image
@@ -409,8 +414,12 @@ fn icp_rows(iterations: &[lidar::IcpIteration]) -> Vec<IcpIteration> {
 
 /// The reference adjustment tests its gross errors by Baarda's data snooping (its tie
 /// points are many and precise; `reject_k` is the archive adjustments' k·σ0).
-fn reference_options(_project: &Project) -> ReferenceOptions {
-    ReferenceOptions::default()
+fn reference_options(epoch: &Epoch) -> ReferenceOptions {
+    let mut o = ReferenceOptions::default();
+    if let Some(sc) = &epoch.self_calibration {
+        o.self_calibration = sc.clone();
+    }
+    o
 }
 
 /// Runs a project. `stop_after` ends the run (as a kill would) once that stage finished;
@@ -629,7 +638,9 @@ pub fn run_project(
             .file(&sources)
             .file(&e.photos)
             .param("thresholds", &project.thresholds)
-            .param("date", &e.date);
+            .param("date", &e.date)
+            .param("scan_pixel_um", &e.scan_pixel_mm())
+            .param("self_calibration", &e.self_calibration);
         if let Some(c) = &e.camera {
             inputs = inputs.file(c);
         }
@@ -689,7 +700,7 @@ pub fn run_project(
                     &input,
                     lidar.planes()?,
                     &lidar.surface()?.ground,
-                    &reference_options(project),
+                    &reference_options(e),
                 )?;
                 write_json(&dir.join("reference.json"), &rep)?;
                 let icp = rep
@@ -710,7 +721,7 @@ pub fn run_project(
                     &input,
                     &pkgs,
                     &lidar.surface()?.ground,
-                    &archive_options(project),
+                    &archive_options(project, e),
                 )?;
                 (r, Vec::new())
             };

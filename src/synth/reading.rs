@@ -130,6 +130,7 @@ pub fn synth_truth_block(dir: &Path, epoch: &str) -> Result<Block, EpochError> {
             name: format!("{epoch}_{cid}"),
             model,
             free_params: Vec::new(),
+            calibration_group: None,
         });
         let centre = Vector3::from(centre) - origin;
         let mut photo = Photo::new(pid, name, cid, Pose::new(rotation, centre)).oriented();

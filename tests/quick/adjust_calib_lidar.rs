@@ -180,3 +180,85 @@ fn lidar_planes_alone_fix_the_datum() {
     assert!(rms < 0.6, "centre RMS {rms}");
     let _ = Matrix3::<f64>::identity();
 }
+
+/// Cameras of one calibration group are one camera to the adjustment: a block whose photos
+/// each have their own camera (as film scans with their own interior orientation) in one
+/// group adjusts exactly as the same block with one shared camera, and the group is
+/// reported once.
+#[test]
+fn a_calibration_group_adjusts_as_one_shared_camera() {
+    let o = SyntheticOptions {
+        strips: 2,
+        photos_per_strip: 8,
+        tie_points: 3_000,
+        relief_m: 250.0,
+        control_grid: (3, 2),
+        check_points: 0,
+        seed: 9,
+        ..Default::default()
+    };
+    let syn = generate(&o);
+    let free: Vec<String> = ["fx", "fy", "k1"].iter().map(|s| s.to_string()).collect();
+    let mut one = syn.start.clone();
+    {
+        let cam = one.cameras.get_mut(&1).unwrap();
+        let mut p = cam.model.params();
+        p[0] *= 1.005;
+        p[1] *= 1.005;
+        cam.model.set_params(&p).unwrap();
+        cam.free_params = free.clone();
+    }
+    let mut grouped = one.clone();
+    let shared = grouped.cameras.remove(&1).unwrap();
+    let ids: Vec<u32> = grouped.photos.keys().copied().collect();
+    for id in ids {
+        let cid = 100 + id;
+        grouped.cameras.insert(
+            cid,
+            cloudcontrol::block::BlockCamera {
+                id: cid,
+                name: format!("scan {id}"),
+                calibration_group: Some("lens".into()),
+                ..shared.clone()
+            },
+        );
+        grouped.photos.get_mut(&id).unwrap().camera = cid;
+    }
+    let opts = AdjustOptions::default();
+    let ra = adjust(&mut one, &[], None, &opts).unwrap();
+    let rb = adjust(&mut grouped, &[], None, &opts).unwrap();
+    let f = one.cameras[&1].model.params()[0];
+    // From 0.5 % off to within 0.1 % and its stated σ (a 16-photo block with relief).
+    let sf = ra
+        .calibration
+        .iter()
+        .find(|c| c.param == "fx")
+        .unwrap()
+        .sigma;
+    assert!(
+        (f / o.focal_px - 1.0).abs() < 1e-3 && (f - o.focal_px).abs() < 4.0 * sf,
+        "f {f} ± {sf} against {}",
+        o.focal_px
+    );
+    for c in grouped.cameras.values() {
+        assert!(
+            (c.model.params()[0] - f).abs() < 1e-6 * f,
+            "camera {}",
+            c.id
+        );
+    }
+    for (a, b) in one.photos.values().zip(grouped.photos.values()) {
+        assert!((a.pose.center - b.pose.center).norm() < 1e-6);
+    }
+    assert!((ra.sigma0 - rb.sigma0).abs() < 1e-9);
+    assert_eq!(ra.calibration.len(), 3);
+    assert_eq!(rb.calibration.len(), 3, "the group is reported once");
+
+    // A member with other free parameters than its group is refused, naming the group.
+    let first = *grouped.cameras.keys().next().unwrap();
+    grouped.cameras.get_mut(&first).unwrap().free_params = vec!["fx".into()];
+    let e = adjust(&mut grouped, &[], None, &opts)
+        .unwrap_err()
+        .to_string();
+    assert!(e.contains("calibration group") && e.contains("lens"), "{e}");
+}

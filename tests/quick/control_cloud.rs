@@ -27,6 +27,7 @@ fn block() -> Block {
             name: "dmc".into(),
             model: Camera::Frame(FrameCamera::pinhole(1600, 1200, 1600.0)),
             free_params: vec![],
+            calibration_group: None,
         },
     );
     for i in 0..4u32 {

@@ -346,6 +346,7 @@ fn film_frame_block() -> (Block, f64) {
             name: "Wild RC10 (film_1978)".into(),
             model: Camera::Frame(frame.frame_camera(&film)),
             free_params: Vec::new(),
+            calibration_group: None,
         },
     );
     let nadir = Matrix3::new(1.0, 0.0, 0.0, 0.0, -1.0, 0.0, 0.0, 0.0, -1.0);

@@ -24,6 +24,7 @@ fn block() -> Block {
             name: "c".into(),
             model: Camera::Frame(FrameCamera::pinhole(2048, 1536, 2000.0)),
             free_params: vec![],
+            calibration_group: None,
         },
     );
     for (id, name) in [(1, "IMG_0001.tif"), (2, "IMG_0002.tif")] {

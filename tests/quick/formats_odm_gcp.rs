@@ -181,6 +181,7 @@ fn copr_subset_goes_into_a_block() {
             name: "xsi".into(),
             model: Camera::Frame(FrameCamera::pinhole(4272, 2848, 5770.0)),
             free_params: vec![],
+            calibration_group: None,
         },
     );
     for (id, n) in [31, 34, 37, 40, 43, 46, 49, 52, 55, 61, 64, 67]

@@ -90,6 +90,7 @@ fn rendered_block(
             name: "cam".into(),
             model: Camera::Frame(cam.clone()),
             free_params: vec![],
+            calibration_group: None,
         },
     );
     let nadir = Matrix3::from_diagonal(&Vector3::new(1.0, -1.0, -1.0));

@@ -658,6 +658,7 @@ fn orthophoto_gsd_far_below_the_extent_is_refused() {
             name: "cam".into(),
             model: Camera::Frame(FrameCamera::pinhole(8, 8, 8.0)),
             free_params: vec![],
+            calibration_group: None,
         },
     );
     let nadir = Matrix3::from_diagonal(&Vector3::new(1.0, -1.0, -1.0));

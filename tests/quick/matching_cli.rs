@@ -137,6 +137,7 @@ fn ties_subcommand_uses_the_approximate_orientation() {
             name: "cam".into(),
             model: camera.clone(),
             free_params: vec![],
+            calibration_group: None,
         },
     );
     for k in 0..3u32 {

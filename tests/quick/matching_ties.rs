@@ -289,6 +289,7 @@ fn block_ties_from_approximate_orientation() {
             name: "synthetic".into(),
             model: s.camera.clone(),
             free_params: vec![],
+            calibration_group: None,
         },
     );
     let mut images = BTreeMap::new();
@@ -525,6 +526,7 @@ fn block_ties_bad_input() {
             name: "c".into(),
             model: s.camera.clone(),
             free_params: vec![],
+            calibration_group: None,
         },
     );
     for k in 0..2u32 {

@@ -23,6 +23,7 @@ fn block() -> Block {
             name: "c".into(),
             model: camera(),
             free_params: vec![],
+            calibration_group: None,
         },
     );
     for (id, (name, x, oriented)) in [

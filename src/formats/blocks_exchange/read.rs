@@ -91,6 +91,7 @@ pub fn read_str(text: &str, path: &Path) -> Result<Block> {
                 name: gname,
                 model: Camera::Frame(group.camera.clone()),
                 free_params: Vec::new(),
+                calibration_group: None,
             },
         );
         groups.push(group);

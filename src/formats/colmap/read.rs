@@ -51,6 +51,7 @@ pub fn read(dir: &Path) -> Result<Block> {
                 name: format!("camera {id}"),
                 model: Camera::Frame(cam),
                 free_params: Vec::new(),
+                calibration_group: None,
             },
         );
     }
