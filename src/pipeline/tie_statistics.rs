@@ -8,7 +8,7 @@
 
 use crate::block::{Block, Photo, PointKind};
 use crate::control::predict::Plane;
-use crate::geometry::{back_project, project};
+use crate::geometry::{back_project, project, Camera};
 use crate::matching::ties::{standard_position_counts, standard_positions};
 use nalgebra::Vector3;
 use serde::{Deserialize, Serialize};
@@ -119,7 +119,7 @@ pub fn tie_statistics(block: &Block) -> (TieStatistics, BTreeMap<String, PhotoTi
         };
         if photo.is_oriented() {
             if let Some(z) = heights.get_mut(&photo.id).and_then(|v| median(v)) {
-                ties.required = required_positions(block, photo, &oriented, z);
+                ties.required = required_positions(block, &cam.model, photo, &oriented, z);
             }
             if !ties.short().is_empty() {
                 stats.photos_short += 1;
@@ -141,18 +141,21 @@ fn median(v: &mut [f64]) -> Option<f64> {
 /// Which of the photo's standard positions another oriented photo also sees: the ray of
 /// each position is met by the horizontal plane at height `z` (block-local) and the ground
 /// point projected, in front of the camera and inside the image, into the others.
-fn required_positions(block: &Block, photo: &Photo, oriented: &[&Photo], z: f64) -> [bool; 9] {
+fn required_positions(
+    block: &Block,
+    camera: &Camera,
+    photo: &Photo,
+    oriented: &[&Photo],
+    z: f64,
+) -> [bool; 9] {
     let mut required = [false; 9];
-    let Some(cam) = block.camera_of(photo) else {
-        return required;
-    };
-    let (w, h) = cam.model.image_size();
+    let (w, h) = camera.image_size();
     let ground = Plane::through(&Vector3::new(0.0, 0.0, z), &Vector3::z());
     for (k, q) in standard_positions(w as usize, h as usize)
         .iter()
         .enumerate()
     {
-        let Some(x) = back_project(&cam.model, &photo.pose, *q)
+        let Some(x) = back_project(camera, &photo.pose, *q)
             .ok()
             .and_then(|ray| ground.intersect(&ray).ok())
         else {
