@@ -6,7 +6,7 @@
 //! that starts to pass is reported so that it can leave the list.
 
 mod common;
-use common::{exe, json_of};
+use common::{block_copy, exe, json_of};
 use std::path::Path;
 use std::process::Command;
 
@@ -22,10 +22,18 @@ const KNOWN_MISSES: [(u64, &str, &str); 1] = [(
 fn small_preset_three_seeds_against_the_targets() {
     let out = Path::new(env!("CARGO_TARGET_TMPDIR")).join("bench_accuracy");
     let _ = std::fs::remove_dir_all(&out);
+    for seed in 1..=3 {
+        block_copy(
+            "small",
+            seed,
+            "rough",
+            &out.join(format!("small-{seed}/block")),
+        );
+    }
     let v = json_of(
         &Command::new(exe())
             .args(["--json", "bench", "accuracy", "--preset", "small"])
-            .args(["--seeds", "1..3", "--out"])
+            .args(["--seeds", "1..3", "--reuse-blocks", "--out"])
             .arg(&out)
             .output()
             .unwrap(),

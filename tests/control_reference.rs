@@ -8,11 +8,10 @@ use cloudcontrol::control::reference::{self, ReferenceOptions};
 use cloudcontrol::control::EpochInput;
 use cloudcontrol::lidar::PlaneOptions;
 use cloudcontrol::synth::reading::synth_truth_block;
-use cloudcontrol::synth::{self, PosQuality, Preset, SynthConfig};
 use std::path::{Path, PathBuf};
 
 mod common;
-use common::synth_checkpoints;
+use common::{block_copy, synth_checkpoints};
 
 fn lidar_tiles(dir: &Path) -> Vec<PathBuf> {
     cloudcontrol::lidar::catalogue::expand_inputs(&[dir.join("lidar")]).unwrap()
@@ -23,17 +22,7 @@ fn reference_epoch_oriented_with_lidar_only_is_within_a_ground_pixel() {
     let root = Path::new(env!("CARGO_TARGET_TMPDIR")).join("control_reference");
     let _ = std::fs::remove_dir_all(&root);
     let dir = root.join("block");
-    synth::generate(
-        &SynthConfig {
-            preset: Preset::Small,
-            seed: 7,
-            change: 0.5,
-            pos: PosQuality::Rough,
-            laz: false,
-        },
-        &dir,
-    )
-    .unwrap();
+    block_copy("small", 7, "rough", &dir);
     let tiles = lidar_tiles(&dir);
     let input = EpochInput::from_synth_epoch(&dir, "reference_2024").unwrap();
     let surface = cloudcontrol::lidar::lidar_surfaces(&tiles, input.origin, 1.0).unwrap();

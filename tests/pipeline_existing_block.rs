@@ -14,7 +14,7 @@ use std::path::{Path, PathBuf};
 use std::process::Command;
 
 mod common;
-use common::{epoch, exe, px, synth_block};
+use common::{block_copy, epoch, exe, px};
 
 /// The synthetic block's project with its reference replaced by `block` (a table body),
 /// writing into `output`.
@@ -81,7 +81,7 @@ fn oriented_block(run: &Path, epoch: &str) -> Block {
 fn an_existing_block_controls_the_archive_epochs_as_our_own_reference_does() {
     let tmp = tempfile::tempdir().unwrap();
     let blk = tmp.path().join("block");
-    synth_block(&blk, "small", 4);
+    block_copy("small", 4, "rough", &blk);
     // Today's workflow: the reference oriented against the LiDAR.
     let o = Command::new(exe())
         .arg("run")

@@ -9,7 +9,7 @@ use std::process::{Command, Stdio};
 use std::time::{Duration, Instant};
 
 mod common;
-use common::{epoch, exe, json_of, px};
+use common::{block_copy, epoch, exe, json_of, px};
 
 fn files_below(d: &Path) -> Vec<PathBuf> {
     let mut out = Vec::new();
@@ -32,6 +32,9 @@ fn files_below(d: &Path) -> Vec<PathBuf> {
 fn demo_runs_the_workflow_and_a_killed_run_resumes_identically() {
     let root = Path::new(env!("CARGO_TARGET_TMPDIR")).join("pipeline_run");
     let _ = std::fs::remove_dir_all(&root);
+    // The demo keeps a block it finds with its configuration (seed 7, rough POS): the
+    // shared one, which other tests use too.
+    block_copy("small", 7, "rough", &root.join("block"));
     let t = Instant::now();
     let out = Command::new(exe())
         .args(["--json", "demo", "--out"])

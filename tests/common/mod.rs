@@ -53,21 +53,69 @@ pub fn cli_in(dir: &std::path::Path, args: &[&str]) -> (bool, String, String) {
     )
 }
 
-/// `cloudcontrol synth --preset PRESET --seed SEED --out DIR`, asserting it succeeded.
-pub fn synth_block(dir: &std::path::Path, preset: &str, seed: u64) {
+/// A synthetic block made once per build of the binary and shared by every test binary
+/// and the Python tests (`CARGO_TARGET_TMPDIR/blocks/<preset>-<seed>-<pos>`): the small
+/// blocks cost 120–140 CPU s each to render, and six tests used three of them twice over.
+/// The block is generated into a private folder and renamed into place, so no test ever
+/// sees a half-written one; a stamp of the binary (size and modification time) beside it
+/// makes a rebuilt binary generate it again. Tests take a [`copy_block`] of it, never the
+/// shared folder itself.
+pub fn shared_block(preset: &str, seed: u64, pos: &str) -> std::path::PathBuf {
+    use std::sync::Mutex;
+    static LOCK: Mutex<()> = Mutex::new(());
+    let _held = LOCK.lock().unwrap_or_else(|e| e.into_inner());
+    let root = std::path::Path::new(env!("CARGO_TARGET_TMPDIR")).join("blocks");
+    let key = format!("{preset}-{seed}-{pos}");
+    let dir = root.join(&key);
+    let stamp_file = root.join(format!("{key}.stamp"));
+    let meta = std::fs::metadata(exe()).unwrap();
+    let modified = meta
+        .modified()
+        .unwrap()
+        .duration_since(std::time::UNIX_EPOCH)
+        .unwrap();
+    let stamp = format!("{}-{}", meta.len(), modified.as_nanos());
+    if dir.join("manifest.json").is_file()
+        && std::fs::read_to_string(&stamp_file).is_ok_and(|s| s.trim() == stamp)
+    {
+        return dir;
+    }
+    let tmp = root.join(format!(".{key}.{}", std::process::id()));
+    let _ = std::fs::remove_dir_all(&tmp);
     let o = std::process::Command::new(exe())
-        .args([
-            "synth",
-            "--preset",
-            preset,
-            "--seed",
-            &seed.to_string(),
-            "--out",
-        ])
-        .arg(dir)
+        .args(["synth", "-q", "--preset", preset, "--pos", pos])
+        .args(["--seed", &seed.to_string(), "--out"])
+        .arg(&tmp)
         .output()
         .unwrap();
     assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+    let _ = std::fs::remove_dir_all(&dir);
+    std::fs::rename(&tmp, &dir).unwrap();
+    std::fs::write(&stamp_file, stamp).unwrap();
+    dir
+}
+
+/// A private copy of `src` (a [`shared_block`]) at `dest`, which is replaced.
+pub fn copy_block(src: &std::path::Path, dest: &std::path::Path) {
+    let _ = std::fs::remove_dir_all(dest);
+    let mut stack = vec![(src.to_path_buf(), dest.to_path_buf())];
+    while let Some((from, to)) = stack.pop() {
+        std::fs::create_dir_all(&to).unwrap();
+        for e in std::fs::read_dir(&from).unwrap() {
+            let e = e.unwrap();
+            let target = to.join(e.file_name());
+            if e.file_type().unwrap().is_dir() {
+                stack.push((e.path(), target));
+            } else {
+                std::fs::copy(e.path(), &target).unwrap();
+            }
+        }
+    }
+}
+
+/// [`copy_block`] of [`shared_block`]`(preset, seed, pos)` at `dest`.
+pub fn block_copy(preset: &str, seed: u64, pos: &str, dest: &std::path::Path) {
+    copy_block(&shared_block(preset, seed, pos), dest);
 }
 
 /// A synthetic block's checkpoints as an evaluation takes them: the image measurements of

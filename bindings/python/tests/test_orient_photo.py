@@ -26,7 +26,6 @@ import numpy as np
 import pytest
 
 import cloudcontrol as cc
-from cloudcontrol import synth
 
 ROOT = pathlib.Path(__file__).resolve().parents[3]
 BIN = ROOT / "target" / "release" / "cloudcontrol"
@@ -75,14 +74,15 @@ def _angle_mrad(r1, r2):
 
 
 @pytest.fixture(scope="module")
-def film(tmp_path_factory):
+def film(tmp_path_factory, shared_block):
     """The small block; its reference epoch at the true orientation exported as a DCP
     package; a ground DEM GeoTIFF in world coordinates (`cloudcontrol lidar dem`); and
     `cloudcontrol orient` run on the film epoch with the same package, POS and DEM."""
     t0 = time.perf_counter()
     root = tmp_path_factory.mktemp("orient_photo")
     block = root / "block"
-    m = synth.generate(block, preset="small", seed=2, pos="good")
+    shared_block("small", 2, "good", block)
+    m = json.loads((block / "manifest.json").read_text())
     ref = next(e for e in m["epochs"] if e["name"] == "reference_2024")
     film = next(e for e in m["epochs"] if e["name"] == EPOCH)
     origin = np.array(m["origin"])

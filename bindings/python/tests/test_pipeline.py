@@ -15,7 +15,7 @@ import pycolmap
 import pytest
 
 import cloudcontrol
-from cloudcontrol import formats, synth
+from cloudcontrol import formats
 
 PROJECT = """
 name = "python-run"
@@ -46,9 +46,8 @@ orthophoto = false
 
 
 @pytest.fixture(scope="module")
-def block(tmp_path_factory):
-    d = tmp_path_factory.mktemp("pipeline") / "block"
-    synth.generate(d, preset="small", seed=7, pos="rough")
+def block(tmp_path_factory, shared_block):
+    d = shared_block("small", 7, "rough", tmp_path_factory.mktemp("pipeline") / "block")
     (d / "project.toml").write_text(PROJECT)
     return d
 
