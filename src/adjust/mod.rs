@@ -212,10 +212,29 @@ pub struct CalibrationReport {
     /// False when the block geometry does not determine the parameter (correlation
     /// above the limit): the value is then not trustworthy.
     pub determinable: bool,
-    /// Held at its prior value after it was found not determinable (`value` is that
-    /// prior, `sigma` 0; `max_correlation` and `correlated_with` say why).
+    /// Held at its prior value after it was found not determinable or not significant
+    /// (`value` is that prior, `sigma` 0; `held_because` says which).
     #[serde(default)]
     pub fixed: bool,
+    /// Why [`adjust_determinable`] held it: [`HeldBecause`].
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub held_because: Option<HeldBecause>,
+    /// Its estimate's distance from the prior value in standard deviations, on the
+    /// solution that tested it ([`adjust_determinable`]; `None` from a plain [`adjust`]).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub t_prior: Option<f64>,
+}
+
+/// Why a self-calibration parameter was held at its prior value.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize)]
+#[serde(rename_all = "snake_case")]
+pub enum HeldBecause {
+    /// Its correlation with another unknown is above the limit: the block geometry does
+    /// not separate it from the exterior orientation.
+    NotDeterminable,
+    /// Its estimate is within the two-sided 5 % test of its prior value: the data do
+    /// not show it differs, and a free parameter with that σ only adds noise.
+    NotSignificant,
 }
 
 /// Check point comparison.
@@ -314,39 +333,66 @@ pub struct AdjustReport {
     pub residuals: Vec<ResidualReport>,
 }
 
-/// [`adjust`] with self-calibration of only what the block determines:
+/// Significance level of the test of a self-calibration parameter against its prior
+/// value (two-sided): Grün's test of additional parameters, which keeps only those the
+/// data show to differ from what the camera file says.
+pub const CALIBRATION_SIGNIFICANCE: f64 = 0.05;
+
+/// [`adjust`] with self-calibration of only what the block determines and shows:
 /// an interior parameter the geometry cannot separate from the exterior orientation
-/// (correlation above the limit) is held at its prior value and the block adjusted again.
+/// (correlation above the limit), or whose estimate is not significantly different from
+/// its prior value ([`CALIBRATION_SIGNIFICANCE`]), is held at its prior value and the
+/// block adjusted again.
 ///
 /// A 6-photo digital epoch with control on gentle relief ties the focal length to the
 /// flying heights (correlation 0.998, σ 1 %): left free, it came out 0.85, 0.98 and
 /// 1.25 % from the truth where the prior was 0.16, 0.19 and 0.36 % off (small block,
 /// seeds 4, 6, 8), and the checkpoints away from the control's mean height followed it:
 /// held, their height RMSE went from 1.72 to 1.50, 1.48 to 0.37 and 0.62 to 0.51 GSD.
+/// Seed 10's k2 came out 0.037 ± 0.031 (1.2 σ from its prior 0, truth 0.005): free, it
+/// bent the frame corners by a pixel and the checkpoint heights to 1.43 GSD.
 pub fn adjust_determinable(
     block: &mut Block,
     opts: &AdjustOptions,
 ) -> Result<AdjustReport, AdjustError> {
     let prior = block.clone();
-    let first = adjust(block, &[], None, opts)?;
-    let weak: Vec<CalibrationReport> = first
+    let mut first = adjust(block, &[], None, opts)?;
+    let t_limit = chi2::critical(1, CALIBRATION_SIGNIFICANCE).sqrt();
+    let prior_value = |c: &CalibrationReport| -> Option<f64> {
+        let cam = prior.cameras.get(&c.camera)?;
+        let k = cam.model.param_names().iter().position(|n| *n == c.param)?;
+        Some(cam.model.params()[k])
+    };
+    for c in &mut first.calibration {
+        c.t_prior = prior_value(c)
+            .filter(|_| c.sigma > 0.0 && c.sigma.is_finite())
+            .map(|p| (c.value - p).abs() / c.sigma);
+    }
+    let held_because = |c: &CalibrationReport| {
+        if !c.determinable {
+            Some(HeldBecause::NotDeterminable)
+        } else if c.t_prior.is_some_and(|t| t < t_limit) {
+            Some(HeldBecause::NotSignificant)
+        } else {
+            None
+        }
+    };
+    let weak: Vec<(CalibrationReport, HeldBecause)> = first
         .calibration
         .iter()
-        .filter(|c| !c.determinable)
-        .cloned()
+        .filter_map(|c| held_because(c).map(|why| (c.clone(), why)))
         .collect();
     if weak.is_empty() {
         return Ok(first);
     }
-    *block = prior;
+    *block = prior.clone();
     let mut held = Vec::with_capacity(weak.len());
-    for mut c in weak {
+    for (mut c, why) in weak {
         let Some(cam) = block.cameras.get(&c.camera) else {
             continue;
         };
-        let names = cam.model.param_names();
-        if let Some(k) = names.iter().position(|n| *n == c.param) {
-            c.value = cam.model.params()[k];
+        if let Some(v) = prior_value(&c) {
+            c.value = v;
         }
         // Held for the whole calibration group: its cameras keep one list of free
         // parameters.
@@ -359,14 +405,23 @@ pub fn adjust_determinable(
         tracing::info!(
             camera = c.camera,
             param = %c.param,
+            ?why,
             correlation = c.max_correlation,
             with = %c.correlated_with,
+            t = c.t_prior,
             "self-calibration parameter held at its prior value"
         );
-        (c.sigma, c.fixed) = (0.0, true);
+        (c.sigma, c.fixed, c.held_because) = (0.0, true, Some(why));
         held.push(c);
     }
     let mut rep = adjust(block, &[], None, opts)?;
+    let tested: Vec<_> = first.calibration;
+    for c in &mut rep.calibration {
+        c.t_prior = tested
+            .iter()
+            .find(|t| t.camera == c.camera && t.param == c.param)
+            .and_then(|t| t.t_prior);
+    }
     rep.calibration.extend(held);
     Ok(rep)
 }

@@ -207,6 +207,8 @@ pub(super) fn finish(
                     correlated_with: with,
                     determinable,
                     fixed: false,
+                    held_because: None,
+                    t_prior: None,
                 });
             }
         }

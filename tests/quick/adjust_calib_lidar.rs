@@ -1,7 +1,10 @@
 //! Self-calibration and LiDAR point-to-plane datum on synthetic blocks.
 
 use cloudcontrol::adjust::synthetic::{generate, terrain, terrain_normal, SyntheticOptions};
-use cloudcontrol::adjust::{adjust, AdjustOptions, PlaneConstraint, PlaneRefitter};
+use cloudcontrol::adjust::{
+    adjust, adjust_determinable, chi2, AdjustOptions, HeldBecause, PlaneConstraint, PlaneRefitter,
+    CALIBRATION_SIGNIFICANCE,
+};
 use cloudcontrol::block::{PointId, PointKind};
 use cloudcontrol::geometry::{Brown, Camera};
 use nalgebra::{Matrix3, Vector3};
@@ -79,6 +82,54 @@ fn self_calibration_recovers_f_and_k1_with_relief_and_flags_a_flat_block() {
         "f must be flagged on a flat block (corr {})",
         fx.max_correlation
     );
+}
+
+/// Grün's significance test of the additional parameters: a parameter whose prior is
+/// the truth comes out within noise of it and is held there; one whose prior is far off
+/// is significant and adjusted.
+#[test]
+fn a_self_calibration_parameter_the_data_do_not_show_is_held_at_its_prior() {
+    let (syn, _) = calib_block(250.0);
+    let mut b = syn.start.clone();
+    let cam = b.cameras.get_mut(&1).unwrap();
+    let truth = cam.model.params();
+    let names = cam.model.param_names();
+    let at = |n: &str| names.iter().position(|m| *m == n).unwrap();
+    let mut p = truth.clone();
+    p[at("k1")] = 0.0; // truth −0.05
+    cam.model.set_params(&p).unwrap();
+    let free = ["cx", "cy", "k1", "k2"];
+    cam.free_params = free.iter().map(|s| s.to_string()).collect();
+    let rep = adjust_determinable(&mut b, &AdjustOptions::default()).unwrap();
+    let limit = chi2::critical(1, CALIBRATION_SIGNIFICANCE).sqrt();
+    let adjusted = b.cameras[&1].model.params();
+    for c in &rep.calibration {
+        eprintln!(
+            "{} = {:.6} ± {:.2e}, t {:?}, held {:?}",
+            c.param, c.value, c.sigma, c.t_prior, c.held_because
+        );
+    }
+    assert_eq!(rep.calibration.len(), free.len());
+    let mut held = 0;
+    for c in &rep.calibration {
+        let k = at(&c.param);
+        let t = c.t_prior.expect("tested against its prior");
+        if c.held_because == Some(HeldBecause::NotSignificant) {
+            held += 1;
+            assert!(t < limit && c.fixed && c.sigma == 0.0, "{c:?}");
+            assert_eq!(adjusted[k], p[k], "{} held at its prior", c.param);
+        } else {
+            assert!(t >= limit && !c.fixed && c.held_because.is_none(), "{c:?}");
+        }
+    }
+    // k1 from 0 to −0.05 is significant and recovered; of the three whose prior is the
+    // truth, the test keeps at least one at it (each passes with probability 95 %).
+    let k1 = rep.calibration.iter().find(|c| c.param == "k1").unwrap();
+    assert!(
+        !k1.fixed && (adjusted[at("k1")] / -0.05 - 1.0).abs() < 0.05,
+        "{k1:?}"
+    );
+    assert!(held >= 1, "{:?}", rep.calibration);
 }
 
 /// Re-fits each tie point's plane at its current plan position from the (known) terrain,
