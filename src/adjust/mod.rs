@@ -356,13 +356,19 @@ pub fn adjust_determinable(
     opts: &AdjustOptions,
 ) -> Result<AdjustReport, AdjustError> {
     let prior = block.clone();
+    // Every camera's parameters before the adjustment: what each free one is tested
+    // against and held at.
+    let start: std::collections::BTreeMap<_, (&[&str], Vec<f64>)> = prior
+        .cameras
+        .iter()
+        .map(|(id, c)| (*id, (c.model.param_names(), c.model.params())))
+        .collect();
+    let prior_value = |c: &CalibrationReport| -> Option<f64> {
+        let (names, values) = start.get(&c.camera)?;
+        Some(values[names.iter().position(|n| *n == c.param)?])
+    };
     let mut first = adjust(block, &[], None, opts)?;
     let t_limit = chi2::critical(1, CALIBRATION_SIGNIFICANCE).sqrt();
-    let prior_value = |c: &CalibrationReport| -> Option<f64> {
-        let cam = prior.cameras.get(&c.camera)?;
-        let k = cam.model.param_names().iter().position(|n| *n == c.param)?;
-        Some(cam.model.params()[k])
-    };
     for c in &mut first.calibration {
         c.t_prior = prior_value(c)
             .filter(|_| c.sigma > 0.0 && c.sigma.is_finite())
@@ -385,7 +391,7 @@ pub fn adjust_determinable(
     if weak.is_empty() {
         return Ok(first);
     }
-    *block = prior.clone();
+    *block = prior;
     let mut held = Vec::with_capacity(weak.len());
     for (mut c, why) in weak {
         let Some(cam) = block.cameras.get(&c.camera) else {

@@ -60,15 +60,14 @@ pub struct ArchiveOptions {
     /// photos whose control patches cluster in part of the frame: on the small preset,
     /// seeds 1–10, the digital epoch's worst checkpoint height went from 1.78 to
     /// 0.73 GSD with them, the film's worst from 0.34 to 0.39 (bench accuracy).
-    ///
-    /// 50 px, not 100: a 1000 × 666 frame then carries up to 20 × 14 points instead of
-    /// 10 × 7, and its nine standard positions their three points each where the texture
-    /// allows (at 100 px, 5 of seed 10's 6 photos were short at a position, with 194 tie
-    /// points in the epoch). The self-calibration rests on them: the digital epoch's
-    /// worst checkpoint height over small seeds 1–10 went from 1.40 (seed 10) to
+    pub ties: bool,
+    /// 50 px by default, not 100: a 1000 × 666 frame then carries up to 20 × 14 points
+    /// instead of 10 × 7, and its nine standard positions their three points each where
+    /// the texture allows (at 100 px, 5 of seed 10's 6 photos were short at a position,
+    /// with 194 tie points in the epoch). The self-calibration rests on them: the digital
+    /// epoch's worst checkpoint height over small seeds 1–10 went from 1.40 (seed 10) to
     /// 0.78 GSD, run time unchanged within noise. A film scan stays capped at
     /// `MAX_POINTS_PER_SIDE` a side.
-    pub ties: bool,
     pub tie_interval_px: f64,
     pub tie_window_px: f64,
     pub tie_ncc_threshold: f64,
