@@ -11,7 +11,7 @@
 use super::chips::{ChipStore, ChipView, ControlPoint, PointKey};
 use super::dcp::DcpPackage;
 use super::epoch::{
-    approximate_orientations, EpochCamera, EpochError, EpochInput, NavigationSigma,
+    approximate_orientations, EpochCamera, EpochError, EpochInput, NavigationSigma, PhotoInput,
 };
 use super::epoch_ties::{epoch_ties, tie_pass, TieParams};
 use super::photo::{orient_photo, PhotoOptions, PhotoOrientation, PhotoReport};
@@ -116,6 +116,117 @@ impl EpochResult {
     }
 }
 
+/// What the per-photo work of an archive epoch shares: the control points of the
+/// packages and the photos' approximate orientations. Built the same way in the process
+/// that adjusts the epoch and in every process that orients one of its photos (a
+/// distributed run), so a photo's match indices mean the same point everywhere.
+pub struct ArchiveContext<'a> {
+    pub store: ChipStore<'a>,
+    pub priors: BTreeMap<String, crate::block::PosPrior>,
+    photo_opts: PhotoOptions,
+}
+
+impl<'a> ArchiveContext<'a> {
+    /// Checks the packages against the epoch (CRS, any at all) and gathers their points.
+    pub fn new(
+        input: &EpochInput,
+        dcp: &'a [DcpPackage],
+        dem: &Dem,
+        opts: &ArchiveOptions,
+    ) -> Result<Self, EpochError> {
+        let ep = |message: String| EpochError::Epoch {
+            epoch: input.name.clone(),
+            message,
+        };
+        if dcp.is_empty() {
+            return Err(ep("no DCP package given".into()));
+        }
+        if input.photos.is_empty() {
+            return Err(ep("no photo given".into()));
+        }
+        let crs = Crs::parse(&input.crs).map_err(|e| ep(format!("CRS: {e}")))?;
+        for p in dcp {
+            let c = Crs::parse(&p.manifest.crs).map_err(|e| ep(e.to_string()))?;
+            if c.label() != crs.label() {
+                return Err(ep(format!(
+                    "DCP package {} is in {}, the epoch in {}",
+                    p.dir.display(),
+                    c.label(),
+                    crs.label()
+                )));
+            }
+        }
+        let store = ChipStore::from_packages(dcp, Vector3::from(input.origin));
+        let priors = approximate_orientations(input, dem, &opts.navigation)?;
+        let mut photo_opts = opts.photo.clone();
+        if let Some(um) = input.scan_pixel_um {
+            photo_opts.io.pixel_mm = Some(um / 1000.0);
+        }
+        Ok(Self {
+            store,
+            priors,
+            photo_opts,
+        })
+    }
+
+    /// The photo options of the epoch; a film epoch's undecided scans take the majority
+    /// orientation of its measured scans unless the epoch fixes one.
+    pub fn photo_options(&self, scans: Option<&ScanCameras>) -> PhotoOptions {
+        let mut o = self.photo_opts.clone();
+        if let Some(s) = scans {
+            if o.io.orientation.is_none() {
+                o.io.fallback_orientation = s.majority;
+            }
+        }
+        o
+    }
+
+    /// The photo options the epoch's scans are measured with (before any majority).
+    pub fn io_options(&self) -> &crate::matching::IoOptions {
+        &self.photo_opts.io
+    }
+
+    /// The first orientation of one photo of the epoch from the control patches.
+    pub fn orient(
+        &self,
+        photo: &PhotoInput,
+        camera: &EpochCamera,
+        dem: &Dem,
+        scans: Option<&ScanCameras>,
+    ) -> PhotoOrientation {
+        orient_photo(
+            photo,
+            camera,
+            self.priors.get(&photo.name),
+            &self.store,
+            dem,
+            &self.photo_options(scans),
+            scans,
+        )
+    }
+}
+
+/// The per-photo part of an archive epoch: the film scans measured (`None` for a frame
+/// camera) and every photo's first orientation, in the order of the epoch's photos.
+pub struct FirstPass {
+    pub scans: Option<ScanCameras>,
+    pub outcomes: Vec<PhotoOrientation>,
+}
+
+/// The per-photo part of an archive epoch in this process (rayon over the photos).
+pub fn first_pass(input: &EpochInput, ctx: &ArchiveContext, dem: &Dem) -> FirstPass {
+    let scans = match &input.camera {
+        EpochCamera::Film(def) => Some(ScanCameras::measure(def, &input.photos, ctx.io_options())),
+        EpochCamera::Frame(_) => None,
+    };
+    let outcomes = input
+        .photos
+        .par_iter()
+        .map(|ph| ctx.orient(ph, &input.camera, dem, scans.as_ref()))
+        .collect();
+    FirstPass { scans, outcomes }
+}
+
 /// Orients an archive epoch from DCP packages over a DEM (block-local coordinates with the
 /// epoch's origin): per-photo orientation, the second pass, then the robust archive block
 /// adjustment of all oriented photos with the DCP control (object σ from the packages).
@@ -126,60 +237,39 @@ pub fn orient_epoch(
     opts: &ArchiveOptions,
 ) -> Result<EpochResult, EpochError> {
     let t0 = Instant::now();
+    let ctx = ArchiveContext::new(input, dcp, dem, opts)?;
+    let first = first_pass(input, &ctx, dem);
+    finish_epoch(input, &ctx, dem, opts, first, t0)
+}
+
+/// The epoch-wide part of an archive epoch after its per-photo part (`first`, made here
+/// or by per-photo tasks elsewhere): the second pass, the tie pass, tie points and the
+/// block adjustment. `t0` is when the epoch started (its reported time).
+pub fn finish_epoch(
+    input: &EpochInput,
+    ctx: &ArchiveContext,
+    dem: &Dem,
+    opts: &ArchiveOptions,
+    first: FirstPass,
+    t0: Instant,
+) -> Result<EpochResult, EpochError> {
     let ep = |message: String| EpochError::Epoch {
         epoch: input.name.clone(),
         message,
     };
-    if dcp.is_empty() {
-        return Err(ep("no DCP package given".into()));
+    if first.outcomes.len() != input.photos.len() {
+        return Err(ep(format!(
+            "{} per-photo results for {} photos",
+            first.outcomes.len(),
+            input.photos.len()
+        )));
     }
-    if input.photos.is_empty() {
-        return Err(ep("no photo given".into()));
-    }
-    let crs = Crs::parse(&input.crs).map_err(|e| ep(format!("CRS: {e}")))?;
-    for p in dcp {
-        let c = Crs::parse(&p.manifest.crs).map_err(|e| ep(e.to_string()))?;
-        if c.label() != crs.label() {
-            return Err(ep(format!(
-                "DCP package {} is in {}, the epoch in {}",
-                p.dir.display(),
-                c.label(),
-                crs.label()
-            )));
-        }
-    }
-    let origin = Vector3::from(input.origin);
-    let store = ChipStore::from_packages(dcp, origin);
-    let priors = approximate_orientations(input, dem, &opts.navigation)?;
-    let mut photo_opts = opts.photo.clone();
-    if let Some(um) = input.scan_pixel_um {
-        photo_opts.io.pixel_mm = Some(um / 1000.0);
-    }
-    let scans = match &input.camera {
-        EpochCamera::Film(def) => {
-            let s = ScanCameras::measure(def, &input.photos, &photo_opts.io);
-            if photo_opts.io.orientation.is_none() {
-                photo_opts.io.fallback_orientation = s.majority;
-            }
-            Some(s)
-        }
-        EpochCamera::Frame(_) => None,
-    };
-    let mut outcomes: Vec<PhotoOrientation> = input
-        .photos
-        .par_iter()
-        .map(|ph| {
-            orient_photo(
-                ph,
-                &input.camera,
-                priors.get(&ph.name),
-                &store,
-                dem,
-                &photo_opts,
-                scans.as_ref(),
-            )
-        })
-        .collect();
+    let FirstPass {
+        scans,
+        mut outcomes,
+    } = first;
+    let (store, priors) = (&ctx.store, &ctx.priors);
+    let photo_opts = ctx.photo_options(scans.as_ref());
     // A damaged package is an input error of the epoch, not a photo's misfortune.
     if let Some(e) = outcomes.iter().find_map(|o| match &o.report.reason {
         Some(r @ PhotoFailure::Chip { .. }) => Some(r.to_string()),
@@ -200,8 +290,8 @@ pub fn orient_epoch(
     if opts.epoch_second_pass {
         second_pass(
             input,
-            &store,
-            &priors,
+            store,
+            priors,
             dem,
             &photo_opts,
             scans.as_ref(),
@@ -217,7 +307,7 @@ pub fn orient_epoch(
     let pass_ties = if opts.tie_pass {
         tie_pass(
             input,
-            &priors,
+            priors,
             dem,
             &photo_opts,
             scans.as_ref(),

@@ -14,7 +14,7 @@ use super::predict::{self, Plane, Prediction, View};
 use crate::geometry::{Camera, Pose};
 use crate::matching::{self, match_template, GreyImage, MatchOptions, Pyramid, Window};
 use nalgebra::{Matrix3, Vector2, Vector3};
-use serde::Serialize;
+use serde::{Deserialize, Serialize};
 use std::collections::HashMap;
 use std::sync::Arc;
 
@@ -256,7 +256,7 @@ impl Default for ChipMatchOptions {
 }
 
 /// Why the matcher rejected patches, counted for the report.
-#[derive(Debug, Clone, Default, Serialize, PartialEq)]
+#[derive(Debug, Clone, Default, Serialize, Deserialize, PartialEq)]
 pub struct MatchStats {
     pub offered: usize,
     pub no_chip: usize,

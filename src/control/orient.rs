@@ -11,7 +11,7 @@ use super::predict::{self, Prediction};
 use crate::estimators::similarity2::Similarity2;
 use crate::geometry::{Camera, Pose};
 use nalgebra::{Matrix3, SMatrix, Vector2, Vector3};
-use serde::Serialize;
+use serde::{Deserialize, Serialize};
 
 /// A control point offered to the photo: object coordinates (block-local) with covariance,
 /// and an identifier the matcher understands (which chip, which package).
@@ -89,7 +89,7 @@ impl Default for OrientOptions {
 }
 
 /// What happened in one round of prediction and matching.
-#[derive(Debug, Clone, Serialize, PartialEq)]
+#[derive(Debug, Clone, Serialize, Deserialize, PartialEq)]
 pub struct IterationRecord {
     pub iteration: usize,
     pub predicted: usize,

@@ -18,7 +18,7 @@ use crate::estimators::{RobustMethod, RobustOptions};
 use crate::geometry::{Camera, Dem, Pose};
 use crate::matching::{GreyImage, IoOptions, MatchOptions, Pyramid};
 use nalgebra::{Matrix3, SMatrix, Vector2, Vector3};
-use serde::Serialize;
+use serde::{Deserialize, Serialize};
 
 /// Options of the orientation of one photo.
 #[derive(Debug, Clone)]
@@ -69,7 +69,7 @@ impl Default for PhotoOptions {
 }
 
 /// Per-photo outcome, for the report.
-#[derive(Debug, Clone, Serialize)]
+#[derive(Debug, Clone, Serialize, Deserialize)]
 pub struct PhotoReport {
     pub name: String,
     pub oriented: bool,
@@ -94,7 +94,7 @@ pub struct PhotoReport {
 }
 
 /// A film scan's fiducial interior orientation, as reported.
-#[derive(Debug, Clone, Serialize)]
+#[derive(Debug, Clone, Serialize, Deserialize)]
 pub struct ScanIo {
     /// RMS of the fiducial marks after the affine fit (µm).
     pub rmse_um: f64,
@@ -105,8 +105,9 @@ pub struct ScanIo {
 }
 
 /// The orientation of one photo: the resected pose with its covariance and the matches
-/// that support it, or the reason it failed.
-#[derive(Debug, Clone)]
+/// that support it, or the reason it failed. Serialisable: a distributed run's per-photo
+/// task returns it.
+#[derive(Debug, Clone, Serialize, Deserialize)]
 pub struct PhotoOrientation {
     pub report: PhotoReport,
     /// The photo's camera (film: the certificate with this scan's interior orientation).

@@ -7,11 +7,12 @@
 use super::epoch::PhotoInput;
 use super::photo::ScanIo;
 use crate::geometry::{Brown, FilmCamera};
-use crate::matching::fiducial::majority_orientation;
+use crate::matching::fiducial::majority_of_votes;
 use crate::matching::{
     self, CameraDefinition, GreyImage, IoOptions, IoResult, MatchingError, ScanOrientation,
 };
 use rayon::prelude::*;
+use serde::{Deserialize, Serialize};
 use std::collections::HashMap;
 
 /// A scan's candidate cameras, best first, or why its interior orientation failed.
@@ -25,51 +26,102 @@ pub struct ScanCameras {
     pub majority: Option<ScanOrientation>,
 }
 
+/// One scan's first measurement, made without any epoch fallback orientation: its vote
+/// for the epoch's majority, and its candidate cameras unless its marks left the scan
+/// orientation undecided (then the majority decides, [`resolve_scan`]). A per-scan task
+/// of a distributed run returns exactly this.
+#[derive(Debug, Clone, Serialize, Deserialize)]
+pub struct ScanMeasure {
+    /// The orientation the marks decided (not ambiguous): this scan's majority vote.
+    pub vote: Option<ScanOrientation>,
+    /// `None`: orientation undecided, to be resolved with the epoch's majority.
+    pub candidates: Option<Candidates>,
+}
+
+/// Measures one scan's fiducials (the first of [`ScanCameras::measure`]'s two steps).
+/// `None`: the scan cannot be read (orienting it reports the read error).
+pub fn measure_scan(
+    def: &CameraDefinition,
+    photo: &PhotoInput,
+    io: &IoOptions,
+) -> Option<ScanMeasure> {
+    let first_io = IoOptions {
+        fallback_orientation: None,
+        ..io.clone()
+    };
+    let img = GreyImage::load(&photo.image).ok()?;
+    let r = matching::interior_orientation(def, &img, &photo.name, &first_io);
+    let vote = match &r {
+        Ok(r) if !r.orientation_ambiguous => Some(r.orientation),
+        _ => None,
+    };
+    let candidates = match &r {
+        Err(MatchingError::OrientationUndecided { .. }) => None,
+        Err(e) => Some(Err(e.to_string())),
+        Ok(r) => Some(Ok(candidates(def, &img, &photo.name, &first_io, r))),
+    };
+    Some(ScanMeasure { vote, candidates })
+}
+
+/// The epoch's majority orientation from its scans' votes, unless `io` fixes one.
+pub fn epoch_majority<'a>(
+    measures: impl IntoIterator<Item = &'a ScanMeasure>,
+    io: &IoOptions,
+) -> Option<ScanOrientation> {
+    match io.orientation {
+        None => majority_of_votes(measures.into_iter().map(|m| m.vote)).map(|m| m.0),
+        Some(_) => None,
+    }
+}
+
+/// A scan's candidates (the second step): its own, or for an undecided scan those the
+/// epoch's `majority` gives (the scan is read a second time for that). `None`: the scan
+/// cannot be read.
+pub fn resolve_scan(
+    def: &CameraDefinition,
+    photo: &PhotoInput,
+    measure: &ScanMeasure,
+    majority: Option<ScanOrientation>,
+    io: &IoOptions,
+) -> Option<Candidates> {
+    if let Some(c) = &measure.candidates {
+        return Some(c.clone());
+    }
+    let undecided = IoOptions {
+        fallback_orientation: majority,
+        ..io.clone()
+    };
+    let img = GreyImage::load(&photo.image).ok()?;
+    Some(cameras_of(def, &img, &photo.name, &undecided))
+}
+
 impl ScanCameras {
     /// Measures every scan of `photos` (in parallel, one scan per thread in memory). A scan
     /// whose marks cannot decide its orientation takes the majority of the decided scans
-    /// ([`majority_orientation`]) unless `io` gives one; it is read a second time for that.
+    /// ([`majority_of_votes`]) unless `io` gives one; it is read a second time for that.
     /// A scan that cannot be read is left out: orienting it reports the read error.
     pub fn measure(def: &CameraDefinition, photos: &[PhotoInput], io: &IoOptions) -> Self {
-        let first_io = IoOptions {
-            fallback_orientation: None,
-            ..io.clone()
-        };
-        type First = (Result<IoResult, MatchingError>, Option<Candidates>);
-        let first: Vec<Option<First>> = photos
+        let first: Vec<Option<ScanMeasure>> = photos
             .par_iter()
-            .map(|ph| {
-                let img = GreyImage::load(&ph.image).ok()?;
-                let r = matching::interior_orientation(def, &img, &ph.name, &first_io);
-                let c = match &r {
-                    Err(MatchingError::OrientationUndecided { .. }) => None,
-                    Err(e) => Some(Err(e.to_string())),
-                    Ok(r) => Some(Ok(candidates(def, &img, &ph.name, &first_io, r))),
-                };
-                Some((r, c))
-            })
+            .map(|ph| measure_scan(def, ph, io))
             .collect();
-        let majority = match io.orientation {
-            None => majority_orientation(first.iter().flatten().map(|f| &f.0)).map(|m| m.0),
-            Some(_) => None,
-        };
-        let undecided = IoOptions {
-            fallback_orientation: majority,
-            ..io.clone()
-        };
+        let majority = epoch_majority(first.iter().flatten(), io);
         let by_photo = photos
             .par_iter()
             .zip(first)
-            .filter_map(|(ph, f)| {
-                let c = match f?.1 {
-                    Some(c) => c,
-                    None => {
-                        cameras_of(def, &GreyImage::load(&ph.image).ok()?, &ph.name, &undecided)
-                    }
-                };
-                Some((ph.name.clone(), c))
+            .filter_map(|(ph, m)| {
+                Some((ph.name.clone(), resolve_scan(def, ph, &m?, majority, io)?))
             })
             .collect();
+        Self { by_photo, majority }
+    }
+
+    /// The scans of an epoch measured elsewhere (per-scan tasks): each photo's resolved
+    /// candidates and the majority they were resolved with.
+    pub fn from_parts(
+        by_photo: HashMap<String, Candidates>,
+        majority: Option<ScanOrientation>,
+    ) -> Self {
         Self { by_photo, majority }
     }
 

@@ -22,8 +22,8 @@ pub use frame_image::{
     mean_scan_pixel_mm, resample_scan, write_frame_image, FiducialFrame, FrameImageReport,
 };
 pub use orientation::{
-    interior_orientation_epoch, majority_orientation, OrientationScore, ScanOrientation,
-    ORIENTATION_MARGIN_CAP, ORIENTATION_MIN_MARGIN,
+    interior_orientation_epoch, majority_of_votes, majority_orientation, OrientationScore,
+    ScanOrientation, ORIENTATION_MARGIN_CAP, ORIENTATION_MIN_MARGIN,
 };
 pub use shape::{render_template, FiducialShape, ShapeKind};
 

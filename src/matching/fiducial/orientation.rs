@@ -234,20 +234,29 @@ pub(super) fn rank(hyps: &mut [Hypothesis], img: &GreyImage, strip: Option<&Data
 pub fn majority_orientation<'a>(
     results: impl IntoIterator<Item = &'a Result<IoResult>>,
 ) -> Option<(ScanOrientation, usize, usize)> {
-    let mut votes: Vec<(ScanOrientation, usize)> = Vec::new();
+    majority_of_votes(results.into_iter().map(|r| match r {
+        Ok(r) if !r.orientation_ambiguous => Some(r.orientation),
+        _ => None,
+    }))
+}
+
+/// The majority rule of [`majority_orientation`] over votes already taken: `Some` is a
+/// scan whose marks decided its orientation, `None` one that did not vote. Returns the
+/// orientation more than half the deciding scans found, with its votes and the number of
+/// deciding scans (per-scan tasks vote in separate processes).
+pub fn majority_of_votes(
+    votes: impl IntoIterator<Item = Option<ScanOrientation>>,
+) -> Option<(ScanOrientation, usize, usize)> {
+    let mut tally: Vec<(ScanOrientation, usize)> = Vec::new();
     let mut decided = 0;
-    for r in results {
-        let Ok(r) = r else { continue };
-        if r.orientation_ambiguous {
-            continue;
-        }
+    for o in votes.into_iter().flatten() {
         decided += 1;
-        match votes.iter_mut().find(|v| v.0 == r.orientation) {
+        match tally.iter_mut().find(|v| v.0 == o) {
             Some(v) => v.1 += 1,
-            None => votes.push((r.orientation, 1)),
+            None => tally.push((o, 1)),
         }
     }
-    let (o, n) = votes.into_iter().max_by_key(|v| v.1)?;
+    let (o, n) = tally.into_iter().max_by_key(|v| v.1)?;
     (2 * n > decided).then_some((o, n, decided))
 }
 
