@@ -296,8 +296,17 @@ impl Project {
             path: path.into(),
             message: e.to_string(),
         })?;
-        let base = path.parent().unwrap_or(Path::new("."));
-        p.resolve(base);
+        // Absolute, so that the paths mean the same in products and in another process
+        // (a distributed run's workers need not share this one's working folder).
+        let base = match path.parent() {
+            Some(b) if !b.as_os_str().is_empty() => b,
+            _ => Path::new("."),
+        };
+        let base = std::path::absolute(base).map_err(|e| ProjectError::Io {
+            path: path.into(),
+            source: e,
+        })?;
+        p.resolve(&base);
         p.validate(path)?;
         Ok(p)
     }
