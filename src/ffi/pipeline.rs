@@ -3,7 +3,9 @@
 
 use super::{guard, CcpStatus, FfiError};
 use crate::pipeline::project::{Project, ProjectError};
-use crate::pipeline::run::{run_project, RunError};
+use crate::pipeline::run::{run_project, run_project_with, RunError};
+use crate::pipeline::stages::WorkError;
+use crate::pipeline::tasks::{self, Task, TaskMode};
 use std::ffi::{c_char, CStr, CString};
 use std::path::PathBuf;
 
@@ -13,6 +15,8 @@ impl From<RunError> for FfiError {
             RunError::Project(ProjectError::Io { .. }) => CcpStatus::Io,
             RunError::Project(_) => CcpStatus::InvalidArgument,
             RunError::Stage(_) | RunError::Stopped(_) => CcpStatus::Numeric,
+            // Only a planning run ends so, and it returns the tasks instead.
+            RunError::Pending { .. } => CcpStatus::Numeric,
         };
         FfiError::new(status, e.to_string())
     }
@@ -41,9 +45,89 @@ pub unsafe extern "C" fn ccp_project_run(
             .map_err(|_| FfiError::invalid("project_path is not UTF-8"))?;
         let project = Project::load(&PathBuf::from(path)).map_err(RunError::from)?;
         let s = run_project(&project, &mut |_| {}, None)?;
-        let c = CString::new(s.to_json().to_string())
-            .map_err(|_| FfiError::invalid("report JSON holds a NUL byte"))?;
-        *out_json = super::handles::hand_out_string(c);
-        Ok(())
+        hand_out_json(&s.to_json(), out_json)
+    })
+}
+
+/// The JSON text of `v` into `*out_json`, owned by the library.
+unsafe fn hand_out_json(v: &serde_json::Value, out_json: *mut *mut c_char) -> Result<(), FfiError> {
+    let c = CString::new(v.to_string()).map_err(|_| FfiError::invalid("JSON holds a NUL byte"))?;
+    *out_json = super::handles::hand_out_string(c);
+    Ok(())
+}
+
+/// The UTF-8 text of a non-null C string argument.
+unsafe fn utf8_arg<'a>(p: *const c_char, what: &str) -> Result<&'a str, FfiError> {
+    CStr::from_ptr(p)
+        .to_str()
+        .map_err(|_| FfiError::invalid(format!("{what} is not UTF-8")))
+}
+
+/// Runs the project file `project_path` as `ccp_project_run` does, except that the
+/// per-photo tasks of archive epochs are not run here: the run stops at the first stage
+/// with unfinished tasks and `*out_json` is `{"pending": {"stage": S, "tasks": [T, ...]}}`.
+/// Run every task with `ccp_task_run` (in any process that sees the output folder), then
+/// call again; when nothing is pending, `*out_json` is the summary `ccp_project_run`
+/// gives. Release the string with `ccp_string_free`.
+#[no_mangle]
+pub unsafe extern "C" fn ccp_project_plan(
+    project_path: *const c_char,
+    out_json: *mut *mut c_char,
+) -> CcpStatus {
+    guard(|| {
+        if out_json.is_null() || project_path.is_null() {
+            return Err(FfiError::new(
+                CcpStatus::NullPointer,
+                "project_path or out_json is a null pointer",
+            ));
+        }
+        *out_json = std::ptr::null_mut();
+        let path = utf8_arg(project_path, "project_path")?;
+        let project = Project::load(&PathBuf::from(path)).map_err(RunError::from)?;
+        let v = match run_project_with(&project, &mut |_| {}, None, TaskMode::Plan) {
+            Ok(s) => s.to_json(),
+            Err(RunError::Pending { stage, tasks }) => {
+                serde_json::json!({ "pending": { "stage": stage, "tasks": tasks } })
+            }
+            Err(e) => return Err(e.into()),
+        };
+        hand_out_json(&v, out_json)
+    })
+}
+
+/// Runs one task that `ccp_project_plan` returned (`task_json`: the task object as given)
+/// and writes its result into the run's output folder, atomically: a task killed midway
+/// leaves nothing, and a task run twice writes the same result. `*out_json` receives
+/// `{"task", "photo", "ok", "reason", "seconds"}` (`ok` false with the reason when the
+/// photo could not be oriented or its scan measured: that is a result, not an error).
+/// Release the string with `ccp_string_free`.
+#[no_mangle]
+pub unsafe extern "C" fn ccp_task_run(
+    task_json: *const c_char,
+    out_json: *mut *mut c_char,
+) -> CcpStatus {
+    guard(|| {
+        if out_json.is_null() || task_json.is_null() {
+            return Err(FfiError::new(
+                CcpStatus::NullPointer,
+                "task_json or out_json is a null pointer",
+            ));
+        }
+        *out_json = std::ptr::null_mut();
+        let text = utf8_arg(task_json, "task_json")?;
+        let task: Task =
+            serde_json::from_str(text).map_err(|e| FfiError::invalid(format!("task_json: {e}")))?;
+        let summary = tasks::run_task(&task).map_err(|e| {
+            let status = match &e {
+                WorkError::Format(crate::formats::FormatError::Io { .. }) => CcpStatus::Io,
+                WorkError::Format(_) => CcpStatus::Format,
+                WorkError::Inconsistent(_) => CcpStatus::InvalidArgument,
+                _ => CcpStatus::Numeric,
+            };
+            FfiError::new(status, format!("task {}: {e}", task.name()))
+        })?;
+        let v = serde_json::to_value(&summary)
+            .map_err(|e| FfiError::invalid(format!("task summary: {e}")))?;
+        hand_out_json(&v, out_json)
     })
 }

@@ -87,7 +87,7 @@ pub fn score_run(
     for (k, e) in report.epochs.iter().enumerate() {
         let truth = synth_truth_block(block_dir, &e.name)?;
         let truth_eval = if e.gsd_m.is_finite() && e.gsd_m > 0.0 {
-            evaluate(&cps, &truth, &e.name, e.gsd_m)?
+            evaluate(&cps, &truth, &e.name, e.gsd_m, &[])?
         } else {
             None
         };

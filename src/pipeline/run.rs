@@ -16,11 +16,13 @@
 //! parameters, so a rerun skips every stage whose inputs are unchanged and redoes the rest.
 
 use super::epoch_files::{epoch_report, load_block, read_json, save_epoch, write_json};
+use super::ground::{control_dem, ControlGround};
 use super::project::{Epoch, Project, ProjectError};
 use super::report::{self, EpochReport, IcpIteration, OrthoPreview};
 use super::stages::{Inputs, Runner, StageError, WorkError};
+use super::tasks::{open_packages, EpochContext, EpochPlan, EpochTasks, Task, TaskMode};
 use crate::block::Block;
-use crate::control::archive::{self, ArchiveOptions};
+use crate::control::archive::{self, ArchiveContext, ArchiveOptions};
 use crate::control::checkpoints::{self, CheckpointEvaluation, EvaluationError};
 use crate::control::cloud::CloudOptions;
 use crate::control::dcp::{Accuracy, DcpPackage, EpochInfo};
@@ -31,11 +33,8 @@ use crate::control::ortho_source::{orthophoto_dcp, OrthoControlOptions, OrthoSou
 use crate::control::reference::{self, ReferenceOptions};
 use crate::formats::control_points;
 use crate::formats::crs::{Crs, Transformer};
-use crate::lidar::{
-    self, Catalogue, GroundSurface, PlaneIndex, PlaneOptions, ScanOptions, TileStore,
-};
+use crate::lidar::{self, Catalogue, ScanOptions, TileStore};
 use serde::{Deserialize, Serialize};
-use std::cell::OnceCell;
 use std::collections::BTreeMap;
 use std::path::{Path, PathBuf};
 use std::time::Instant;
@@ -48,6 +47,10 @@ pub enum RunError {
     Stage(#[from] StageError),
     #[error("stopped after stage {0} as asked")]
     Stopped(String),
+    /// A planning run ([`TaskMode::Plan`]) reached a stage whose per-photo tasks have not
+    /// all run: run them (anywhere the output folder is shared), then run again.
+    #[error("stage {stage}: {} task(s) to run first", tasks.len())]
+    Pending { stage: String, tasks: Vec<Task> },
 }
 
 /// What the run reports while it works (the CLI draws progress from it).
@@ -74,6 +77,8 @@ pub struct RunSummary {
     pub skipped: Vec<String>,
     /// Product files per epoch (COLMAP folder, XML, GeoTIFFs, DCP package).
     pub products: BTreeMap<String, Vec<PathBuf>>,
+    /// Wall time of each stage of this run (s; a skipped stage's is the check's).
+    pub stage_seconds: Vec<(String, f64)>,
 }
 
 impl RunSummary {
@@ -85,96 +90,16 @@ impl RunSummary {
             "ran": self.ran,
             "skipped": self.skipped,
             "products": self.products,
+            "stage_seconds": self.stage_seconds,
             "report": self.report,
         })
     }
 }
 
-/// Classes whose LiDAR points give planes for the reference adjustment: ground and
-/// buildings (stable, planar, present in the reference photos).
-const PLANE_CLASSES: [u8; 2] = [2, 6];
-
 /// `sources/origin.json`: the block-local origin shared by every epoch.
 #[derive(Debug, Clone, Copy, Serialize, Deserialize)]
 struct Origin {
     origin: [f64; 3],
-}
-
-/// The ground the epoch stages predict over, export DCPs on and rectify onto: the
-/// cleaned LiDAR's (ground and surface models, planes for the reference), or the DEM of
-/// the control sources where there is no LiDAR. Built once per run when first needed (a
-/// rerun that skips every epoch stage never reads it).
-struct ControlGround<'a> {
-    project: &'a Project,
-    /// Cleaned LiDAR tiles (None: no LiDAR, the project's DEM).
-    tiles_dir: Option<PathBuf>,
-    origin: [f64; 3],
-    surface: OnceCell<GroundSurface>,
-    planes: OnceCell<PlaneIndex>,
-}
-
-impl ControlGround<'_> {
-    fn surface(&self) -> Result<&GroundSurface, WorkError> {
-        if let Some(s) = self.surface.get() {
-            return Ok(s);
-        }
-        let s = match &self.tiles_dir {
-            Some(dir) => {
-                let tiles = lidar::catalogue::expand_inputs(std::slice::from_ref(dir))?;
-                lidar::lidar_surfaces(&tiles, self.origin, lidar::LIDAR_CELL_M)?
-            }
-            None => {
-                let dem = control_dem(self.project)?
-                    .shifted(self.origin)
-                    .map_err(crate::formats::FormatError::Geometry)?;
-                GroundSurface::from_dem(dem)
-            }
-        };
-        Ok(self.surface.get_or_init(|| s))
-    }
-
-    fn planes(&self) -> Result<&PlaneIndex, WorkError> {
-        if let Some(p) = self.planes.get() {
-            return Ok(p);
-        }
-        let Some(dir) = &self.tiles_dir else {
-            return Err(WorkError::Inconsistent(
-                "LiDAR planes are needed (reference epoch) but control.lidar is empty".into(),
-            ));
-        };
-        let tiles = lidar::catalogue::expand_inputs(std::slice::from_ref(dir))?;
-        let p = reference::lidar_plane_index(
-            &tiles,
-            self.origin,
-            &PLANE_CLASSES,
-            PlaneOptions::default(),
-        )?;
-        Ok(self.planes.get_or_init(|| p))
-    }
-
-    /// File name of the DEM product: whose surface it is.
-    fn dem_file(&self) -> &'static str {
-        if self.tiles_dir.is_some() {
-            super::products::LIDAR_DEM
-        } else {
-            super::products::CONTROL_DEM
-        }
-    }
-}
-
-/// The project's DEM (`control.dem`) in the project CRS, metres (world coordinates).
-fn control_dem(project: &Project) -> Result<crate::geometry::Dem, WorkError> {
-    let path = project
-        .control
-        .dem
-        .as_deref()
-        .ok_or_else(|| WorkError::Inconsistent("no LiDAR and no control.dem".into()))?;
-    let crs = Crs::parse(&project.crs)?;
-    Ok(crate::control::ortho_source::dem_in_metres(
-        path,
-        project.control.dem_crs.as_deref(),
-        &crs,
-    )?)
 }
 
 /// `sources/selection.json`: the LiDAR tiles the block needs.
@@ -269,7 +194,7 @@ fn dcp_options(project: &Project, reference_gsd: f64, gsd: f64, epoch: &str) -> 
     }
 }
 
-fn archive_options(project: &Project, epoch: &Epoch) -> ArchiveOptions {
+pub(crate) fn archive_options(project: &Project, epoch: &Epoch) -> ArchiveOptions {
     let mut o = project.thresholds.archive_options();
     if let Some(sc) = &epoch.self_calibration {
         o.self_calibration = sc.clone();
@@ -317,14 +242,25 @@ pub(crate) fn read_checkpoints(project: &Project) -> Result<Option<Checkpoints>,
 
 /// The checkpoint evaluation of an epoch; too few rays is a result (NaN in the report),
 /// a measurement in a photo the epoch does not have is an input error.
+/// `left_out`: photos of the epoch the block does not hold.
 pub(crate) fn evaluate(
     cps: &Option<Checkpoints>,
     block: &Block,
     epoch: &str,
     gsd_m: f64,
+    left_out: &[&str],
 ) -> Result<Option<CheckpointEvaluation>, WorkError> {
     let Some(c) = cps else { return Ok(None) };
-    let meas = control_points::read_checkpoint_measurements(&c.images, epoch)?;
+    let mut meas = control_points::read_checkpoint_measurements(&c.images, epoch)?;
+    // A photo of the epoch that the block cannot hold (a scan that could not be read has
+    // no interior orientation, so no camera) is not oriented: its measurements are left
+    // out as any unoriented photo's, not taken for a misnamed photo.
+    meas.retain(|m| {
+        let key = crate::formats::pos::photo_key(&m.photo);
+        !left_out
+            .iter()
+            .any(|n| crate::formats::pos::photo_key(n) == key)
+    });
     if meas.is_empty() {
         return Ok(None);
     }
@@ -423,11 +359,41 @@ fn reference_options(epoch: &Epoch) -> ReferenceOptions {
 }
 
 /// Runs a project. `stop_after` ends the run (as a kill would) once that stage finished;
-/// tests use it to prove that a rerun completes.
+/// tests use it to prove that a rerun completes. Per-photo tasks run in this process.
 pub fn run_project(
     project: &Project,
     on_event: &mut dyn FnMut(&Event),
     stop_after: Option<&str>,
+) -> Result<RunSummary, RunError> {
+    run_project_with(project, on_event, stop_after, TaskMode::InProcess)
+}
+
+/// [`run_project`], its per-photo tasks run here or, with [`TaskMode::Plan`], left to the
+/// caller: the run then ends at the first stage with unfinished tasks with
+/// [`RunError::Pending`], and a run after they finished goes on from there.
+pub fn run_project_with(
+    project: &Project,
+    on_event: &mut dyn FnMut(&Event),
+    stop_after: Option<&str>,
+    tasks: TaskMode,
+) -> Result<RunSummary, RunError> {
+    run_stages(project, on_event, stop_after, tasks).map_err(|e| match e {
+        RunError::Stage(StageError::Failed { stage, source }) => match *source {
+            WorkError::Pending(tasks) => RunError::Pending { stage, tasks },
+            source => RunError::Stage(StageError::Failed {
+                stage,
+                source: Box::new(source),
+            }),
+        },
+        e => e,
+    })
+}
+
+fn run_stages(
+    project: &Project,
+    on_event: &mut dyn FnMut(&Event),
+    stop_after: Option<&str>,
+    task_mode: TaskMode,
 ) -> Result<RunSummary, RunError> {
     let out = &project.output;
     let mut runner = Runner::new(out).map_err(StageError::from)?;
@@ -440,10 +406,17 @@ pub fn run_project(
         + epochs.len() * (2 + usize::from(want_outputs));
     let mut index = 0;
     let mut products: BTreeMap<String, Vec<PathBuf>> = BTreeMap::new();
+    let mut stage_seconds = Vec::new();
 
     // Each stage: announce, run (or skip), announce, maybe stop.
     macro_rules! stage {
-        ($name:expr, $inputs:expr, $work:expr) => {{
+        ($name:expr, $inputs:expr, $work:expr) => {
+            stage!(@run stage, $name, $inputs, $work)
+        };
+        (keyed $name:expr, $inputs:expr, $work:expr) => {
+            stage!(@run stage_keyed, $name, $inputs, $work)
+        };
+        (@run $method:ident, $name:expr, $inputs:expr, $work:expr) => {{
             let name: String = $name;
             index += 1;
             on_event(&Event::Start {
@@ -453,7 +426,8 @@ pub fn run_project(
             });
             let t = Instant::now();
             let skipped_before = runner.skipped.len();
-            let dir = runner.stage(&name, &$inputs, $work)?;
+            let dir = runner.$method(&name, &$inputs, $work)?;
+            stage_seconds.push((name.clone(), t.elapsed().as_secs_f64()));
             on_event(&Event::Done {
                 stage: name.clone(),
                 skipped: runner.skipped.len() > skipped_before,
@@ -567,13 +541,7 @@ pub fn run_project(
             source: Box::new(e.into()),
         })?
         .origin;
-    let lidar = ControlGround {
-        project,
-        tiles_dir: with_lidar.then(|| sources.join("lidar")),
-        origin,
-        surface: OnceCell::new(),
-        planes: OnceCell::new(),
-    };
+    let lidar = ControlGround::new(project, &sources, origin);
     let cp_inputs = |i: Inputs| match &project.control.checkpoint_images {
         Some(p) => i.file(p),
         None => i,
@@ -658,7 +626,8 @@ pub fn run_project(
         }
         let inputs = cp_inputs(inputs);
         let is_reference = has_reference && k == 0;
-        let edir = stage!(format!("epoch-{}", e.name), inputs, |dir: &Path| {
+        let stage_name = format!("epoch-{}", e.name);
+        let edir = stage!(keyed stage_name.clone(), inputs, |dir: &Path, key: &str| {
             let (result, icp) = if let Some(b) = &e.block {
                 // An existing oriented block: taken as it is, checked against the LiDAR.
                 let block = b.read()?;
@@ -710,22 +679,38 @@ pub fn run_project(
                     .unwrap_or_default();
                 (r, icp)
             } else {
-                let input = EpochInput::build(&e.spec(), &project.crs, origin)?;
+                let t0 = Instant::now();
                 // The DCPs of every newer epoch, combined: the previous epoch's are the
                 // closest in time and appearance, the reference's the most accurate.
-                let pkgs = dcp_dirs
-                    .iter()
-                    .map(|d| DcpPackage::open(&d.join("package")))
-                    .collect::<Result<Vec<_>, _>>()?;
-                let r = archive::orient_epoch(
-                    &input,
-                    &pkgs,
-                    &lidar.surface()?.ground,
-                    &archive_options(project, e),
-                )?;
+                let plan = EpochPlan {
+                    project: project.clone(),
+                    epoch: e.name.clone(),
+                    sources: sources.clone(),
+                    packages: dcp_dirs.clone(),
+                    origin,
+                };
+                let tasks = EpochTasks::new(out, &stage_name, key, &plan)?;
+                let ctx = EpochContext {
+                    input: EpochInput::build(&e.spec(), &project.crs, origin)?,
+                    opts: archive_options(project, e),
+                    surface: lidar.surface_arc()?.clone(),
+                    packages: open_packages(&dcp_dirs)?,
+                    plan,
+                };
+                let dem = &ctx.surface.ground;
+                let archive = ArchiveContext::new(&ctx.input, &ctx.packages, dem, &ctx.opts)?;
+                let first = tasks.first_pass(&ctx, &archive, task_mode)?;
+                let r = archive::finish_epoch(&ctx.input, &archive, dem, &ctx.opts, first, t0)?;
+                tasks.clear();
                 (r, Vec::new())
             };
-            let eval = evaluate(&checkpoints, &result.block, &e.name, result.gsd_m)?;
+            let left_out: Vec<&str> = result
+                .photos
+                .iter()
+                .map(|p| p.name.as_str())
+                .filter(|n| !result.block.photos.values().any(|p| p.name == *n))
+                .collect();
+            let eval = evaluate(&checkpoints, &result.block, &e.name, result.gsd_m, &left_out)?;
             let surveyed = checkpoints.as_ref().map_or(&[][..], |c| &c.surveyed[..]);
             let mut rep = epoch_report(&result, &e.date, &eval, surveyed, icp);
             rep.control = control_of(project, e, is_reference, &dcp_dirs);
@@ -887,5 +872,6 @@ pub fn run_project(
         ran: runner.ran.clone(),
         skipped: runner.skipped.clone(),
         products,
+        stage_seconds,
     })
 }

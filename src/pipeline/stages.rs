@@ -46,6 +46,10 @@ pub enum WorkError {
     /// under the photos).
     #[error("{0}")]
     Inconsistent(String),
+    /// Per-photo tasks the stage needs and a run that plans (rather than runs) its tasks
+    /// leaves to others ([`super::tasks`]): not a failure, the stage is simply not done.
+    #[error("{} task(s) to run first", .0.len())]
+    Pending(Vec<super::tasks::Task>),
 }
 
 /// What a stage depends on: files (hashed by content) and parameters (any serialisable).
@@ -165,6 +169,17 @@ impl Runner {
         inputs: &Inputs,
         work: impl FnOnce(&Path) -> Result<(), WorkError>,
     ) -> Result<PathBuf, StageError> {
+        self.stage_keyed(name, inputs, |dir, _| work(dir))
+    }
+
+    /// [`Runner::stage`], `work` also given the fingerprint of the stage's inputs (the key
+    /// of its per-photo task results).
+    pub fn stage_keyed(
+        &mut self,
+        name: &str,
+        inputs: &Inputs,
+        work: impl FnOnce(&Path, &str) -> Result<(), WorkError>,
+    ) -> Result<PathBuf, StageError> {
         let dir = self.dir(name);
         let fp = inputs.fingerprint()?;
         if let Some((done_fp, out_fp)) = self.ledger.stages.get(name) {
@@ -185,7 +200,7 @@ impl Runner {
         }
         std::fs::create_dir_all(&tmp).map_err(|e| FormatError::io(&tmp, e))?;
         tracing::info!(stage = name, "running");
-        if let Err(source) = work(&tmp) {
+        if let Err(source) = work(&tmp, &fp) {
             let _ = std::fs::remove_dir_all(&tmp);
             return Err(StageError::Failed {
                 stage: name.into(),

@@ -64,3 +64,33 @@ fn workflow_samples_are_read_by_the_library() {
         assert_eq!(p.ties, photos[&p.name], "{}", p.name);
     }
 }
+
+/// A task of a distributed run (formats/workflow/README.md, "Per-photo tasks"): the sample
+/// is read by the library, names its result file as the README says, and a task naming a
+/// folder without a plan is refused through the C ABI with the folder in the message.
+#[test]
+fn task_sample_is_read_and_a_task_without_its_plan_is_an_io_error() {
+    use cloudcontrol::pipeline::tasks::{Task, TaskKind};
+    let task: Task = serde_json::from_slice(&sample("task.json")).unwrap();
+    assert_eq!(task.kind, TaskKind::Orient);
+    assert_eq!(task.name(), "epoch-film_1978/orient/film_s02_001");
+    assert_eq!(
+        task.result(),
+        Path::new("/data/run/tasks/epoch-film_1978/41530d51a57a95aa/orient-00003.msgpack")
+    );
+    let json = std::ffi::CString::new(String::from_utf8(sample("task.json")).unwrap()).unwrap();
+    let mut out: *mut std::ffi::c_char = std::ptr::null_mut();
+    // SAFETY: a NUL-terminated string and a valid out pointer.
+    let status = unsafe { cloudcontrol::ffi::ccp_task_run(json.as_ptr(), &mut out) };
+    assert_eq!(status, cloudcontrol::ffi::CcpStatus::Io);
+    assert!(out.is_null());
+    let msg = crate::common::last_error();
+    assert!(
+        msg.contains("epoch-film_1978/orient/film_s02_001") && msg.contains("plan.json"),
+        "{msg}"
+    );
+    // Not a task at all: an invalid argument, not a crash.
+    let bad = std::ffi::CString::new("{\"kind\": \"paint\"}").unwrap();
+    let status = unsafe { cloudcontrol::ffi::ccp_task_run(bad.as_ptr(), &mut out) };
+    assert_eq!(status, cloudcontrol::ffi::CcpStatus::InvalidArgument);
+}

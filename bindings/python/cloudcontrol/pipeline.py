@@ -12,6 +12,19 @@ lib.ccp_project_run.argtypes = [ctypes.c_char_p, ctypes.POINTER(ctypes.c_void_p)
 lib.ccp_project_run.restype = ctypes.c_int
 lib.ccp_string_free.argtypes = [ctypes.c_void_p]
 lib.ccp_string_free.restype = ctypes.c_int
+lib.ccp_project_plan.argtypes = [ctypes.c_char_p, ctypes.POINTER(ctypes.c_void_p)]
+lib.ccp_project_plan.restype = ctypes.c_int
+lib.ccp_task_run.argtypes = [ctypes.c_char_p, ctypes.POINTER(ctypes.c_void_p)]
+lib.ccp_task_run.restype = ctypes.c_int
+
+
+def _json_call(fn, arg: bytes) -> dict:
+    out = ctypes.c_void_p()
+    check(fn(arg, ctypes.byref(out)))
+    try:
+        return json.loads(ctypes.string_at(out.value).decode())
+    finally:
+        lib.ccp_string_free(out)
 
 
 def run(project: str | os.PathLike) -> dict:
@@ -21,12 +34,23 @@ def run(project: str | os.PathLike) -> dict:
     ``photos_oriented``, ``check_rmse_plan_m``, ``check_rmse_height_m``, ``time_s``, the
     checkpoint errors and per-photo summaries. Raises CloudControlError naming the key of
     an invalid project file before any work starts."""
-    out = ctypes.c_void_p()
-    check(lib.ccp_project_run(os.fsencode(project), ctypes.byref(out)))
-    try:
-        return json.loads(ctypes.string_at(out.value).decode())
-    finally:
-        lib.ccp_string_free(out)
+    return _json_call(lib.ccp_project_run, os.fsencode(project))
+
+
+def plan(project: str | os.PathLike) -> dict:
+    """Runs a project as :func:`run` does, except for the per-photo tasks of archive
+    epochs: the run stops at the first stage whose tasks have not all run and returns
+    ``{"pending": {"stage": ..., "tasks": [...]}}``. Run each task with :func:`run_task`
+    (anywhere the output folder is shared), then call again; with nothing pending it
+    returns what :func:`run` returns."""
+    return _json_call(lib.ccp_project_plan, os.fsencode(project))
+
+
+def run_task(task: dict) -> dict:
+    """Runs one task of :func:`plan` and writes its result file (atomically) into the
+    run's output folder. Returns ``{"task", "photo", "ok", "reason", "seconds"}``; a photo
+    that could not be oriented is ``ok: False`` with its reason, not an exception."""
+    return _json_call(lib.ccp_task_run, json.dumps(task).encode())
 
 
 def load_report(output: str | os.PathLike) -> dict:

@@ -1,0 +1,92 @@
+"""The workflow on Dask (cloudcontrol.distributed): the small preset run on a LocalCluster
+of two worker processes, one of them killed while it orients an archive photo, gives the
+products of `cloudcontrol run` byte for byte; a scan that cannot be read is reported with
+its photo and reason and the epoch goes on without it."""
+import filecmp
+import os
+import pathlib
+import signal
+import threading
+import time
+
+import pytest
+
+import cloudcontrol
+from cloudcontrol import distributed
+
+dd = pytest.importorskip("dask.distributed")
+
+BAD_SCAN = "film_s02_003"
+
+
+def _block(shared_block, dest):
+    d = shared_block("small", 7, "rough", dest)
+    # The project synth writes, twice, with the outputs inside the copy: products name the
+    # photos by their paths, so both runs read the same block.
+    text = (d / "project.toml").read_text()
+    assert 'output = "../run"' in text
+    for name in ("plain", "dask"):
+        (d / f"{name}.toml").write_text(text.replace('output = "../run"', f'output = "run_{name}"'))
+    # A scan cut short, as a failed transfer leaves it.
+    scan = d / "epochs" / "film_1978" / "images" / f"{BAD_SCAN}.png"
+    scan.write_bytes(scan.read_bytes()[:4096])
+    return d
+
+
+def _files(root: pathlib.Path, products: dict) -> list[str]:
+    out = []
+    for paths in products.values():
+        for p in map(pathlib.Path, paths):
+            files = [p] if p.is_file() else sorted(f for f in p.rglob("*") if f.is_file())
+            out += [str(f.relative_to(root)) for f in files]
+    return sorted(out)
+
+
+def test_dask_run_with_a_killed_worker_gives_the_products_of_a_plain_run(shared_block, tmp_path):
+    block = _block(shared_block, tmp_path / "block")
+    ours = cloudcontrol.run(block / "plain.toml")
+    killed = {}
+
+    with dd.LocalCluster(n_workers=2, threads_per_worker=1, processes=True,
+                         dashboard_address=None) as cluster, dd.Client(cluster) as client:
+        pids = client.run(os.getpid)
+
+        def kill_when_busy(folder: pathlib.Path):
+            # Once the first photo of the round is done, both workers are orienting the
+            # next ones: kill one mid-task.
+            deadline = time.time() + 300
+            while time.time() < deadline and not list(folder.glob("orient-*.msgpack")):
+                time.sleep(0.05)
+            addr, pid = sorted(pids.items())[0]
+            os.kill(pid, signal.SIGKILL)
+            killed.update(address=addr, pid=pid, at=time.time())
+
+        def on_round(stage, futures):
+            if stage == "epoch-digital_2012" and not killed:
+                tasks = block / "run_dask" / "tasks" / stage
+                folder = next(tasks.iterdir())
+                threading.Thread(target=kill_when_busy, args=(folder,), daemon=True).start()
+
+        res = distributed.run(block / "dask.toml", client, on_round=on_round)
+        assert killed, "no worker was killed"
+        # The nanny restarted the killed worker process.
+        assert killed["pid"] not in client.run(os.getpid).values()
+
+    # Every round of tasks ran; the bad scan is reported, photo and reason, and the
+    # epoch went on.
+    kinds = [(r["stage"], r["kind"]) for r in res["rounds"]]
+    assert kinds == [("epoch-digital_2012", "orient"), ("epoch-film_1978", "scan"),
+                     ("epoch-film_1978", "orient")]
+    film_scan = res["rounds"][1]
+    assert [f["photo"] for f in film_scan["failed"]] == [BAD_SCAN]
+    assert "read" in film_scan["failed"][0]["reason"]
+    film = {e["name"]: e for e in res["report"]["epochs"]}["film_1978"]
+    assert film["photos_oriented"] == film["photos_total"] - 1
+    assert not (block / "run_dask" / "tasks").exists()
+
+    # The same products, file for file and byte for byte.
+    plain, dask = block / "run_plain", block / "run_dask"
+    a, b = _files(plain, ours["products"]), _files(dask, res["products"])
+    assert a == b and len(a) > 20
+    differ = [f for f in a if not filecmp.cmp(plain / f, dask / f, shallow=False)]
+    assert differ == []
