@@ -182,7 +182,8 @@ const char *ccp_version(void);
 // Copies the calling thread's last error message into `buf` (NUL-terminated, truncated
 // to `buf_len`) and returns the buffer size the whole message needs, NUL included.
 // Call with `buf = NULL, buf_len = 0` to ask for the size. The message is empty after a
-// successful call.
+// successful call, except after the free functions (`ccp_*_free`, `ccp_string_free`),
+// which leave it as it was when they succeed.
 size_t ccp_last_error(char *buf, size_t buf_len);
 
 // Creates an empty block with the world coordinates of its local origin (`origin`: 3

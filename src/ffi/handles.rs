@@ -133,7 +133,7 @@ pub(crate) fn write<'a, T: Handle>(
 /// Frees a handle: NULL is ignored; a handle that is not a live `T` is refused (nothing
 /// is freed) with `CCP_STATUS_INVALID_HANDLE`.
 pub(crate) fn free<T: Handle>(h: *mut T, name: &str) -> CcpStatus {
-    super::guard(|| {
+    super::guard_keeping_error(|| {
         if h.is_null() {
             return Ok(());
         }
@@ -167,7 +167,7 @@ pub(crate) fn hand_out_string(s: CString) -> *mut c_char {
 
 /// Releases a string from [`hand_out_string`]; anything else is refused.
 pub(crate) fn free_string(p: *mut c_char) -> CcpStatus {
-    super::guard(|| {
+    super::guard_keeping_error(|| {
         if p.is_null() {
             return Ok(());
         }

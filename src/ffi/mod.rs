@@ -127,6 +127,14 @@ fn set_last_error(message: &str) {
 /// Runs an entry point: clears the last error, catches panics, maps errors to a status.
 pub(crate) fn guard(f: impl FnOnce() -> FfiResult<()>) -> CcpStatus {
     set_last_error("");
+    guard_keeping_error(f)
+}
+
+/// [`guard`] for the free functions: a success leaves the last error as it was. A
+/// destructor that runs between a failed call and the read of its message (a Python
+/// object collected by the garbage collector right then) must not erase the message, as
+/// POSIX's `free` leaves `errno` alone.
+pub(crate) fn guard_keeping_error(f: impl FnOnce() -> FfiResult<()>) -> CcpStatus {
     match catch_unwind(AssertUnwindSafe(f)) {
         Ok(Ok(())) => CcpStatus::Ok,
         Ok(Err(e)) => {
@@ -254,7 +262,8 @@ pub extern "C" fn ccp_version() -> *const c_char {
 /// Copies the calling thread's last error message into `buf` (NUL-terminated, truncated
 /// to `buf_len`) and returns the buffer size the whole message needs, NUL included.
 /// Call with `buf = NULL, buf_len = 0` to ask for the size. The message is empty after a
-/// successful call.
+/// successful call, except after the free functions (`ccp_*_free`, `ccp_string_free`),
+/// which leave it as it was when they succeed.
 #[no_mangle]
 pub unsafe extern "C" fn ccp_last_error(buf: *mut c_char, buf_len: usize) -> usize {
     catch_unwind(|| {

@@ -199,7 +199,31 @@ fn bad_arguments_give_a_status_and_a_message() {
         );
         assert_eq!(last_error(), "");
         ccp_camera_free(null_mut());
-        ccp_camera_free(cam);
+
+        // A free that succeeds leaves the message of the failed call before it: a
+        // destructor (a Python object collected right then) must not erase it.
+        let mut other: *mut CcpCamera = null_mut();
+        let k = [1000.0, 1000.0, 50.0, 50.0];
+        assert_eq!(
+            ccp_camera_new_frame(100, 100, k.as_ptr(), 4, &mut other),
+            CcpStatus::Ok
+        );
+        assert_eq!(
+            ccp_camera_new_frame(100, 100, null(), 4, &mut out),
+            CcpStatus::NullPointer
+        );
+        let message = last_error();
+        assert!(!message.is_empty());
+        assert_eq!(ccp_camera_free(other), CcpStatus::Ok);
+        let s = std::ffi::CString::new("x").unwrap();
+        // A string the library did not hand out: refused, and that failure is the message.
+        assert_eq!(
+            ccp_string_free(s.as_ptr() as *mut _),
+            CcpStatus::InvalidHandle
+        );
+        assert_ne!(last_error(), message);
+        assert_eq!(ccp_camera_free(cam), CcpStatus::Ok);
+        assert!(!last_error().is_empty(), "the free kept the message");
     }
 }
 
