@@ -56,13 +56,6 @@ unsafe fn hand_out_json(v: &serde_json::Value, out_json: *mut *mut c_char) -> Re
     Ok(())
 }
 
-/// The UTF-8 text of a non-null C string argument.
-unsafe fn utf8_arg<'a>(p: *const c_char, what: &str) -> Result<&'a str, FfiError> {
-    CStr::from_ptr(p)
-        .to_str()
-        .map_err(|_| FfiError::invalid(format!("{what} is not UTF-8")))
-}
-
 /// Runs the project file `project_path` as `ccp_project_run` does, except that the
 /// per-photo tasks of archive epochs are not run here: the run stops at the first stage
 /// with unfinished tasks and `*out_json` is `{"pending": {"stage": S, "tasks": [T, ...]}}`.
@@ -82,7 +75,7 @@ pub unsafe extern "C" fn ccp_project_plan(
             ));
         }
         *out_json = std::ptr::null_mut();
-        let path = utf8_arg(project_path, "project_path")?;
+        let path = super::control::path_arg(project_path, "project_path")?;
         let project = Project::load(&PathBuf::from(path)).map_err(RunError::from)?;
         let v = match run_project_with(&project, &mut |_| {}, None, TaskMode::Plan) {
             Ok(s) => s.to_json(),
@@ -114,7 +107,7 @@ pub unsafe extern "C" fn ccp_task_run(
             ));
         }
         *out_json = std::ptr::null_mut();
-        let text = utf8_arg(task_json, "task_json")?;
+        let text = super::control::path_arg(task_json, "task_json")?;
         let task: Task =
             serde_json::from_str(text).map_err(|e| FfiError::invalid(format!("task_json: {e}")))?;
         let summary = tasks::run_task(&task).map_err(|e| {

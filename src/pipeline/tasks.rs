@@ -12,8 +12,9 @@
 //! stage has finished.
 //!
 //! A film epoch has two kinds, run one after the other: `scan` (the scan's fiducials,
-//! [`measure_scan`]) and `orient` (the photo's first orientation from the control patches,
-//! which takes the epoch's majority scan orientation from every `scan` result).
+//! [`measure_scan`]) and `orient` (the photo's first orientation from the control patches;
+//! its task carries the epoch's majority scan orientation, taken once from the `scan`
+//! results).
 
 use super::ground::ControlGround;
 use super::project::Project;
@@ -27,6 +28,7 @@ use crate::control::scan_cameras::{
 };
 use crate::formats::{write_bytes_atomically, FormatError};
 use crate::lidar::GroundSurface;
+use crate::matching::ScanOrientation;
 use rayon::prelude::*;
 use serde::{Deserialize, Serialize};
 use std::collections::HashMap;
@@ -63,6 +65,10 @@ pub struct Task {
     /// Index of the photo in the epoch (its photo folder, sorted).
     pub index: usize,
     pub photo: String,
+    /// `orient` tasks of a film epoch: the epoch's majority scan orientation, taken once
+    /// from its `scan` round (an undecided scan takes it).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub scan_orientation: Option<ScanOrientation>,
 }
 
 impl Task {
@@ -198,7 +204,12 @@ impl EpochTasks {
         })
     }
 
-    fn tasks(&self, kind: TaskKind, input: &EpochInput) -> Vec<Task> {
+    fn tasks(
+        &self,
+        kind: TaskKind,
+        input: &EpochInput,
+        scan_orientation: Option<ScanOrientation>,
+    ) -> Vec<Task> {
         input
             .photos
             .iter()
@@ -209,6 +220,7 @@ impl EpochTasks {
                 folder: self.folder.clone(),
                 index,
                 photo: p.name.clone(),
+                scan_orientation,
             })
             .collect()
     }
@@ -217,13 +229,12 @@ impl EpochTasks {
     /// returns them as pending.
     fn ensure(
         &self,
-        kind: TaskKind,
+        tasks: Vec<Task>,
         ctx: &EpochContext,
         archive: &ArchiveContext,
         mode: TaskMode,
     ) -> Result<(), WorkError> {
-        let missing: Vec<Task> = self
-            .tasks(kind, &ctx.input)
+        let missing: Vec<Task> = tasks
             .into_iter()
             .filter(|t| !t.result().is_file())
             .collect();
@@ -248,25 +259,30 @@ impl EpochTasks {
         mode: TaskMode,
     ) -> Result<FirstPass, WorkError> {
         let film = matches!(ctx.input.camera, EpochCamera::Film(_));
-        if film {
-            self.ensure(TaskKind::Scan, ctx, archive, mode)?;
-        }
-        self.ensure(TaskKind::Orient, ctx, archive, mode)?;
-        let mut outcomes = Vec::with_capacity(ctx.input.photos.len());
+        let majority = if film {
+            let scans = self.tasks(TaskKind::Scan, &ctx.input, None);
+            self.ensure(scans.clone(), ctx, archive, mode)?;
+            let mut measures = Vec::new();
+            for t in &scans {
+                let r: ScanResult = read_result(t)?;
+                measures.extend(r.measure);
+            }
+            epoch_majority(&measures, archive.io_options())
+        } else {
+            None
+        };
+        let orients = self.tasks(TaskKind::Orient, &ctx.input, majority);
+        self.ensure(orients.clone(), ctx, archive, mode)?;
+        let mut outcomes = Vec::with_capacity(orients.len());
         let mut by_photo = HashMap::new();
-        for t in self.tasks(TaskKind::Orient, &ctx.input) {
-            let r: OrientResult = read_result(&t)?;
+        for t in &orients {
+            let r: OrientResult = read_result(t)?;
             if let Some(c) = r.candidates {
                 by_photo.insert(r.photo.clone(), c);
             }
             outcomes.push(r.orientation);
         }
-        let scans = if film {
-            let majority = scan_majority(&self.folder, &ctx.input, archive)?;
-            Some(ScanCameras::from_parts(by_photo, majority))
-        } else {
-            None
-        };
+        let scans = film.then(|| ScanCameras::from_parts(by_photo, majority));
         Ok(FirstPass { scans, outcomes })
     }
 
@@ -314,27 +330,6 @@ fn write_result<T: Serialize>(task: &Task, v: &T) -> Result<(), WorkError> {
     let bytes = rmp_serde::to_vec_named(v)
         .map_err(|e| FormatError::invalid(&path, format!("task result: {e}")))?;
     Ok(write_bytes_atomically(&path, &bytes)?)
-}
-
-/// The epoch's majority scan orientation from every `scan` result of the folder.
-fn scan_majority(
-    folder: &Path,
-    input: &EpochInput,
-    archive: &ArchiveContext,
-) -> Result<Option<crate::matching::ScanOrientation>, WorkError> {
-    let mut measures = Vec::new();
-    for (index, p) in input.photos.iter().enumerate() {
-        let t = Task {
-            kind: TaskKind::Scan,
-            stage: String::new(),
-            folder: folder.to_path_buf(),
-            index,
-            photo: p.name.clone(),
-        };
-        let r: ScanResult = read_result(&t)?;
-        measures.extend(r.measure);
-    }
-    Ok(epoch_majority(&measures, archive.io_options()))
 }
 
 /// Runs one task with the stage's context and writes its result.
@@ -389,7 +384,7 @@ fn execute_with(
         (TaskKind::Orient, camera) => {
             let (scans, candidates) = match camera {
                 EpochCamera::Film(def) => {
-                    let majority = scan_majority(&task.folder, &ctx.input, archive)?;
+                    let majority = task.scan_orientation;
                     let own: ScanResult = read_result(&Task {
                         kind: TaskKind::Scan,
                         ..task.clone()
