@@ -6,7 +6,7 @@ use crate::pipeline::project::{Project, ProjectError};
 use crate::pipeline::run::{run_project, run_project_with, RunError};
 use crate::pipeline::stages::WorkError;
 use crate::pipeline::tasks::{self, Task, TaskMode};
-use std::ffi::{c_char, CStr, CString};
+use std::ffi::{c_char, CString};
 use std::path::PathBuf;
 
 impl From<RunError> for FfiError {
@@ -33,20 +33,24 @@ pub unsafe extern "C" fn ccp_project_run(
     out_json: *mut *mut c_char,
 ) -> CcpStatus {
     guard(|| {
-        if out_json.is_null() || project_path.is_null() {
-            return Err(FfiError::new(
-                CcpStatus::NullPointer,
-                "project_path or out_json is a null pointer",
-            ));
-        }
-        *out_json = std::ptr::null_mut();
-        let path = CStr::from_ptr(project_path)
-            .to_str()
-            .map_err(|_| FfiError::invalid("project_path is not UTF-8"))?;
+        clear_out_json(out_json)?;
+        let path = super::control::path_arg(project_path, "project_path")?;
         let project = Project::load(&PathBuf::from(path)).map_err(RunError::from)?;
         let s = run_project(&project, &mut |_| {}, None)?;
         hand_out_json(&s.to_json(), out_json)
     })
+}
+
+/// Refuses a null `out_json` and clears `*out_json`, so a failed call leaves NULL there.
+unsafe fn clear_out_json(out_json: *mut *mut c_char) -> Result<(), FfiError> {
+    if out_json.is_null() {
+        return Err(FfiError::new(
+            CcpStatus::NullPointer,
+            "out_json is a null pointer",
+        ));
+    }
+    *out_json = std::ptr::null_mut();
+    Ok(())
 }
 
 /// The JSON text of `v` into `*out_json`, owned by the library.
@@ -68,13 +72,7 @@ pub unsafe extern "C" fn ccp_project_plan(
     out_json: *mut *mut c_char,
 ) -> CcpStatus {
     guard(|| {
-        if out_json.is_null() || project_path.is_null() {
-            return Err(FfiError::new(
-                CcpStatus::NullPointer,
-                "project_path or out_json is a null pointer",
-            ));
-        }
-        *out_json = std::ptr::null_mut();
+        clear_out_json(out_json)?;
         let path = super::control::path_arg(project_path, "project_path")?;
         let project = Project::load(&PathBuf::from(path)).map_err(RunError::from)?;
         let v = match run_project_with(&project, &mut |_| {}, None, TaskMode::Plan) {
@@ -100,13 +98,7 @@ pub unsafe extern "C" fn ccp_task_run(
     out_json: *mut *mut c_char,
 ) -> CcpStatus {
     guard(|| {
-        if out_json.is_null() || task_json.is_null() {
-            return Err(FfiError::new(
-                CcpStatus::NullPointer,
-                "task_json or out_json is a null pointer",
-            ));
-        }
-        *out_json = std::ptr::null_mut();
+        clear_out_json(out_json)?;
         let text = super::control::path_arg(task_json, "task_json")?;
         let task: Task =
             serde_json::from_str(text).map_err(|e| FfiError::invalid(format!("task_json: {e}")))?;
