@@ -61,7 +61,8 @@ unsafe fn hand_out_json(v: &serde_json::Value, out_json: *mut *mut c_char) -> Re
 }
 
 /// Runs the project file `project_path` as `ccp_project_run` does, except that the
-/// per-photo tasks of archive epochs are not run here: the run stops at the first stage
+/// per-tile tasks of the LiDAR cleaning and the per-photo tasks of archive epochs are not
+/// run here: the run stops at the first stage
 /// with unfinished tasks and `*out_json` is `{"pending": {"stage": S, "tasks": [T, ...]}}`.
 /// Run every task with `ccp_task_run` (in any process that sees the output folder), then
 /// call again; when nothing is pending, `*out_json` is the summary `ccp_project_run`
@@ -89,8 +90,9 @@ pub unsafe extern "C" fn ccp_project_plan(
 /// Runs one task that `ccp_project_plan` returned (`task_json`: the task object as given)
 /// and writes its result into the run's output folder, atomically: a task killed midway
 /// leaves nothing, and a task run twice writes the same result. `*out_json` receives
-/// `{"task", "photo", "ok", "reason", "seconds"}` (`ok` false with the reason when the
-/// photo could not be oriented or its scan measured: that is a result, not an error).
+/// `{"task", "item", "ok", "reason", "seconds"}` (`item` the photo or the LiDAR tile; `ok`
+/// false with the reason when the photo could not be oriented or its scan measured: that
+/// is a result, not an error).
 /// Release the string with `ccp_string_free`.
 #[no_mangle]
 pub unsafe extern "C" fn ccp_task_run(

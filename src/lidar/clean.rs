@@ -483,113 +483,177 @@ pub struct CleanReport {
     pub tiles: Vec<TileCleanReport>,
 }
 
-/// Cleans every tile of a catalogue into `out_dir` (same file names and formats): noise
-/// points are classified (or dropped) and strip offsets removed. Tiles are processed one
-/// at a time; only a sample of all tiles is held for the offset estimation.
-pub fn clean_tiles(
-    catalogue: &super::catalogue::Catalogue,
+/// The first pass over one tile: the points the outlier filter calls noise and the tile's
+/// share of the sample the strip offsets are estimated from (every `stride`-th usable
+/// point, counted within the tile). Tiles are independent here, so the pass runs per tile
+/// anywhere (`pipeline::tasks`, a Dask worker) and only these small results meet.
+#[derive(Debug, Clone, Serialize, Deserialize)]
+pub struct TileScreen {
+    /// Indices (file order, ascending) of the noise points.
+    pub noise: Vec<u64>,
+    pub outliers: Option<OutlierReport>,
+    pub sample_xyz: Vec<[f64; 3]>,
+    pub sample_src: Vec<u16>,
+}
+
+/// The sampling stride over a catalogue: at most `max_points_for_offsets` points of all
+/// tiles together enter the strip offset estimation.
+pub fn sample_stride(catalogue: &super::catalogue::Catalogue, opts: &CleanOptions) -> usize {
+    let total: u64 = catalogue.tiles.iter().map(|t| t.point_count).sum();
+    (total as usize)
+        .div_ceil(opts.max_points_for_offsets.max(1))
+        .max(1)
+}
+
+/// Where tile `file` is written in `out_dir` (same file name); refuses to overwrite the
+/// input.
+pub fn cleaned_path(
+    file: &std::path::Path,
     out_dir: &std::path::Path,
-    opts: &CleanOptions,
-) -> Result<CleanReport> {
-    use super::las::{read_points, rewrite_las};
-    let mut outputs = Vec::new();
-    for t in &catalogue.tiles {
-        let name = t
-            .file
-            .file_name()
-            .ok_or_else(|| LidarError::data(t.file.display().to_string(), "no file name"))?;
-        let out = out_dir.join(name);
-        let same = match (t.file.canonicalize(), out.canonicalize()) {
-            (Ok(a), Ok(b)) => a == b,
-            _ => false,
-        };
-        if same {
+) -> Result<std::path::PathBuf> {
+    let name = file
+        .file_name()
+        .ok_or_else(|| LidarError::data(file.display().to_string(), "no file name"))?;
+    let out = out_dir.join(name);
+    if let (Ok(a), Ok(b)) = (file.canonicalize(), out.canonicalize()) {
+        if a == b {
             return Err(LidarError::InvalidOption(format!(
                 "output {} would overwrite its input; choose another folder",
                 out.display()
             )));
         }
-        outputs.push(out);
     }
-    let total: u64 = catalogue.tiles.iter().map(|t| t.point_count).sum();
-    let stride = (total as usize)
-        .div_ceil(opts.max_points_for_offsets.max(1))
-        .max(1);
-    let mut masks = Vec::with_capacity(catalogue.tiles.len());
-    let mut reports = Vec::with_capacity(catalogue.tiles.len());
+    Ok(out)
+}
+
+/// The first pass over one tile ([`TileScreen`]).
+pub fn screen_tile(
+    file: &std::path::Path,
+    stride: usize,
+    opts: &CleanOptions,
+) -> Result<TileScreen> {
+    let pts = super::las::read_points(file, None, None)?;
+    let idx: Vec<usize> = (0..pts.len())
+        .filter(|&i| !opts.skip_classes.contains(&pts.class[i]))
+        .collect();
+    let mut is_noise = vec![false; pts.len()];
+    let mut outliers = None;
+    if let Some(o) = &opts.outliers {
+        if idx.len() > o.k {
+            let sub: Vec<[f64; 3]> = idx.iter().map(|&i| pts.xyz[i]).collect();
+            let (keep, r) = statistical_outlier_filter(&sub, o)?;
+            for (j, &i) in idx.iter().enumerate() {
+                is_noise[i] = !keep[j];
+            }
+            outliers = Some(r);
+        }
+    }
     let (mut sample_xyz, mut sample_src) = (Vec::new(), Vec::new());
-    for t in &catalogue.tiles {
-        let pts = read_points(&t.file, None, None)?;
-        let usable: Vec<bool> = pts
-            .class
-            .iter()
-            .map(|c| !opts.skip_classes.contains(c))
-            .collect();
-        let idx: Vec<usize> = (0..pts.len()).filter(|&i| usable[i]).collect();
-        let mut noise = vec![false; pts.len()];
-        let mut rep = None;
-        if let Some(o) = &opts.outliers {
-            if idx.len() > o.k {
-                let sub: Vec<[f64; 3]> = idx.iter().map(|&i| pts.xyz[i]).collect();
-                let (keep, r) = statistical_outlier_filter(&sub, o)?;
-                for (j, &i) in idx.iter().enumerate() {
-                    noise[i] = !keep[j];
-                }
-                rep = Some(r);
-            }
+    for (n, &i) in idx.iter().enumerate() {
+        if n % stride.max(1) == 0 && !is_noise[i] {
+            sample_xyz.push(pts.xyz[i]);
+            sample_src.push(pts.source[i]);
         }
-        for (n, &i) in idx.iter().enumerate() {
-            if n % stride == 0 && !noise[i] {
-                sample_xyz.push(pts.xyz[i]);
-                sample_src.push(pts.source[i]);
-            }
-        }
-        masks.push(noise);
-        reports.push(rep);
     }
-    let strip_offsets = match &opts.strips {
-        Some(so) => Some(estimate_strip_offsets(&sample_xyz, &sample_src, so)?),
-        None => None,
+    Ok(TileScreen {
+        noise: (0..pts.len() as u64)
+            .filter(|&i| is_noise[i as usize])
+            .collect(),
+        outliers,
+        sample_xyz,
+        sample_src,
+    })
+}
+
+/// The strip offsets from the tiles' samples, in tile order (None when the options skip
+/// the estimation).
+pub fn strip_offsets<'a>(
+    screens: impl IntoIterator<Item = &'a TileScreen>,
+    opts: &CleanOptions,
+) -> Result<Option<StripOffsetReport>> {
+    let Some(so) = &opts.strips else {
+        return Ok(None);
     };
-    drop((sample_xyz, sample_src));
-    let offsets: BTreeMap<u16, [f64; 3]> = strip_offsets
-        .as_ref()
+    let (mut xyz, mut src) = (Vec::new(), Vec::new());
+    for s in screens {
+        xyz.extend_from_slice(&s.sample_xyz);
+        src.extend_from_slice(&s.sample_src);
+    }
+    estimate_strip_offsets(&xyz, &src, so).map(Some)
+}
+
+/// The second pass over one tile: writes it to `out` with its noise points classified
+/// (or dropped) and the strip offsets removed.
+pub fn rewrite_tile(
+    tile: &super::catalogue::TileEntry,
+    out: &std::path::Path,
+    noise: &[u64],
+    offsets: Option<&StripOffsetReport>,
+    opts: &CleanOptions,
+) -> Result<TileCleanReport> {
+    let offsets: BTreeMap<u16, [f64; 3]> = offsets
         .map(|r| r.strips.iter().map(|s| (s.source_id, s.offset_m)).collect())
         .unwrap_or_default();
-    let mut tiles = Vec::with_capacity(catalogue.tiles.len());
-    for (((t, out), noise), rep) in catalogue
+    let mut n_noise = 0u64;
+    let written = super::las::rewrite_las(&tile.file, out, |i, mut p| {
+        if noise.binary_search(&i).is_ok() {
+            n_noise += 1;
+            if opts.drop_noise {
+                return None;
+            }
+            p.classification = las::point::Classification::new(opts.noise_class)
+                .unwrap_or(las::point::Classification::LowPoint);
+        }
+        if let Some(o) = offsets.get(&p.point_source_id) {
+            p.x -= o[0];
+            p.y -= o[1];
+            p.z -= o[2];
+        }
+        Some(p)
+    })?;
+    Ok(TileCleanReport {
+        file: tile.file.clone(),
+        output: out.to_path_buf(),
+        points: tile.point_count,
+        noise: n_noise,
+        written,
+        outliers: None,
+    })
+}
+
+/// Cleans every tile of a catalogue into `out_dir` (same file names and formats): noise
+/// points are classified (or dropped) and strip offsets removed. Two passes of per-tile
+/// work ([`screen_tile`], [`rewrite_tile`]) around the one global step
+/// ([`strip_offsets`]); a tile is read by one thread at a time, and of all tiles only
+/// their noise indices and the sample are held.
+pub fn clean_tiles(
+    catalogue: &super::catalogue::Catalogue,
+    out_dir: &std::path::Path,
+    opts: &CleanOptions,
+) -> Result<CleanReport> {
+    let outputs = catalogue
         .tiles
         .iter()
+        .map(|t| cleaned_path(&t.file, out_dir))
+        .collect::<Result<Vec<_>>>()?;
+    let stride = sample_stride(catalogue, opts);
+    let screens = catalogue
+        .tiles
+        .par_iter()
+        .map(|t| screen_tile(&t.file, stride, opts))
+        .collect::<Result<Vec<_>>>()?;
+    let strip_offsets = strip_offsets(&screens, opts)?;
+    let tiles = catalogue
+        .tiles
+        .par_iter()
         .zip(&outputs)
-        .zip(&masks)
-        .zip(reports)
-    {
-        let mut n_noise = 0u64;
-        let written = rewrite_las(&t.file, out, |i, mut p| {
-            if noise.get(i as usize).copied().unwrap_or(false) {
-                n_noise += 1;
-                if opts.drop_noise {
-                    return None;
-                }
-                p.classification = las::point::Classification::new(opts.noise_class)
-                    .unwrap_or(las::point::Classification::LowPoint);
-            }
-            if let Some(o) = offsets.get(&p.point_source_id) {
-                p.x -= o[0];
-                p.y -= o[1];
-                p.z -= o[2];
-            }
-            Some(p)
-        })?;
-        tiles.push(TileCleanReport {
-            file: t.file.clone(),
-            output: out.clone(),
-            points: t.point_count,
-            noise: n_noise,
-            written,
-            outliers: rep,
-        });
-    }
+        .zip(&screens)
+        .map(|((t, out), s)| {
+            let mut r = rewrite_tile(t, out, &s.noise, strip_offsets.as_ref(), opts)?;
+            r.outliers = s.outliers.clone();
+            Ok(r)
+        })
+        .collect::<Result<Vec<_>>>()?;
     Ok(CleanReport {
         strip_offsets,
         tiles,

@@ -20,6 +20,7 @@ use super::ground::{control_dem, ControlGround};
 use super::project::{Epoch, Project, ProjectError};
 use super::report::{self, EpochReport, IcpIteration, OrthoPreview};
 use super::stages::{Inputs, Runner, StageError, WorkError};
+use super::tasks::lidar::{clean_sources, LidarPlan};
 use super::tasks::{open_packages, EpochContext, EpochPlan, EpochTasks, Task, TaskMode};
 use crate::block::Block;
 use crate::control::archive::{self, ArchiveContext, ArchiveOptions};
@@ -470,7 +471,7 @@ fn run_stages(
         stage: "sources".into(),
         source: Box::new(source),
     })?;
-    let sources = stage!("sources".to_string(), src_inputs, |dir: &Path| {
+    let sources = stage!(keyed "sources".to_string(), src_inputs, |dir: &Path, key: &str| {
         if !with_lidar {
             // The block origin: the one rule, over the DEM.
             let dem = control_dem(project)?;
@@ -506,8 +507,12 @@ fn run_stages(
         let lidar_dir = dir.join("lidar");
         std::fs::create_dir_all(&lidar_dir)
             .map_err(|x| crate::formats::FormatError::io(&lidar_dir, x))?;
-        let mut clean =
-            lidar::clean::clean_tiles(&cat, &lidar_dir, &lidar::clean::CleanOptions::default())?;
+        // Per tile, as tasks (a Dask worker's, or this process's threads).
+        let plan = LidarPlan {
+            stride: lidar::clean::sample_stride(&cat, &lidar::clean::CleanOptions::default()),
+            tiles: cat.tiles.clone(),
+        };
+        let mut clean = clean_sources(out, "sources", key, &plan, &lidar_dir, task_mode)?;
         // The stage is written in a temporary folder that is renamed when it is done: the
         // report names the cleaned tiles inside the stage folder, not where they were made.
         for t in &mut clean.tiles {

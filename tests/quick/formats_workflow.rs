@@ -93,4 +93,15 @@ fn task_sample_is_read_and_a_task_without_its_plan_is_an_io_error() {
     let bad = std::ffi::CString::new("{\"kind\": \"paint\"}").unwrap();
     let status = unsafe { cloudcontrol::ffi::ccp_task_run(bad.as_ptr(), &mut out) };
     assert_eq!(status, cloudcontrol::ffi::CcpStatus::InvalidArgument);
+    // A LiDAR tile's task, with the item under the name the first task format gave it.
+    let tile: Task = serde_json::from_str(
+        r#"{"kind": "screen", "stage": "sources", "folder": "/data/run/tasks/sources/0123456789abcdef",
+            "index": 12, "photo": "tile_0012.laz"}"#,
+    )
+    .unwrap();
+    assert_eq!(tile.kind, TaskKind::Screen);
+    assert_eq!(tile.name(), "sources/screen/tile_0012.laz");
+    assert!(tile
+        .result()
+        .ends_with("sources/0123456789abcdef/screen-00012.msgpack"));
 }

@@ -1,9 +1,10 @@
-"""The workflow on Dask: the per-photo tasks of the archive epochs fan out to the workers
-of a ``dask.distributed.Client``, the rest of each stage (the epoch-wide adjustment, the
-products) runs in this process.
+"""The workflow on Dask: the per-tile tasks of the LiDAR cleaning and the per-photo tasks
+of the archive epochs fan out to the workers of a ``dask.distributed.Client``; the rest of
+each stage (the strip offsets, the epoch-wide adjustment, the products) runs in this
+process.
 
 A run alternates between :func:`cloudcontrol.pipeline.plan`, which runs every stage it can
-and stops at the first one whose per-photo tasks have not all run, and a round of those
+and stops at the first one whose tasks have not all run, and a round of those
 tasks on the cluster. Each task reads its inputs from the output folder and the project's
 files and writes its result there, atomically, so the folder must be on storage every
 worker sees. A task whose worker dies is retried by Dask (``retries``), and a retried task
@@ -24,8 +25,8 @@ def run(project: str | os.PathLike, client, retries: int = 3, on_round=None) -> 
     """Runs ``project`` with its per-photo tasks on ``client``'s workers; returns what
     :func:`cloudcontrol.run` returns, plus ``"rounds"``: per round of tasks the stage,
     the number of tasks, the wall time of the round and the summed task time, and the
-    photos whose task reported a failure (photo and reason; the epoch goes on without
-    them). ``on_round(stage, futures)`` is called with each round's futures as they are
+    items whose task reported a failure (``item``, the photo, and reason; the epoch goes
+    on without them). ``on_round(stage, futures)`` is called with each round's futures as they are
     submitted (progress bars, tests)."""
     rounds = []
     project = os.fspath(project)
@@ -40,8 +41,8 @@ def run(project: str | os.PathLike, client, retries: int = 3, on_round=None) -> 
             return res
         tasks = pending["tasks"]
         t1 = time.perf_counter()
-        # Keys name the stage, kind and photo: a rerun of the same task is the same key.
-        futures = client.map(run_task, tasks, key=[f"cloudcontrol:{t['stage']}/{t['kind']}/{t['photo']}:{t['folder']}" for t in tasks],
+        # Keys name the stage, kind and item: a rerun of the same task is the same key.
+        futures = client.map(run_task, tasks, key=[f"cloudcontrol:{t['stage']}/{t['kind']}/{t['item']}:{t['folder']}" for t in tasks],
                              retries=retries, pure=False)
         if on_round is not None:
             on_round(pending["stage"], futures)
@@ -53,5 +54,5 @@ def run(project: str | os.PathLike, client, retries: int = 3, on_round=None) -> 
             "local_seconds": local_s,
             "wall_seconds": time.perf_counter() - t1,
             "task_seconds": sum(d["seconds"] for d in done),
-            "failed": [{"photo": d["photo"], "reason": d["reason"]} for d in done if not d["ok"]],
+            "failed": [{"item": d["item"], "reason": d["reason"]} for d in done if not d["ok"]],
         })

@@ -75,10 +75,11 @@ def test_dask_run_with_a_killed_worker_gives_the_products_of_a_plain_run(shared_
     # Every round of tasks ran; the bad scan is reported, photo and reason, and the
     # epoch went on.
     kinds = [(r["stage"], r["kind"]) for r in res["rounds"]]
-    assert kinds == [("epoch-digital_2012", "orient"), ("epoch-film_1978", "scan"),
+    assert kinds == [("sources", "screen"), ("sources", "clean"),
+                     ("epoch-digital_2012", "orient"), ("epoch-film_1978", "scan"),
                      ("epoch-film_1978", "orient")]
-    film_scan = res["rounds"][1]
-    assert [f["photo"] for f in film_scan["failed"]] == [BAD_SCAN]
+    film_scan = res["rounds"][3]
+    assert [f["item"] for f in film_scan["failed"]] == [BAD_SCAN]
     assert "read" in film_scan["failed"][0]["reason"]
     film = {e["name"]: e for e in res["report"]["epochs"]}["film_1978"]
     assert film["photos_oriented"] == film["photos_total"] - 1

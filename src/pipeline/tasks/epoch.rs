@@ -1,24 +1,12 @@
-//! The per-photo work of an archive epoch as tasks: data a process can run anywhere the
-//! output folder is shared (a Dask worker, `bindings/python/cloudcontrol/distributed.py`),
-//! or the run itself in this process. Either way each task writes one result file,
-//! atomically, and the epoch stage reads every result back before its epoch-wide part
-//! (second pass, tie points, block adjustment), so a run's products do not depend on
-//! where or in what order the tasks ran.
-//!
-//! A stage's tasks live in `tasks/<stage>/<key>/`, `key` the first 16 hex digits of the
-//! stage's input fingerprint: `plan.json` (what every task of the stage shares) and one
-//! `<kind>-<photo index>.msgpack` per finished task. MessagePack keeps every f64 exact and
-//! NaN as NaN (a failed photo's σ), which JSON does not. The folder is removed when the
-//! stage has finished.
-//!
-//! A film epoch has two kinds, run one after the other: `scan` (the scan's fiducials,
-//! [`measure_scan`]) and `orient` (the photo's first orientation from the control patches;
-//! its task carries the epoch's majority scan orientation, taken once from the `scan`
-//! results).
+//! The per-photo tasks of an archive epoch: a film epoch's `scan` round (the scans'
+//! fiducials, [`measure_scan`]) and the `orient` round (each photo's first orientation from
+//! the control patches; a film epoch's task carries the epoch's majority scan orientation,
+//! taken once from the `scan` results). The epoch-wide part (second pass, tie points,
+//! block adjustment) then runs on the results.
 
-use super::ground::ControlGround;
-use super::project::Project;
-use super::stages::WorkError;
+use super::{
+    read_result, write_result, HasItem, StageTasks, Task, TaskKind, TaskMode, TaskSummary,
+};
 use crate::control::archive::{ArchiveContext, ArchiveOptions, FirstPass};
 use crate::control::dcp::DcpPackage;
 use crate::control::epoch::{EpochCamera, EpochInput};
@@ -26,66 +14,16 @@ use crate::control::photo::PhotoOrientation;
 use crate::control::scan_cameras::{
     epoch_majority, measure_scan, resolve_scan, Candidates, ScanCameras, ScanMeasure,
 };
-use crate::formats::{write_bytes_atomically, FormatError};
 use crate::lidar::GroundSurface;
 use crate::matching::ScanOrientation;
-use rayon::prelude::*;
+use crate::pipeline::ground::ControlGround;
+use crate::pipeline::project::Project;
+use crate::pipeline::stages::WorkError;
 use serde::{Deserialize, Serialize};
 use std::collections::HashMap;
 use std::path::{Path, PathBuf};
 use std::sync::{Arc, Mutex};
 use std::time::Instant;
-
-/// What a task does.
-#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize)]
-#[serde(rename_all = "snake_case")]
-pub enum TaskKind {
-    /// A film scan's fiducial interior orientation.
-    Scan,
-    /// A photo's first orientation from the control patches.
-    Orient,
-}
-
-impl TaskKind {
-    fn label(self) -> &'static str {
-        match self {
-            TaskKind::Scan => "scan",
-            TaskKind::Orient => "orient",
-        }
-    }
-}
-
-/// One task: a photo of an epoch stage, the folder of the stage's tasks (its `plan.json`
-/// says the rest).
-#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
-pub struct Task {
-    pub kind: TaskKind,
-    pub stage: String,
-    pub folder: PathBuf,
-    /// Index of the photo in the epoch (its photo folder, sorted).
-    pub index: usize,
-    pub photo: String,
-    /// `orient` tasks of a film epoch: the epoch's majority scan orientation, taken once
-    /// from its `scan` round (an undecided scan takes it).
-    #[serde(default, skip_serializing_if = "Option::is_none")]
-    pub scan_orientation: Option<ScanOrientation>,
-}
-
-impl Task {
-    /// A name unique within a run (Dask keys): stage, kind, photo.
-    pub fn name(&self) -> String {
-        format!("{}/{}/{}", self.stage, self.kind.label(), self.photo)
-    }
-
-    /// The task's result file.
-    pub fn result(&self) -> PathBuf {
-        result_path(&self.folder, self.kind, self.index)
-    }
-}
-
-fn result_path(folder: &Path, kind: TaskKind, index: usize) -> PathBuf {
-    folder.join(format!("{}-{index:05}.msgpack", kind.label()))
-}
 
 /// What every task of an epoch stage shares (`plan.json`).
 #[derive(Debug, Clone, Serialize, Deserialize)]
@@ -98,18 +36,6 @@ pub struct EpochPlan {
     /// The DCP packages the epoch is oriented from, in the run's order.
     pub packages: Vec<PathBuf>,
     pub origin: [f64; 3],
-}
-
-/// What a finished task reports (small, JSON: what a Dask future returns).
-#[derive(Debug, Clone, Serialize, Deserialize)]
-pub struct TaskSummary {
-    pub task: String,
-    pub photo: String,
-    /// Orient: whether the photo was oriented; scan: whether its fiducials gave a camera.
-    pub ok: bool,
-    /// Why not, when not.
-    pub reason: Option<String>,
-    pub seconds: f64,
 }
 
 /// An `orient` task's result: the photo's first orientation and, for a film scan, the
@@ -147,7 +73,7 @@ impl EpochContext {
                 WorkError::Inconsistent(format!("the project has no epoch {}", plan.epoch))
             })?;
         let input = EpochInput::build(&e.spec(), &plan.project.crs, plan.origin)?;
-        let opts = super::run::archive_options(&plan.project, e);
+        let opts = crate::pipeline::run::archive_options(&plan.project, e);
         let surface = ControlGround::new(&plan.project, &plan.sources, plan.origin)
             .surface_arc()?
             .clone();
@@ -162,27 +88,15 @@ impl EpochContext {
     }
 }
 
-pub(crate) fn open_packages(dirs: &[PathBuf]) -> Result<Vec<DcpPackage>, WorkError> {
+pub fn open_packages(dirs: &[PathBuf]) -> Result<Vec<DcpPackage>, WorkError> {
     Ok(dirs
         .iter()
         .map(|d| DcpPackage::open(&d.join("package")))
         .collect::<Result<Vec<_>, _>>()?)
 }
 
-/// Where the tasks run: here (the run orients the photos itself) or elsewhere (the run
-/// stops at the first stage with unfinished tasks and returns them).
-#[derive(Debug, Clone, Copy, PartialEq, Eq)]
-pub enum TaskMode {
-    InProcess,
-    Plan,
-}
-
 /// The tasks of one archive epoch stage of a run.
-pub(crate) struct EpochTasks {
-    stage: String,
-    root: PathBuf,
-    folder: PathBuf,
-}
+pub(crate) struct EpochTasks(StageTasks);
 
 impl EpochTasks {
     /// The tasks of stage `stage` under output folder `output`, for the stage inputs with
@@ -193,15 +107,7 @@ impl EpochTasks {
         key: &str,
         plan: &EpochPlan,
     ) -> Result<Self, WorkError> {
-        let root = output.join("tasks").join(stage);
-        let folder = root.join(&key[..key.len().min(16)]);
-        std::fs::create_dir_all(&folder).map_err(|e| FormatError::io(&folder, e))?;
-        super::epoch_files::write_json(&folder.join("plan.json"), plan)?;
-        Ok(Self {
-            stage: stage.to_string(),
-            root,
-            folder,
-        })
+        Ok(Self(StageTasks::new(output, stage, key, plan)?))
     }
 
     fn tasks(
@@ -210,44 +116,22 @@ impl EpochTasks {
         input: &EpochInput,
         scan_orientation: Option<ScanOrientation>,
     ) -> Vec<Task> {
-        input
-            .photos
-            .iter()
-            .enumerate()
-            .map(|(index, p)| Task {
-                kind,
-                stage: self.stage.clone(),
-                folder: self.folder.clone(),
-                index,
-                photo: p.name.clone(),
-                scan_orientation,
-            })
-            .collect()
+        self.0.tasks(
+            kind,
+            input.photos.iter().map(|p| p.name.as_str()),
+            scan_orientation,
+        )
     }
 
-    /// Makes sure every task of `kind` has its result: runs the missing ones here, or
-    /// returns them as pending.
     fn ensure(
         &self,
-        tasks: Vec<Task>,
+        tasks: &[Task],
         ctx: &EpochContext,
         archive: &ArchiveContext,
         mode: TaskMode,
     ) -> Result<(), WorkError> {
-        let missing: Vec<Task> = tasks
-            .into_iter()
-            .filter(|t| !t.result().is_file())
-            .collect();
-        if missing.is_empty() {
-            return Ok(());
-        }
-        match mode {
-            TaskMode::Plan => Err(WorkError::Pending(missing)),
-            TaskMode::InProcess => missing
-                .par_iter()
-                .map(|t| execute_with(t, ctx, archive).map(|_| ()))
-                .collect(),
-        }
+        self.0
+            .ensure(tasks, mode, |t| execute_with(t, ctx, archive))
     }
 
     /// The epoch's per-photo part, from the task results (running or returning the
@@ -261,7 +145,7 @@ impl EpochTasks {
         let film = matches!(ctx.input.camera, EpochCamera::Film(_));
         let majority = if film {
             let scans = self.tasks(TaskKind::Scan, &ctx.input, None);
-            self.ensure(scans.clone(), ctx, archive, mode)?;
+            self.ensure(&scans, ctx, archive, mode)?;
             let mut measures = Vec::new();
             for t in &scans {
                 let r: ScanResult = read_result(t)?;
@@ -272,7 +156,7 @@ impl EpochTasks {
             None
         };
         let orients = self.tasks(TaskKind::Orient, &ctx.input, majority);
-        self.ensure(orients.clone(), ctx, archive, mode)?;
+        self.ensure(&orients, ctx, archive, mode)?;
         let mut outcomes = Vec::with_capacity(orients.len());
         let mut by_photo = HashMap::new();
         for t in &orients {
@@ -288,48 +172,19 @@ impl EpochTasks {
 
     /// Removes the stage's task results (the stage has finished).
     pub(crate) fn clear(&self) {
-        let _ = std::fs::remove_dir_all(&self.root);
-        // `tasks/` itself when no other stage has tasks there (fails, harmlessly, if so).
-        if let Some(parent) = self.root.parent() {
-            let _ = std::fs::remove_dir(parent);
-        }
+        self.0.clear()
     }
 }
 
-fn read_result<T: for<'de> Deserialize<'de> + HasPhoto>(task: &Task) -> Result<T, WorkError> {
-    let path = task.result();
-    let bytes = std::fs::read(&path).map_err(|e| FormatError::io(&path, e))?;
-    let r: T = rmp_serde::from_slice(&bytes)
-        .map_err(|e| FormatError::invalid(&path, format!("task result: {e}")))?;
-    if r.photo() != task.photo {
-        return Err(FormatError::invalid(
-            &path,
-            format!("result of photo {}, expected {}", r.photo(), task.photo),
-        )
-        .into());
-    }
-    Ok(r)
-}
-
-trait HasPhoto {
-    fn photo(&self) -> &str;
-}
-impl HasPhoto for OrientResult {
-    fn photo(&self) -> &str {
+impl HasItem for OrientResult {
+    fn item(&self) -> &str {
         &self.photo
     }
 }
-impl HasPhoto for ScanResult {
-    fn photo(&self) -> &str {
+impl HasItem for ScanResult {
+    fn item(&self) -> &str {
         &self.photo
     }
-}
-
-fn write_result<T: Serialize>(task: &Task, v: &T) -> Result<(), WorkError> {
-    let path = task.result();
-    let bytes = rmp_serde::to_vec_named(v)
-        .map_err(|e| FormatError::invalid(&path, format!("task result: {e}")))?;
-    Ok(write_bytes_atomically(&path, &bytes)?)
 }
 
 /// Runs one task with the stage's context and writes its result.
@@ -343,12 +198,12 @@ fn execute_with(
         .input
         .photos
         .get(task.index)
-        .filter(|p| p.name == task.photo)
+        .filter(|p| p.name == task.item)
         .ok_or_else(|| {
             WorkError::Inconsistent(format!(
                 "task {}: photo {} is not photo {} of epoch {}",
                 task.name(),
-                task.photo,
+                task.item,
                 task.index,
                 ctx.plan.epoch
             ))
@@ -373,6 +228,12 @@ fn execute_with(
                 },
             )?;
             (reason.is_none(), reason)
+        }
+        (TaskKind::Screen | TaskKind::Clean, _) => {
+            return Err(WorkError::Inconsistent(format!(
+                "task {}: not a task of an archive epoch",
+                task.name()
+            )))
         }
         (TaskKind::Scan, EpochCamera::Frame(_)) => {
             return Err(WorkError::Inconsistent(format!(
@@ -416,7 +277,7 @@ fn execute_with(
     };
     Ok(TaskSummary {
         task: task.name(),
-        photo: task.photo.clone(),
+        item: task.item.clone(),
         ok,
         reason,
         seconds: t0.elapsed().as_secs_f64(),
@@ -428,17 +289,15 @@ fn execute_with(
 /// task's cost otherwise.
 static CONTEXT: Mutex<Option<(PathBuf, Arc<EpochContext>)>> = Mutex::new(None);
 
-/// Runs one task (a worker's entry point): reads its stage's plan, runs it, writes its
-/// result atomically. A task whose result exists already (a retried task whose worker
-/// died after writing it) is run again and writes the same result.
-pub fn run_task(task: &Task) -> Result<TaskSummary, WorkError> {
+/// Runs one task of an epoch stage (see [`super::run_task`]).
+pub(super) fn run_task(task: &Task) -> Result<TaskSummary, WorkError> {
     let ctx = {
         let mut cache = CONTEXT.lock().unwrap_or_else(|p| p.into_inner());
         match &*cache {
             Some((folder, ctx)) if *folder == task.folder => ctx.clone(),
             _ => {
                 let plan: EpochPlan =
-                    super::epoch_files::read_json(&task.folder.join("plan.json"))?;
+                    crate::pipeline::epoch_files::read_json(&task.folder.join("plan.json"))?;
                 let ctx = Arc::new(EpochContext::load(plan)?);
                 *cache = Some((task.folder.clone(), ctx.clone()));
                 ctx

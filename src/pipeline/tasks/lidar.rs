@@ -1,0 +1,185 @@
+//! The LiDAR tiles of the `sources` stage as tasks: `screen` (a tile's noise points and
+//! its share of the strip sample, [`screen_tile`]) for every tile, then the one global
+//! step, the strip offsets from all samples (written once to `strip_offsets.msgpack`), then
+//! `clean` (the tile rewritten, [`rewrite_tile`]) for every tile. A cleaned tile is
+//! written into the task folder (`lidar/<file name>`) and moved into the stage folder
+//! when every tile is done.
+
+use super::{
+    read_msgpack, read_result, write_msgpack, write_result, HasItem, StageTasks, Task, TaskKind,
+    TaskMode, TaskSummary,
+};
+use crate::formats::FormatError;
+use crate::lidar::catalogue::TileEntry;
+use crate::lidar::clean::{
+    rewrite_tile, screen_tile, strip_offsets, CleanOptions, CleanReport, StripOffsetReport,
+    TileCleanReport, TileScreen,
+};
+use crate::pipeline::stages::WorkError;
+use serde::{Deserialize, Serialize};
+use std::path::{Path, PathBuf};
+use std::time::Instant;
+
+/// What every tile task of the stage shares (`plan.json`).
+#[derive(Debug, Clone, Serialize, Deserialize)]
+pub struct LidarPlan {
+    /// The tiles to clean (the catalogue's entries of the tiles under the photos), in
+    /// order: a task's index is its tile's here.
+    pub tiles: Vec<TileEntry>,
+    /// Every `stride`-th usable point of a tile enters the strip sample.
+    pub stride: usize,
+}
+
+#[derive(Debug, Clone, Serialize, Deserialize)]
+struct ScreenResult {
+    tile: String,
+    screen: TileScreen,
+}
+
+#[derive(Debug, Clone, Serialize, Deserialize)]
+struct CleanResult {
+    tile: String,
+    report: TileCleanReport,
+}
+
+impl HasItem for ScreenResult {
+    fn item(&self) -> &str {
+        &self.tile
+    }
+}
+impl HasItem for CleanResult {
+    fn item(&self) -> &str {
+        &self.tile
+    }
+}
+
+const OFFSETS: &str = "strip_offsets.msgpack";
+const CLEANED: &str = "lidar";
+
+fn tile_name(t: &TileEntry) -> String {
+    t.file
+        .file_name()
+        .map(|n| n.to_string_lossy().into_owned())
+        .unwrap_or_default()
+}
+
+/// Cleans the plan's tiles into `lidar_dir` through the stage's tasks (run here, or
+/// returned as pending in `mode` Plan), and returns the cleaning report.
+pub(crate) fn clean_sources(
+    output: &Path,
+    stage: &str,
+    key: &str,
+    plan: &LidarPlan,
+    lidar_dir: &Path,
+    mode: TaskMode,
+) -> Result<CleanReport, WorkError> {
+    let opts = CleanOptions::default();
+    let st = StageTasks::new(output, stage, key, plan)?;
+    let names: Vec<String> = plan.tiles.iter().map(tile_name).collect();
+    let screens = st.tasks(TaskKind::Screen, names.iter().map(String::as_str), None);
+    st.ensure(&screens, mode, |t| execute(t, plan))?;
+    let screened = screens
+        .iter()
+        .map(|t| read_result::<ScreenResult>(t).map(|r| r.screen))
+        .collect::<Result<Vec<_>, _>>()?;
+    let offsets_file = st.folder().join(OFFSETS);
+    if !offsets_file.is_file() {
+        let offsets = strip_offsets(&screened, &opts)?;
+        write_msgpack(&offsets_file, &offsets)?;
+    }
+    let offsets: Option<StripOffsetReport> = read_msgpack(&offsets_file)?;
+    let cleans = st.tasks(TaskKind::Clean, names.iter().map(String::as_str), None);
+    // A result whose tile has gone (moved by a stage that did not finish) is run again.
+    for t in &cleans {
+        if t.result().is_file() && !cleaned_file(t).is_file() {
+            let _ = std::fs::remove_file(t.result());
+        }
+    }
+    st.ensure(&cleans, mode, |t| execute(t, plan))?;
+    let mut tiles = Vec::with_capacity(cleans.len());
+    for (t, s) in cleans.iter().zip(screened) {
+        let mut r = read_result::<CleanResult>(t)?.report;
+        let to = lidar_dir.join(&t.item);
+        let from = cleaned_file(t);
+        std::fs::rename(&from, &to).map_err(|e| FormatError::io(&from, e))?;
+        r.output = to;
+        r.outliers = s.outliers;
+        tiles.push(r);
+    }
+    st.clear();
+    Ok(CleanReport {
+        strip_offsets: offsets,
+        tiles,
+    })
+}
+
+fn cleaned_file(task: &Task) -> PathBuf {
+    task.folder.join(CLEANED).join(&task.item)
+}
+
+fn execute(task: &Task, plan: &LidarPlan) -> Result<TaskSummary, WorkError> {
+    let t0 = Instant::now();
+    let tile = plan
+        .tiles
+        .get(task.index)
+        .filter(|t| tile_name(t) == task.item)
+        .ok_or_else(|| {
+            WorkError::Inconsistent(format!(
+                "task {}: tile {} is not tile {} of the plan",
+                task.name(),
+                task.item,
+                task.index
+            ))
+        })?;
+    let opts = CleanOptions::default();
+    match task.kind {
+        TaskKind::Screen => {
+            let screen = screen_tile(&tile.file, plan.stride, &opts)?;
+            write_result(
+                task,
+                &ScreenResult {
+                    tile: task.item.clone(),
+                    screen,
+                },
+            )?;
+        }
+        TaskKind::Clean => {
+            let own: ScreenResult = read_result(&Task {
+                kind: TaskKind::Screen,
+                ..task.clone()
+            })?;
+            let offsets: Option<StripOffsetReport> = read_msgpack(&task.folder.join(OFFSETS))?;
+            let out = cleaned_file(task);
+            if let Some(dir) = out.parent() {
+                std::fs::create_dir_all(dir).map_err(|e| FormatError::io(dir, e))?;
+            }
+            let report = rewrite_tile(tile, &out, &own.screen.noise, offsets.as_ref(), &opts)?;
+            write_result(
+                task,
+                &CleanResult {
+                    tile: task.item.clone(),
+                    report,
+                },
+            )?;
+        }
+        TaskKind::Scan | TaskKind::Orient => {
+            return Err(WorkError::Inconsistent(format!(
+                "task {}: not a task of the LiDAR tiles",
+                task.name()
+            )))
+        }
+    }
+    Ok(TaskSummary {
+        task: task.name(),
+        item: task.item.clone(),
+        ok: true,
+        reason: None,
+        seconds: t0.elapsed().as_secs_f64(),
+    })
+}
+
+/// Runs one task of the `sources` stage (see [`super::run_task`]).
+pub(super) fn run_task(task: &Task) -> Result<TaskSummary, WorkError> {
+    let plan: LidarPlan = crate::pipeline::epoch_files::read_json(&task.folder.join("plan.json"))?;
+    execute(task, &plan)
+}

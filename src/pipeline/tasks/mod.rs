@@ -1,0 +1,242 @@
+//! The parallel work of the stages as tasks: data a process can run anywhere the output
+//! folder is shared (a Dask worker, `bindings/python/cloudcontrol/distributed.py`), or the
+//! run itself in this process. Either way each task writes one result file, atomically,
+//! and the stage reads every result back before its global part, so a run's products do
+//! not depend on where or in what order the tasks ran.
+//!
+//! A stage's tasks live in `tasks/<stage>/<key>/`, `key` the first 16 hex digits of the
+//! stage's input fingerprint: `plan.json` (what every task of the stage shares) and one
+//! `<kind>-<index>.msgpack` per finished task. MessagePack keeps every f64 exact and NaN
+//! as NaN (a failed photo's σ), which JSON does not. The folder is removed when the stage
+//! has finished.
+//!
+//! The kinds, by stage:
+//! - `sources` ([`lidar`]): `screen` (a LiDAR tile's noise points and its share of the
+//!   strip sample), then, after the strip offsets, `clean` (the tile rewritten);
+//! - archive epochs ([`epoch`]): a film epoch's `scan` (the scan's fiducials), then
+//!   `orient` (a photo's first orientation from the control patches).
+
+pub mod epoch;
+pub mod lidar;
+
+pub(crate) use epoch::EpochTasks;
+pub use epoch::{open_packages, EpochContext, EpochPlan};
+
+use super::stages::WorkError;
+use crate::formats::{write_bytes_atomically, FormatError};
+use crate::matching::ScanOrientation;
+use rayon::prelude::*;
+use serde::{Deserialize, Serialize};
+use std::path::{Path, PathBuf};
+
+/// What a task does.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize)]
+#[serde(rename_all = "snake_case")]
+pub enum TaskKind {
+    /// A film scan's fiducial interior orientation.
+    Scan,
+    /// A photo's first orientation from the control patches.
+    Orient,
+    /// A LiDAR tile's noise points and strip sample.
+    Screen,
+    /// A LiDAR tile rewritten, noise classified and strip offsets removed.
+    Clean,
+}
+
+impl TaskKind {
+    fn label(self) -> &'static str {
+        match self {
+            TaskKind::Scan => "scan",
+            TaskKind::Orient => "orient",
+            TaskKind::Screen => "screen",
+            TaskKind::Clean => "clean",
+        }
+    }
+}
+
+/// One task: an item (a photo of an epoch, a tile of the LiDAR) of a stage, and the
+/// folder of the stage's tasks (its `plan.json` says the rest).
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub struct Task {
+    pub kind: TaskKind,
+    pub stage: String,
+    pub folder: PathBuf,
+    /// Index of the item in the stage (a photo in its sorted photo folder, a tile in the
+    /// selection).
+    pub index: usize,
+    /// The item's name: the photo's, or the tile's file name.
+    #[serde(alias = "photo")]
+    pub item: String,
+    /// `orient` tasks of a film epoch: the epoch's majority scan orientation, taken once
+    /// from its `scan` round (an undecided scan takes it).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub scan_orientation: Option<ScanOrientation>,
+}
+
+impl Task {
+    /// A name unique within a run (Dask keys): stage, kind, item.
+    pub fn name(&self) -> String {
+        format!("{}/{}/{}", self.stage, self.kind.label(), self.item)
+    }
+
+    /// The task's result file.
+    pub fn result(&self) -> PathBuf {
+        result_path(&self.folder, self.kind, self.index)
+    }
+}
+
+fn result_path(folder: &Path, kind: TaskKind, index: usize) -> PathBuf {
+    folder.join(format!("{}-{index:05}.msgpack", kind.label()))
+}
+
+/// What a finished task reports (small, JSON: what a Dask future returns).
+#[derive(Debug, Clone, Serialize, Deserialize)]
+pub struct TaskSummary {
+    pub task: String,
+    pub item: String,
+    /// Orient: whether the photo was oriented; scan: whether its fiducials gave a camera;
+    /// screen, clean: whether the tile was read and written.
+    pub ok: bool,
+    /// Why not, when not.
+    pub reason: Option<String>,
+    pub seconds: f64,
+}
+
+/// Where the tasks run: here (the run does the work itself) or elsewhere (the run stops
+/// at the first stage with unfinished tasks and returns them).
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum TaskMode {
+    InProcess,
+    Plan,
+}
+
+/// The task folder of one stage of a run.
+pub(crate) struct StageTasks {
+    stage: String,
+    root: PathBuf,
+    folder: PathBuf,
+}
+
+impl StageTasks {
+    /// The tasks of stage `stage` under output folder `output`, for the stage inputs with
+    /// fingerprint `key`; writes the plan.
+    pub(crate) fn new<P: Serialize>(
+        output: &Path,
+        stage: &str,
+        key: &str,
+        plan: &P,
+    ) -> Result<Self, WorkError> {
+        let root = output.join("tasks").join(stage);
+        let folder = root.join(&key[..key.len().min(16)]);
+        std::fs::create_dir_all(&folder).map_err(|e| FormatError::io(&folder, e))?;
+        super::epoch_files::write_json(&folder.join("plan.json"), plan)?;
+        Ok(Self {
+            stage: stage.to_string(),
+            root,
+            folder,
+        })
+    }
+
+    pub(crate) fn folder(&self) -> &Path {
+        &self.folder
+    }
+
+    /// One task of `kind` per item (index, name).
+    pub(crate) fn tasks<'a>(
+        &self,
+        kind: TaskKind,
+        items: impl IntoIterator<Item = &'a str>,
+        scan_orientation: Option<ScanOrientation>,
+    ) -> Vec<Task> {
+        items
+            .into_iter()
+            .enumerate()
+            .map(|(index, item)| Task {
+                kind,
+                stage: self.stage.clone(),
+                folder: self.folder.clone(),
+                index,
+                item: item.to_string(),
+                scan_orientation,
+            })
+            .collect()
+    }
+
+    /// Makes sure every task has its result: runs the missing ones here with `exec`, or
+    /// returns them as pending.
+    pub(crate) fn ensure(
+        &self,
+        tasks: &[Task],
+        mode: TaskMode,
+        exec: impl Fn(&Task) -> Result<TaskSummary, WorkError> + Sync,
+    ) -> Result<(), WorkError> {
+        let missing: Vec<Task> = tasks
+            .iter()
+            .filter(|t| !t.result().is_file())
+            .cloned()
+            .collect();
+        if missing.is_empty() {
+            return Ok(());
+        }
+        match mode {
+            TaskMode::Plan => Err(WorkError::Pending(missing)),
+            TaskMode::InProcess => missing.par_iter().map(|t| exec(t).map(|_| ())).collect(),
+        }
+    }
+
+    /// Removes the stage's task results (the stage has finished).
+    pub(crate) fn clear(&self) {
+        let _ = std::fs::remove_dir_all(&self.root);
+        // `tasks/` itself when no other stage has tasks there (fails, harmlessly, if so).
+        if let Some(parent) = self.root.parent() {
+            let _ = std::fs::remove_dir(parent);
+        }
+    }
+}
+
+/// A task result names its item, so a result file that landed in the wrong place is
+/// caught rather than used.
+pub(crate) trait HasItem {
+    fn item(&self) -> &str;
+}
+
+pub(crate) fn read_result<T: for<'de> Deserialize<'de> + HasItem>(
+    task: &Task,
+) -> Result<T, WorkError> {
+    let path = task.result();
+    let r: T = read_msgpack(&path)?;
+    if r.item() != task.item {
+        return Err(FormatError::invalid(
+            &path,
+            format!("result of {}, expected {}", r.item(), task.item),
+        )
+        .into());
+    }
+    Ok(r)
+}
+
+pub(crate) fn read_msgpack<T: for<'de> Deserialize<'de>>(path: &Path) -> Result<T, WorkError> {
+    let bytes = std::fs::read(path).map_err(|e| FormatError::io(path, e))?;
+    Ok(rmp_serde::from_slice(&bytes)
+        .map_err(|e| FormatError::invalid(path, format!("task file: {e}")))?)
+}
+
+pub(crate) fn write_msgpack<T: Serialize>(path: &Path, v: &T) -> Result<(), WorkError> {
+    let bytes = rmp_serde::to_vec_named(v)
+        .map_err(|e| FormatError::invalid(path, format!("task file: {e}")))?;
+    Ok(write_bytes_atomically(path, &bytes)?)
+}
+
+pub(crate) fn write_result<T: Serialize>(task: &Task, v: &T) -> Result<(), WorkError> {
+    write_msgpack(&task.result(), v)
+}
+
+/// Runs one task (a worker's entry point): reads its stage's plan, runs it, writes its
+/// result atomically. A task whose result exists already (a retried task whose worker
+/// died after writing it) is run again and writes the same result.
+pub fn run_task(task: &Task) -> Result<TaskSummary, WorkError> {
+    match task.kind {
+        TaskKind::Scan | TaskKind::Orient => epoch::run_task(task),
+        TaskKind::Screen | TaskKind::Clean => lidar::run_task(task),
+    }
+}
