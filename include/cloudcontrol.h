@@ -677,7 +677,8 @@ enum CcpStatus ccp_photo_orientation_free(struct CcpPhotoOrientation *orientatio
 enum CcpStatus ccp_project_run(const char *project_path, char **out_json);
 
 // Runs the project file `project_path` as `ccp_project_run` does, except that the
-// per-photo tasks of archive epochs are not run here: the run stops at the first stage
+// per-tile tasks of the LiDAR cleaning, the per-photo tasks of archive epochs and the
+// per-scan and per-tile tasks of the products are not run here: the run stops at the first stage
 // with unfinished tasks and `*out_json` is `{"pending": {"stage": S, "tasks": [T, ...]}}`.
 // Run every task with `ccp_task_run` (in any process that sees the output folder), then
 // call again; when nothing is pending, `*out_json` is the summary `ccp_project_run`
@@ -687,8 +688,10 @@ enum CcpStatus ccp_project_plan(const char *project_path, char **out_json);
 // Runs one task that `ccp_project_plan` returned (`task_json`: the task object as given)
 // and writes its result into the run's output folder, atomically: a task killed midway
 // leaves nothing, and a task run twice writes the same result. `*out_json` receives
-// `{"task", "photo", "ok", "reason", "seconds"}` (`ok` false with the reason when the
-// photo could not be oriented or its scan measured: that is a result, not an error).
+// `{"task", "item", "ok", "reason", "seconds"}` (`item` the photo, the LiDAR tile or the
+// run of orthophoto tiles; `ok`
+// false with the reason when the photo could not be oriented or its scan measured: that
+// is a result, not an error).
 // Release the string with `ccp_string_free`.
 enum CcpStatus ccp_task_run(const char *task_json, char **out_json);
 

@@ -61,8 +61,8 @@ unsafe fn hand_out_json(v: &serde_json::Value, out_json: *mut *mut c_char) -> Re
 }
 
 /// Runs the project file `project_path` as `ccp_project_run` does, except that the
-/// per-tile tasks of the LiDAR cleaning and the per-photo tasks of archive epochs are not
-/// run here: the run stops at the first stage
+/// per-tile tasks of the LiDAR cleaning, the per-photo tasks of archive epochs and the
+/// per-scan and per-tile tasks of the products are not run here: the run stops at the first stage
 /// with unfinished tasks and `*out_json` is `{"pending": {"stage": S, "tasks": [T, ...]}}`.
 /// Run every task with `ccp_task_run` (in any process that sees the output folder), then
 /// call again; when nothing is pending, `*out_json` is the summary `ccp_project_run`
@@ -90,7 +90,8 @@ pub unsafe extern "C" fn ccp_project_plan(
 /// Runs one task that `ccp_project_plan` returned (`task_json`: the task object as given)
 /// and writes its result into the run's output folder, atomically: a task killed midway
 /// leaves nothing, and a task run twice writes the same result. `*out_json` receives
-/// `{"task", "item", "ok", "reason", "seconds"}` (`item` the photo or the LiDAR tile; `ok`
+/// `{"task", "item", "ok", "reason", "seconds"}` (`item` the photo, the LiDAR tile or the
+/// run of orthophoto tiles; `ok`
 /// false with the reason when the photo could not be oriented or its scan measured: that
 /// is a result, not an error).
 /// Release the string with `ccp_string_free`.

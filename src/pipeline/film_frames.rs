@@ -7,18 +7,18 @@
 
 use super::stages::WorkError;
 use crate::block::{Block, BlockCamera, CameraId, PhotoId};
-use crate::geometry::{Camera, FilmCamera, FrameCamera};
+use crate::geometry::{Camera, FilmCamera, FrameCamera, InteriorOrientation};
 use crate::matching::fiducial::{
     mean_scan_pixel_mm, write_frame_image, FiducialFrame, FrameImageReport,
 };
 use serde::Serialize;
 use std::collections::BTreeMap;
-use std::path::Path;
+use std::path::{Path, PathBuf};
 
 /// Folder of the frame images in an epoch's products.
 pub const RESAMPLED_DIR: &str = "resampled";
 
-/// A film epoch moved into its frame images.
+/// A film epoch moved into its frame images (made by [`to_frame_images`]).
 #[derive(Debug, Clone)]
 pub struct FilmFrames {
     /// The block with frame cameras (scans of one frame camera share it) and the frame
@@ -43,11 +43,32 @@ pub struct FramesReport {
     pub photos: BTreeMap<PhotoId, FrameImageReport>,
 }
 
+/// A film epoch's move into its frame images before any is made: the block for the frame
+/// images ([`FilmFrames::block`]), and one job per scan, which can run anywhere.
+#[derive(Debug, Clone)]
+pub struct FramePlan {
+    pub block: Block,
+    pub pixel_mm: BTreeMap<CameraId, f64>,
+    pub format_mm: [f64; 2],
+    pub frame: FiducialFrame,
+    pub pixel_source: String,
+    /// In photo id order.
+    pub jobs: Vec<FrameJob>,
+}
+
+/// One scan to resample into its frame image.
+#[derive(Debug, Clone)]
+pub struct FrameJob {
+    pub photo: PhotoId,
+    pub name: String,
+    pub scan: PathBuf,
+    pub interior: InteriorOrientation,
+    /// The frame image to write.
+    pub target: PathBuf,
+}
+
 /// Resamples every photo of `block` that has a film camera into `dir` (`<stem>.png`) and
-/// returns the block for its frame images. `format_mm` is the camera definition's film
-/// format; `pixel_mm` the frame's pixel size, by default [`mean_scan_pixel_mm`] of the
-/// block's film photos. Frame cameras are named `camera_name`. Photos with frame cameras
-/// pass unchanged.
+/// returns the block for its frame images ([`plan_frames`], then each job).
 pub fn to_frame_images(
     block: &Block,
     format_mm: [f64; 2],
@@ -55,6 +76,32 @@ pub fn to_frame_images(
     camera_name: &str,
     dir: &Path,
 ) -> Result<FilmFrames, WorkError> {
+    let plan = plan_frames(block, format_mm, pixel_mm, camera_name, dir)?;
+    let reports = plan
+        .jobs
+        .iter()
+        .map(|j| j.resample(&plan.frame))
+        .collect::<Result<Vec<_>, _>>()?;
+    let report = plan.report(reports);
+    Ok(FilmFrames {
+        block: plan.block,
+        pixel_mm: plan.pixel_mm,
+        report,
+    })
+}
+
+/// The frame images of every photo of `block` that has a film camera, to be written into
+/// `dir` (`<stem>.png`), and the block for them. `format_mm` is the camera definition's film
+/// format; `pixel_mm` the frame's pixel size, by default [`mean_scan_pixel_mm`] of the
+/// block's film photos. Frame cameras are named `camera_name`. Photos with frame cameras
+/// pass unchanged.
+pub fn plan_frames(
+    block: &Block,
+    format_mm: [f64; 2],
+    pixel_mm: Option<f64>,
+    camera_name: &str,
+    dir: &Path,
+) -> Result<FramePlan, WorkError> {
     let film_of = |c: &BlockCamera| match &c.model {
         Camera::Film(f) => Some(f.clone()),
         Camera::Frame(_) => None,
@@ -133,8 +180,9 @@ pub fn to_frame_images(
 
     // The scans, one at a time (each resampled with its rows in parallel): a scan of
     // 5714² px and its frame image are all that is in memory.
-    std::fs::create_dir_all(dir).map_err(|e| crate::formats::FormatError::io(dir, e))?;
-    let mut photos = BTreeMap::new();
+    // Each film photo's frame image: its target (the photo's image from here on) and
+    // the job of making it.
+    let mut jobs: Vec<FrameJob> = Vec::new();
     for ph in out.photos.values_mut() {
         let Some(film) = films.get(&ph.camera) else {
             continue;
@@ -147,38 +195,63 @@ pub fn to_frame_images(
             .map(|s| s.to_string_lossy().into_owned())
             .unwrap_or_else(|| ph.name.clone());
         let target = dir.join(format!("{stem}.png"));
-        if photos
-            .values()
-            .any(|r: &FrameImageReport| r.image == target)
-        {
+        if jobs.iter().any(|j| j.target == target) {
             return Err(WorkError::Inconsistent(format!(
                 "photo {} ({}): two scans named {stem} would write the same frame image",
                 ph.id, ph.name
             )));
         }
-        let mut rep = write_frame_image(&scan, &film.interior, &frame, &target)
-            .map_err(|e| WorkError::Inconsistent(format!("photo {} ({}): {e}", ph.id, ph.name)))?;
+        jobs.push(FrameJob {
+            photo: ph.id,
+            name: ph.name.clone(),
+            scan,
+            interior: film.interior.clone(),
+            target: target.clone(),
+        });
+        ph.image = Some(target);
+        ph.camera = new_id[&ph.camera];
+    }
+    let pixel_mm = frame_cams.iter().map(|(id, _)| (*id, p)).collect();
+    Ok(FramePlan {
+        block: out,
+        pixel_mm,
+        format_mm,
+        frame,
+        pixel_source: pixel_source.into(),
+        jobs,
+    })
+}
+
+impl FrameJob {
+    /// Reads the scan, resamples it into its frame image and writes that (atomically).
+    pub fn resample(&self, frame: &FiducialFrame) -> Result<FrameImageReport, WorkError> {
+        if let Some(d) = self.target.parent() {
+            std::fs::create_dir_all(d).map_err(|e| crate::formats::FormatError::io(d, e))?;
+        }
+        let mut rep =
+            write_frame_image(&self.scan, &self.interior, frame, &self.target).map_err(|e| {
+                WorkError::Inconsistent(format!("photo {} ({}): {e}", self.photo, self.name))
+            })?;
         tracing::info!(
-            photo = ph.name,
+            photo = self.name,
             seconds = rep.seconds,
             masked = rep.masked_pixels,
             "scan resampled into its fiducial frame"
         );
-        ph.image = Some(target);
-        ph.camera = new_id[&ph.camera];
         // The report names the frame image by its file name: the stage folder is renamed.
         rep.image = rep.image.file_name().map(Into::into).unwrap_or_default();
-        photos.insert(ph.id, rep);
+        Ok(rep)
     }
-    let pixel_mm = frame_cams.iter().map(|(id, _)| (*id, p)).collect();
-    Ok(FilmFrames {
-        block: out,
-        pixel_mm,
-        report: FramesReport {
-            format_mm,
-            frame,
-            pixel_source: pixel_source.into(),
-            photos,
-        },
-    })
+}
+
+impl FramePlan {
+    /// The report of the frame images, from each job's report in job order.
+    pub fn report(&self, photos: impl IntoIterator<Item = FrameImageReport>) -> FramesReport {
+        FramesReport {
+            format_mm: self.format_mm,
+            frame: self.frame,
+            pixel_source: self.pixel_source.clone(),
+            photos: self.jobs.iter().map(|j| j.photo).zip(photos).collect(),
+        }
+    }
 }

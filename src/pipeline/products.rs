@@ -4,10 +4,12 @@
 //! (`resampled/`, [`super::film_frames`]), whose frame cameras every format takes exactly.
 
 use super::epoch_files::{load_block, write_json};
-use super::film_frames::{self, RESAMPLED_DIR};
+use super::film_frames::{self, FramePlan, RESAMPLED_DIR};
 use super::project::{Epoch, Project};
 use super::run::Checkpoints;
 use super::stages::WorkError;
+use super::tasks::outputs::{OutputTasks, OutputsContext};
+use super::tasks::TaskMode;
 use crate::block::{Block, ObjectPoint, Observation, PointKind};
 use crate::control::epoch::EpochCamera;
 use crate::control::EpochError;
@@ -82,9 +84,91 @@ fn add_checkpoints(block: &mut Block, cps: &Checkpoints, epoch: &str) -> Result<
     Ok(())
 }
 
+/// The block the products of `epoch` (its stage folder `edir`) are made of: the oriented
+/// photos, with the project's checkpoints as check points when given, and a film epoch
+/// moved into its frame images (to be made in `resampled`, [`FramePlan`]).
+pub(crate) fn product_block(
+    project: &Project,
+    epoch: &Epoch,
+    checkpoints: Option<&Checkpoints>,
+    edir: &Path,
+    resampled: &Path,
+) -> Result<(Block, Option<FramePlan>), WorkError> {
+    let block = load_block(edir)?;
+    let o = &project.outputs;
+    let mut named = block.oriented_only();
+    // Before the move into the frames: their measurements move with the photos'.
+    if let Some(c) = checkpoints {
+        add_checkpoints(&mut named, c, &epoch.name)?;
+    }
+    let film = named
+        .photos
+        .values()
+        .any(|p| matches!(named.camera_of(p).map(|c| &c.model), Some(Camera::Film(_))));
+    if !(film && (o.colmap || o.blocks_exchange || o.orthophoto)) {
+        return Ok((named, None));
+    }
+    let Some(camera) = &epoch.camera else {
+        return Err(EpochError::Epoch {
+            epoch: epoch.name.clone(),
+            message: "an existing block with film cameras has no film camera file to resample its scans with".into(),
+        }
+        .into());
+    };
+    let def = match EpochCamera::load(camera)? {
+        EpochCamera::Film(d) => d,
+        EpochCamera::Frame(_) => {
+            return Err(EpochError::Epoch {
+                epoch: epoch.name.clone(),
+                message: format!(
+                    "{}: a frame camera, but the epoch's block has film cameras",
+                    camera.display()
+                ),
+            }
+            .into())
+        }
+    };
+    let frames = film_frames::plan_frames(
+        &named,
+        def.format_mm,
+        o.film_pixel_um.map(|um| um / 1000.0),
+        &format!("{} ({})", def.name, epoch.name),
+        resampled,
+    )?;
+    Ok((frames.block.clone(), Some(frames)))
+}
+
+/// The ground an epoch's orthophoto is rectified onto (the control surface's ground in
+/// world coordinates) and the orthophoto's options (its GSD the photos' median ground
+/// pixel times the project's `ortho_gsd_factor`).
+pub(crate) fn ortho_ground(
+    project: &Project,
+    block: &Block,
+    surface: &GroundSurface,
+    origin: [f64; 3],
+) -> Result<(crate::geometry::Dem, formats::ortho::OrthoOptions), WorkError> {
+    // Back to world coordinates: shifting by the negated origin.
+    let dem = surface
+        .ground
+        .shifted([-origin[0], -origin[1], -origin[2]])
+        .map_err(FormatError::Geometry)?;
+    let gsd =
+        formats::ortho::default_gsd(block, &dem).map(|g| g * project.outputs.ortho_gsd_factor);
+    Ok((
+        dem,
+        formats::ortho::OrthoOptions {
+            gsd,
+            ..Default::default()
+        },
+    ))
+}
+
 /// COLMAP model, BlocksExchange XML, orthophoto and LiDAR DEM of the oriented epoch
 /// `epoch` in `edir`, written into `dir`; `surface` is the LiDAR ground (block-local with
-/// `origin`), `checkpoints` the project's, added to the models as check points.
+/// `origin`), `checkpoints` the project's, added to the models as check points. A film
+/// epoch's frame images and the orthophoto's tiles are made as `tasks` (here, or returned
+/// as pending in `mode` Plan) before anything is written.
+#[allow(clippy::too_many_arguments)]
 pub(crate) fn write_products(
     project: &Project,
     epoch: &Epoch,
@@ -93,50 +177,42 @@ pub(crate) fn write_products(
     origin: [f64; 3],
     edir: &Path,
     dir: &Path,
+    (tasks, mode): (&OutputTasks, TaskMode),
 ) -> Result<(), WorkError> {
-    let block = load_block(edir)?;
     let o = &project.outputs;
-    let mut named = block.oriented_only();
-    if let Some(c) = checkpoints {
-        add_checkpoints(&mut named, c, &epoch.name)?;
-    }
-    // Film: the scans resampled into their fiducial frames, and the block moved there.
-    let film = named
-        .photos
-        .values()
-        .any(|p| matches!(named.camera_of(p).map(|c| &c.model), Some(Camera::Film(_))));
+    let (mut named, frames) = product_block(project, epoch, checkpoints, edir, &tasks.resampled())?;
+    let (dem, ortho_opts) = ortho_ground(project, &named, surface, origin)?;
+    let film = frames.is_some();
+    // An epoch that oriented no photo still has its LiDAR DEM, but nothing to orthorectify.
+    let orthophoto = o.orthophoto && !named.photos.is_empty();
+    let ctx = OutputsContext {
+        block: named.clone(),
+        frames,
+        dem,
+        ortho: ortho_opts,
+    };
+    // The tasks first: a planning run that must wait for them has written nothing.
+    let frame_reports = tasks.resample(&ctx, mode)?;
+    let ortho_path = dir.join("orthophoto.tif");
+    let files = ctx.files();
+    let grid = if orthophoto {
+        Some(formats::ortho::OrthoGrid::new(
+            &ortho_path,
+            &ctx.block,
+            &ctx.dem,
+            &formats::ortho::PhotoImages::Files(&files),
+            &ctx.ortho,
+        )?)
+    } else {
+        None
+    };
+    let mut rendered = match &grid {
+        Some(g) => Some(tasks.ortho(g, &ctx, mode)?),
+        None => None,
+    };
     let mut pixel_mm = BTreeMap::new();
-    if film && (o.colmap || o.blocks_exchange || o.orthophoto) {
-        let Some(camera) = &epoch.camera else {
-            return Err(EpochError::Epoch {
-                epoch: epoch.name.clone(),
-                message: "an existing block with film cameras has no film camera file to resample its scans with".into(),
-            }
-            .into());
-        };
-        let def = match EpochCamera::load(camera)? {
-            EpochCamera::Film(d) => d,
-            EpochCamera::Frame(_) => {
-                return Err(EpochError::Epoch {
-                    epoch: epoch.name.clone(),
-                    message: format!(
-                        "{}: a frame camera, but the epoch's block has film cameras",
-                        camera.display()
-                    ),
-                }
-                .into())
-            }
-        };
-        let frames = film_frames::to_frame_images(
-            &named,
-            def.format_mm,
-            o.film_pixel_um.map(|um| um / 1000.0),
-            &format!("{} ({})", def.name, epoch.name),
-            &dir.join(RESAMPLED_DIR),
-        )?;
-        write_json(&dir.join(RESAMPLED_DIR).join("frames.json"), &frames.report)?;
-        named = frames.block;
-        pixel_mm = frames.pixel_mm;
+    if let Some(f) = &ctx.frames {
+        pixel_mm = f.pixel_mm.clone();
     }
     // Products name the photos by their image file, as COLMAP and ContextCapture expect.
     for p in named.photos.values_mut() {
@@ -190,51 +266,41 @@ pub(crate) fn write_products(
             skipped.insert("blocks_exchange", reason(&e));
         }
     }
-    // An epoch that oriented no photo still has its LiDAR DEM, but nothing to orthorectify.
-    let orthophoto = o.orthophoto && !named.photos.is_empty();
     if o.orthophoto && !orthophoto {
         skipped.insert("orthophoto", "no photo of the epoch was oriented".into());
     }
     write_json(&dir.join("skipped.json"), &skipped)?;
-    if orthophoto || o.dem {
+    if o.dem {
         let crs = Crs::parse(&project.crs)?;
-        // Back to world coordinates: shifting by the negated origin.
-        let dem = surface
-            .ground
-            .shifted([-origin[0], -origin[1], -origin[2]])
-            .map_err(FormatError::Geometry)?;
-        if o.dem {
-            formats::raster::write_dem(
-                &dir.join(dem_file),
-                &dem,
-                &crs,
-                &formats::raster::GeoTiffOptions::default(),
-            )?;
-        }
-        if orthophoto {
-            let files: BTreeMap<_, _> = named
-                .photos
-                .iter()
-                .filter_map(|(id, p)| Some((*id, p.image.clone()?)))
-                .collect();
-            let gsd = formats::ortho::default_gsd(&named, &dem).map(|g| g * o.ortho_gsd_factor);
-            let rep = formats::ortho::write_orthophoto(
-                &dir.join("orthophoto.tif"),
-                &named,
-                &dem,
-                formats::ortho::PhotoImages::Files(&files),
-                &crs,
-                &formats::ortho::OrthoOptions {
-                    gsd,
-                    ..Default::default()
-                },
-            )?;
-            write_json(&dir.join("orthophoto.json"), &rep)?;
-            let (png, extent) = formats::ortho::preview(&dir.join("orthophoto.tif"), 800)?;
-            std::fs::write(dir.join("preview.png"), png)
-                .map_err(|e| FormatError::io(dir.join("preview.png"), e))?;
-            write_json(&dir.join("preview.json"), &extent)?;
-        }
+        formats::raster::write_dem(
+            &dir.join(dem_file),
+            &ctx.dem,
+            &crs,
+            &formats::raster::GeoTiffOptions::default(),
+        )?;
     }
+    if let (Some(grid), Some(tiles)) = (&grid, rendered.as_mut()) {
+        let crs = Crs::parse(&project.crs)?;
+        let mut rep =
+            formats::ortho::write_tiles(&ortho_path, grid, &crs, &ctx.ortho, |k| tiles.tile(k))?;
+        rep.image_loads = tiles.image_loads;
+        rep.peak_image_bytes = tiles.peak_image_bytes;
+        write_json(&dir.join("orthophoto.json"), &rep)?;
+        let (png, extent) = formats::ortho::preview(&ortho_path, 800)?;
+        std::fs::write(dir.join("preview.png"), png)
+            .map_err(|e| FormatError::io(dir.join("preview.png"), e))?;
+        write_json(&dir.join("preview.json"), &extent)?;
+    }
+    // The frame images into the stage's folder, with their report.
+    if let Some(f) = &ctx.frames {
+        let to = dir.join(RESAMPLED_DIR);
+        std::fs::create_dir_all(&to).map_err(|e| FormatError::io(&to, e))?;
+        for j in &f.jobs {
+            let name = j.target.file_name().unwrap_or_default();
+            std::fs::rename(&j.target, to.join(name)).map_err(|e| FormatError::io(&j.target, e))?;
+        }
+        write_json(&to.join("frames.json"), &f.report(frame_reports))?;
+    }
+    tasks.clear();
     Ok(())
 }

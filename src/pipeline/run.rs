@@ -21,6 +21,7 @@ use super::project::{Epoch, Project, ProjectError};
 use super::report::{self, EpochReport, IcpIteration, OrthoPreview};
 use super::stages::{Inputs, Runner, StageError, WorkError};
 use super::tasks::lidar::{clean_sources, LidarPlan};
+use super::tasks::outputs::{OutputTasks, OutputsPlan};
 use super::tasks::{open_packages, EpochContext, EpochPlan, EpochTasks, Task, TaskMode};
 use crate::block::Block;
 use crate::control::archive::{self, ArchiveContext, ArchiveOptions};
@@ -804,7 +805,7 @@ fn run_stages(
             let edir = epoch_dirs[k].clone();
             // The camera definition gives a film epoch's format (its frame images).
             let odir = stage!(
-                format!("outputs-{}", e.name),
+                keyed format!("outputs-{}", e.name),
                 cp_inputs(
                     match &e.camera {
                         Some(c) => Inputs::new().file(c),
@@ -814,7 +815,16 @@ fn run_stages(
                     .file(&edir)
                     .param("outputs", &project.outputs)
                 ),
-                |dir: &Path| {
+                |dir: &Path, key: &str| {
+                    let stage = format!("outputs-{}", e.name);
+                    let plan = OutputsPlan {
+                        project: project.clone(),
+                        epoch: e.name.clone(),
+                        sources: sources.clone(),
+                        epoch_dir: edir.clone(),
+                        origin: lidar.origin,
+                    };
+                    let tasks = OutputTasks::new(out, &stage, key, &plan)?;
                     super::products::write_products(
                         project,
                         e,
@@ -823,6 +833,7 @@ fn run_stages(
                         lidar.origin,
                         &edir,
                         dir,
+                        (&tasks, task_mode),
                     )
                 }
             );

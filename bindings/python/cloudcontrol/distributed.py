@@ -1,7 +1,7 @@
-"""The workflow on Dask: the per-tile tasks of the LiDAR cleaning and the per-photo tasks
-of the archive epochs fan out to the workers of a ``dask.distributed.Client``; the rest of
-each stage (the strip offsets, the epoch-wide adjustment, the products) runs in this
-process.
+"""The workflow on Dask: the per-tile tasks of the LiDAR cleaning, the per-photo tasks of
+the archive epochs and the products' film resampling and orthophoto tiles fan out to the
+workers of a ``dask.distributed.Client``; the rest of each stage (the strip offsets, the
+epoch-wide adjustment, the files written from the tasks' results) runs in this process.
 
 A run alternates between :func:`cloudcontrol.pipeline.plan`, which runs every stage it can
 and stops at the first one whose tasks have not all run, and a round of those

@@ -38,9 +38,9 @@ def run(project: str | os.PathLike) -> dict:
 
 
 def plan(project: str | os.PathLike) -> dict:
-    """Runs a project as :func:`run` does, except for the per-tile tasks of the LiDAR
-    cleaning and the per-photo tasks of archive epochs: the run stops at the first stage
-    whose tasks have not all run and returns ``{"pending": {"stage": ..., "tasks": [...]}}``. Run each task with :func:`run_task`
+    """Runs a project as :func:`run` does, except for its tasks (the LiDAR cleaning per
+    tile, the archive epochs' per-photo orientation, the products' film resampling and
+    orthophoto tiles): the run stops at the first stage whose tasks have not all run and returns ``{"pending": {"stage": ..., "tasks": [...]}}``. Run each task with :func:`run_task`
     (anywhere the output folder is shared), then call again; with nothing pending it
     returns what :func:`run` returns."""
     return _json_call(lib.ccp_project_plan, os.fsencode(project))
@@ -49,7 +49,7 @@ def plan(project: str | os.PathLike) -> dict:
 def run_task(task: dict) -> dict:
     """Runs one task of :func:`plan` and writes its result file (atomically) into the
     run's output folder. Returns ``{"task", "item", "ok", "reason", "seconds"}`` (``item``:
-    the photo or the tile); a photo that could not be oriented is ``ok: False`` with its
+    the photo, the LiDAR tile or the run of orthophoto tiles); a photo that could not be oriented is ``ok: False`` with its
     reason, not an exception."""
     return _json_call(lib.ccp_task_run, json.dumps(task).encode())
 

@@ -77,7 +77,9 @@ def test_dask_run_with_a_killed_worker_gives_the_products_of_a_plain_run(shared_
     kinds = [(r["stage"], r["kind"]) for r in res["rounds"]]
     assert kinds == [("sources", "screen"), ("sources", "clean"),
                      ("epoch-digital_2012", "orient"), ("epoch-film_1978", "scan"),
-                     ("epoch-film_1978", "orient")]
+                     ("epoch-film_1978", "orient"), ("outputs-reference_2024", "ortho"),
+                     ("outputs-digital_2012", "ortho"), ("outputs-film_1978", "resample"),
+                     ("outputs-film_1978", "ortho")]
     film_scan = res["rounds"][3]
     assert [f["item"] for f in film_scan["failed"]] == [BAD_SCAN]
     assert "read" in film_scan["failed"][0]["reason"]

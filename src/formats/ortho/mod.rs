@@ -157,6 +157,298 @@ fn visible(dem: &Dem, g: &Vector3<f64>, c: &Vector3<f64>, tol: f64) -> bool {
     true
 }
 
+/// The grid of an orthophoto and the views it is rendered from: everything a tile needs
+/// but the photos' pixels. Made the same way wherever it is made (a Dask worker renders
+/// tiles of the grid the run writes).
+pub struct OrthoGrid<'a> {
+    views: Vec<View<'a>>,
+    dem: &'a Dem,
+    gt: GeoTransform,
+    pub width: usize,
+    pub height: usize,
+    pub gsd: f64,
+    /// Tile size (pixels): the unit rendered and written.
+    pub tile: usize,
+    occlusion: bool,
+    occlusion_tolerance: f64,
+}
+
+/// One rendered tile: its (column, row) among the tiles, its pixels band-sequential (red,
+/// green, blue, alpha; each `rows × cols`, row-major) and what it counted.
+#[derive(Debug, Clone, serde::Serialize, serde::Deserialize)]
+pub struct RenderedTile {
+    pub tile: [usize; 2],
+    #[serde(with = "serde_bytes")]
+    pub bands: Vec<u8>,
+    pub filled: usize,
+    pub occluded: usize,
+    pub per_photo: BTreeMap<PhotoId, usize>,
+}
+
+impl<'a> OrthoGrid<'a> {
+    /// The grid of the orthophoto `path` of the block's oriented photos on `dem` (world
+    /// coordinates); `images` gives the photos' image sizes (checked against their
+    /// cameras). Photos without an image are left out.
+    pub fn new(
+        path: &Path,
+        block: &'a Block,
+        dem: &'a Dem,
+        images: &PhotoImages,
+        opts: &OrthoOptions,
+    ) -> Result<Self> {
+        let mut views = Vec::new();
+        for p in block.photos.values().filter(|p| p.is_oriented()) {
+            let Some((iw, ih)) = images.size(p.id)? else {
+                continue;
+            };
+            let cam = &block
+                .cameras
+                .get(&p.camera)
+                .ok_or_else(|| {
+                    FormatError::invalid(
+                        path,
+                        format!("photo {} has unknown camera {}", p.id, p.camera),
+                    )
+                })?
+                .model;
+            let (w, h) = cam.image_size();
+            if (w, h) != (iw, ih) {
+                return Err(FormatError::invalid(
+                    path,
+                    format!(
+                        "photo {} ({}): image is {iw}×{ih} but its camera is {w}×{h}",
+                        p.id, p.name
+                    ),
+                ));
+            }
+            let center = block.to_world(&p.pose.center);
+            views.push(View {
+                id: p.id,
+                camera: cam,
+                rotation: p.pose.rotation,
+                center,
+                footprint: tiles::footprint(cam, &p.pose.rotation, &center, dem.z_range()),
+            });
+        }
+        if views.is_empty() {
+            return Err(FormatError::invalid(
+                path,
+                "no oriented photo with an image to orthorectify",
+            ));
+        }
+        let gsd = match opts.gsd {
+            Some(g) => g,
+            None => default_gsd(block, dem).ok_or_else(|| {
+                FormatError::invalid(path, "cannot derive a ground sampling distance; give one")
+            })?,
+        };
+        if !(gsd.is_finite() && gsd > 0.0) {
+            return Err(FormatError::invalid(
+                path,
+                format!("ground sampling distance {gsd} is not positive"),
+            ));
+        }
+        let (x0, y0, x1, y1) = opts.extent.unwrap_or_else(|| dem.extent());
+        // Snap the grid to multiples of the GSD so adjacent products align.
+        let (x0, y1) = ((x0 / gsd).floor() * gsd, (y1 / gsd).ceil() * gsd);
+        let (w, h) = (((x1 - x0) / gsd).ceil(), ((y1 - y0) / gsd).ceil());
+        if w * h > MAX_ORTHO_PIXELS as f64 {
+            return Err(FormatError::TooLarge {
+                path: path.to_path_buf(),
+                what: format!(
+                    "orthophoto of {w}×{h} pixels (gsd {gsd} m over {:.1}×{:.1} m)",
+                    x1 - x0,
+                    y1 - y0
+                ),
+                claimed: (w * h).min(u64::MAX as f64) as u64,
+                limit: MAX_ORTHO_PIXELS,
+                basis: "the pixels an orthophoto may have; raise the gsd or give a smaller extent"
+                    .into(),
+            });
+        }
+        let (width, height) = (w as usize, h as usize);
+        if width == 0 || height == 0 || width > 1 << 20 || height > 1 << 20 {
+            return Err(FormatError::invalid(
+                path,
+                format!(
+                    "orthophoto of {width}×{height} pixels is empty or implausible (GSD {gsd} m)"
+                ),
+            ));
+        }
+        let tile = if opts.tile >= 16 && opts.tile % 16 == 0 {
+            opts.tile
+        } else {
+            256
+        };
+        Ok(Self {
+            views,
+            dem,
+            gt: GeoTransform::north_up(x0, y1, gsd),
+            width,
+            height,
+            gsd,
+            tile,
+            occlusion: opts.occlusion,
+            occlusion_tolerance: opts.occlusion_tolerance,
+        })
+    }
+
+    /// The tiles in the order they are rendered and written: along a Hilbert curve, so
+    /// consecutive tiles share their photos ([`tiles`]).
+    pub fn tiles(&self) -> Vec<[usize; 2]> {
+        let (nx, ny) = (
+            self.width.div_ceil(self.tile),
+            self.height.div_ceil(self.tile),
+        );
+        tiles::hilbert_order(nx, ny)
+            .into_iter()
+            .map(|(x, y)| [x, y])
+            .collect()
+    }
+
+    /// Pixel window `(c0, r0, cols, rows)` of tile `t`.
+    fn window(&self, t: [usize; 2]) -> (usize, usize, usize, usize) {
+        let (c0, r0) = (t[0] * self.tile, t[1] * self.tile);
+        (
+            c0,
+            r0,
+            self.tile.min(self.width - c0),
+            self.tile.min(self.height - r0),
+        )
+    }
+
+    /// The view a cell is taken from, by geometry alone (so only the photos a tile uses
+    /// are decoded): the nadir-nearest of `cand` (views whose footprint meets the tile)
+    /// that has the cell in its frame and sees it, and the pixel there.
+    fn choose_view(&self, col: usize, row: usize, cand: &[usize]) -> Choice {
+        let (x, y) = self.gt.pixel_to_world(col as f64 + 0.5, row as f64 + 0.5);
+        let Some(z) = self.dem.height_at(x, y) else {
+            return (None, false);
+        };
+        let g = Vector3::new(x, y, z);
+        let mut order: Vec<(f64, usize)> = cand
+            .iter()
+            .map(|&i| {
+                let c = &self.views[i].center;
+                ((c.x - x).powi(2) + (c.y - y).powi(2), i)
+            })
+            .collect();
+        order.sort_by(|a, b| a.0.total_cmp(&b.0).then(a.1.cmp(&b.1)));
+        let mut fell_back = false;
+        for (_, i) in order {
+            let v = &self.views[i];
+            let xc = v.rotation * (g - v.center);
+            let Ok(px) = v.camera.project(&xc) else {
+                continue;
+            };
+            if !in_frame(v.camera, px) {
+                continue;
+            }
+            if self.occlusion && !visible(self.dem, &g, &v.center, self.occlusion_tolerance) {
+                fell_back = true;
+                continue;
+            }
+            return (Some((i, px)), fell_back);
+        }
+        (None, fell_back)
+    }
+}
+
+/// Renders tiles of a grid, decoding the photos through one cache bounded in bytes.
+pub struct TileRenderer<'a> {
+    grid: &'a OrthoGrid<'a>,
+    cache: images::ImageCache<'a>,
+}
+
+impl<'a> TileRenderer<'a> {
+    /// `out` is the product being made (named in errors).
+    pub fn new(
+        grid: &'a OrthoGrid<'a>,
+        images: PhotoImages<'a>,
+        cache_bytes: u64,
+        out: &'a Path,
+    ) -> Self {
+        Self {
+            grid,
+            cache: images::ImageCache::new(images, cache_bytes, out),
+        }
+    }
+
+    /// Photo images decoded so far (again after eviction counts again).
+    pub fn image_loads(&self) -> usize {
+        self.cache.loads()
+    }
+
+    /// Most bytes of decoded images alive at once so far.
+    pub fn peak_image_bytes(&self) -> u64 {
+        self.cache.peak_bytes
+    }
+
+    /// Renders tile `t`. Cells are independent, so they are filled in parallel with
+    /// identical results.
+    pub fn render(&mut self, t: [usize; 2]) -> Result<RenderedTile> {
+        let g = self.grid;
+        let (c0, r0, cols, rows) = g.window(t);
+        let (xa, yb) = g.gt.pixel_to_world(c0 as f64, r0 as f64);
+        let (xb, ya) = g.gt.pixel_to_world((c0 + cols) as f64, (r0 + rows) as f64);
+        let bbox = [xa.min(xb), ya.min(yb), xa.max(xb), ya.max(yb)];
+        let cand: Vec<usize> = (0..g.views.len())
+            .filter(|&i| {
+                g.views[i]
+                    .footprint
+                    .is_none_or(|f| tiles::overlaps(&f, &bbox))
+            })
+            .collect();
+        let chosen: Vec<Choice> = (0..rows * cols)
+            .into_par_iter()
+            .map(|k| g.choose_view(c0 + k % cols, r0 + k / cols, &cand))
+            .collect();
+        let used: Vec<usize> = chosen
+            .iter()
+            .filter_map(|c| Some(c.0?.0))
+            .collect::<BTreeSet<_>>()
+            .into_iter()
+            .collect();
+        let ids: Vec<PhotoId> = used.iter().map(|&i| g.views[i].id).collect();
+        let held = self.cache.get_all(&ids)?;
+        let cells: Vec<Cell> = chosen
+            .into_par_iter()
+            .map(|(c, fb)| {
+                let rgb = c.and_then(|(i, px)| {
+                    let k = used.binary_search(&i).ok()?;
+                    let rgb = held[k].sample(px.x, px.y)?;
+                    Some((
+                        rgb.map(|c| (c.round().clamp(0.0, 255.0) as u8).max(ORTHO_NODATA + 1)),
+                        i,
+                    ))
+                });
+                (rgb, fb)
+            })
+            .collect();
+        drop(held);
+        let n = rows * cols;
+        let mut out = RenderedTile {
+            tile: t,
+            bands: vec![0u8; 4 * n],
+            filled: 0,
+            occluded: 0,
+            per_photo: BTreeMap::new(),
+        };
+        for (k, (c, fb)) in cells.iter().enumerate() {
+            out.occluded += *fb as usize;
+            if let Some((rgb, i)) = c {
+                out.bands[k] = rgb[0];
+                out.bands[n + k] = rgb[1];
+                out.bands[2 * n + k] = rgb[2];
+                out.bands[3 * n + k] = 255;
+                out.filled += 1;
+                *out.per_photo.entry(g.views[*i].id).or_default() += 1;
+            }
+        }
+        Ok(out)
+    }
+}
+
 /// Orthorectifies the block's photos onto `dem` (world coordinates in `crs`) and writes an
 /// RGB + alpha GeoTIFF. `images` gives the photos' pixels by photo id; photos without an
 /// image or without an oriented pose are skipped.
@@ -168,136 +460,38 @@ pub fn write_orthophoto(
     crs: &Crs,
     opts: &OrthoOptions,
 ) -> Result<OrthoReport> {
-    let mut views = Vec::new();
-    for p in block.photos.values().filter(|p| p.is_oriented()) {
-        let Some((iw, ih)) = images.size(p.id)? else {
-            continue;
-        };
-        let cam = &block
-            .cameras
-            .get(&p.camera)
-            .ok_or_else(|| {
-                FormatError::invalid(
-                    path,
-                    format!("photo {} has unknown camera {}", p.id, p.camera),
-                )
-            })?
-            .model;
-        let (w, h) = cam.image_size();
-        if (w, h) != (iw, ih) {
-            return Err(FormatError::invalid(
-                path,
-                format!(
-                    "photo {} ({}): image is {iw}×{ih} but its camera is {w}×{h}",
-                    p.id, p.name
-                ),
-            ));
-        }
-        let center = block.to_world(&p.pose.center);
-        views.push(View {
-            id: p.id,
-            camera: cam,
-            rotation: p.pose.rotation,
-            center,
-            footprint: tiles::footprint(cam, &p.pose.rotation, &center, dem.z_range()),
-        });
-    }
-    if views.is_empty() {
-        return Err(FormatError::invalid(
-            path,
-            "no oriented photo with an image to orthorectify",
-        ));
-    }
-    let gsd = match opts.gsd {
-        Some(g) => g,
-        None => default_gsd(block, dem).ok_or_else(|| {
-            FormatError::invalid(path, "cannot derive a ground sampling distance; give one")
-        })?,
-    };
-    if !(gsd.is_finite() && gsd > 0.0) {
-        return Err(FormatError::invalid(
-            path,
-            format!("ground sampling distance {gsd} is not positive"),
-        ));
-    }
-    let (x0, y0, x1, y1) = opts.extent.unwrap_or_else(|| dem.extent());
-    // Snap the grid to multiples of the GSD so adjacent products align.
-    let (x0, y1) = ((x0 / gsd).floor() * gsd, (y1 / gsd).ceil() * gsd);
-    let (w, h) = (((x1 - x0) / gsd).ceil(), ((y1 - y0) / gsd).ceil());
-    if w * h > MAX_ORTHO_PIXELS as f64 {
-        return Err(FormatError::TooLarge {
-            path: path.to_path_buf(),
-            what: format!(
-                "orthophoto of {w}×{h} pixels (gsd {gsd} m over {:.1}×{:.1} m)",
-                x1 - x0,
-                y1 - y0
-            ),
-            claimed: (w * h).min(u64::MAX as f64) as u64,
-            limit: MAX_ORTHO_PIXELS,
-            basis: "the pixels an orthophoto may have; raise the gsd or give a smaller extent"
-                .into(),
-        });
-    }
-    let (width, height) = (w as usize, h as usize);
-    if width == 0 || height == 0 || width > 1 << 20 || height > 1 << 20 {
-        return Err(FormatError::invalid(
-            path,
-            format!("orthophoto of {width}×{height} pixels is empty or implausible (GSD {gsd} m)"),
-        ));
-    }
-    let gt = GeoTransform::north_up(x0, y1, gsd);
-    let tile = if opts.tile >= 16 && opts.tile % 16 == 0 {
-        opts.tile
-    } else {
-        256
-    };
+    let grid = OrthoGrid::new(path, block, dem, &images, opts)?;
+    let mut renderer = TileRenderer::new(&grid, images, opts.image_cache_bytes, path);
+    let order = grid.tiles();
+    let mut report = write_tiles(path, &grid, crs, opts, |k| renderer.render(order[k]))?;
+    report.image_loads = renderer.image_loads();
+    report.peak_image_bytes = renderer.peak_image_bytes();
+    Ok(report)
+}
 
-    // The view a cell is taken from, by geometry alone (so only the photos a tile uses are
-    // decoded): the nadir-nearest of `cand` (views whose footprint meets the tile) that has
-    // the cell in its frame and sees it, and the pixel there.
-    let choose_view = |col: usize, row: usize, cand: &[usize]| -> Choice {
-        let (x, y) = gt.pixel_to_world(col as f64 + 0.5, row as f64 + 0.5);
-        let Some(z) = dem.height_at(x, y) else {
-            return (None, false);
-        };
-        let g = Vector3::new(x, y, z);
-        let mut order: Vec<(f64, usize)> = cand
-            .iter()
-            .map(|&i| {
-                let c = &views[i].center;
-                ((c.x - x).powi(2) + (c.y - y).powi(2), i)
-            })
-            .collect();
-        order.sort_by(|a, b| a.0.total_cmp(&b.0).then(a.1.cmp(&b.1)));
-        let mut fell_back = false;
-        for (_, i) in order {
-            let v = &views[i];
-            let xc = v.rotation * (g - v.center);
-            let Ok(px) = v.camera.project(&xc) else {
-                continue;
-            };
-            if !in_frame(v.camera, px) {
-                continue;
-            }
-            if opts.occlusion && !visible(dem, &g, &v.center, opts.occlusion_tolerance) {
-                fell_back = true;
-                continue;
-            }
-            return (Some((i, px)), fell_back);
-        }
-        (None, fell_back)
-    };
-
+/// Writes the orthophoto of `grid` as an RGB + alpha GeoTIFF (atomically) from its tiles,
+/// `tile(k)` giving the k-th of [`OrthoGrid::tiles`]: rendered here or elsewhere, only
+/// one is held at a time. The report's image counts are the renderer's (zero here).
+pub fn write_tiles(
+    path: &Path,
+    grid: &OrthoGrid,
+    crs: &Crs,
+    opts: &OrthoOptions,
+    mut tile: impl FnMut(usize) -> Result<RenderedTile>,
+) -> Result<OrthoReport> {
+    let (width, height, gsd, gt) = (grid.width, grid.height, grid.gsd, grid.gt);
+    let order = grid.tiles();
     let report = write_atomically(path, |tmp| {
         let err = |e: gdal::errors::GdalError| FormatError::gdal(path, e);
         let driver = DriverManager::get_driver_by_name("GTiff").map_err(err)?;
         // A COG is made by copying a plain tiled GeoTIFF; write that to a scratch file.
         let scratch = tmp.with_extension("scratch.tif");
         let target = if opts.cog { scratch.as_path() } else { tmp };
+        let block_size = grid.tile;
         let mut co = vec![
             "TILED=YES".to_string(),
-            format!("BLOCKXSIZE={tile}"),
-            format!("BLOCKYSIZE={tile}"),
+            format!("BLOCKXSIZE={block_size}"),
+            format!("BLOCKYSIZE={block_size}"),
             "COMPRESS=DEFLATE".into(),
             "PHOTOMETRIC=RGB".into(),
             "ALPHA=YES".into(),
@@ -326,75 +520,34 @@ pub fn write_orthophoto(
             let mut filled = 0usize;
             let mut occluded = 0usize;
             let mut per_photo: BTreeMap<PhotoId, usize> = BTreeMap::new();
-            let mut cache = images::ImageCache::new(images, opts.image_cache_bytes, path);
-            let (nx, ny) = (width.div_ceil(tile), height.div_ceil(tile));
-            for (done, (tx, ty)) in tiles::hilbert_order(nx, ny).into_iter().enumerate() {
-                let (c0, r0) = (tx * tile, ty * tile);
-                let (cols, rows) = (tile.min(width - c0), tile.min(height - r0));
-                let (xa, yb) = gt.pixel_to_world(c0 as f64, r0 as f64);
-                let (xb, ya) = gt.pixel_to_world((c0 + cols) as f64, (r0 + rows) as f64);
-                let bbox = [xa.min(xb), ya.min(yb), xa.max(xb), ya.max(yb)];
-                let cand: Vec<usize> = (0..views.len())
-                    .filter(|&i| {
-                        views[i]
-                            .footprint
-                            .is_none_or(|f| tiles::overlaps(&f, &bbox))
-                    })
-                    .collect();
-                let chosen: Vec<Choice> = (0..rows * cols)
-                    .into_par_iter()
-                    .map(|k| choose_view(c0 + k % cols, r0 + k / cols, &cand))
-                    .collect();
-                let used: Vec<usize> = chosen
-                    .iter()
-                    .filter_map(|c| Some(c.0?.0))
-                    .collect::<BTreeSet<_>>()
-                    .into_iter()
-                    .collect();
-                let ids: Vec<PhotoId> = used.iter().map(|&i| views[i].id).collect();
-                let held = cache.get_all(&ids)?;
-                let cells: Vec<Cell> = chosen
-                    .into_par_iter()
-                    .map(|(c, fb)| {
-                        let rgb = c.and_then(|(i, px)| {
-                            let k = used.binary_search(&i).ok()?;
-                            let rgb = held[k].sample(px.x, px.y)?;
-                            Some((
-                                rgb.map(|c| {
-                                    (c.round().clamp(0.0, 255.0) as u8).max(ORTHO_NODATA + 1)
-                                }),
-                                i,
-                            ))
-                        });
-                        (rgb, fb)
-                    })
-                    .collect();
-                drop(held);
-                let mut bands = vec![vec![0u8; rows * cols]; 4];
-                for (k, (c, fb)) in cells.iter().enumerate() {
-                    occluded += *fb as usize;
-                    if let Some((rgb, i)) = c {
-                        bands[0][k] = rgb[0];
-                        bands[1][k] = rgb[1];
-                        bands[2][k] = rgb[2];
-                        bands[3][k] = 255;
-                        filled += 1;
-                        *per_photo.entry(views[*i].id).or_default() += 1;
-                    }
+            for (k, &t) in order.iter().enumerate() {
+                let r = tile(k)?;
+                let (c0, r0, cols, rows) = grid.window(t);
+                let n = rows * cols;
+                if r.tile != t || r.bands.len() != 4 * n {
+                    return Err(FormatError::invalid(
+                        path,
+                        format!(
+                            "tile {k}: got tile {:?} of {} bytes, expected {t:?} of {}",
+                            r.tile,
+                            r.bands.len(),
+                            4 * n
+                        ),
+                    ));
                 }
-                for (b, data) in bands.into_iter().enumerate() {
-                    let mut buf = Buffer::new((cols, rows), data);
+                filled += r.filled;
+                occluded += r.occluded;
+                for (id, c) in &r.per_photo {
+                    *per_photo.entry(*id).or_default() += c;
+                }
+                for (b, data) in r.bands.chunks_exact(n).enumerate() {
+                    let mut buf = Buffer::new((cols, rows), data.to_vec());
                     ds.rasterband(b + 1)
                         .map_err(err)?
                         .write((c0 as isize, r0 as isize), (cols, rows), &mut buf)
                         .map_err(err)?;
                 }
-                tracing::debug!(
-                    tile = done + 1,
-                    of = nx * ny,
-                    photos = cand.len(),
-                    "orthophoto tile written"
-                );
+                tracing::debug!(tile = k + 1, of = order.len(), "orthophoto tile written");
             }
             let mut levels = opts.overviews.clone();
             if opts.cog && levels.is_empty() {
@@ -411,7 +564,7 @@ pub fn write_orthophoto(
                     "COMPRESS=DEFLATE",
                     "RESAMPLING=AVERAGE",
                     "OVERVIEWS=IGNORE_EXISTING",
-                    &format!("BLOCKSIZE={tile}"),
+                    &format!("BLOCKSIZE={block_size}"),
                 ]);
                 ds.flush_cache().map_err(err)?;
                 ds.create_copy(&cog, tmp, &cog_co).map_err(err)?;
@@ -426,8 +579,8 @@ pub fn write_orthophoto(
                 filled,
                 occluded_fallbacks: occluded,
                 per_photo,
-                image_loads: cache.loads(),
-                peak_image_bytes: cache.peak_bytes,
+                image_loads: 0,
+                peak_image_bytes: 0,
             })
         })();
         if opts.cog {

@@ -5,7 +5,8 @@
 //! block adjustment) then runs on the results.
 
 use super::{
-    read_result, write_result, HasItem, StageTasks, Task, TaskKind, TaskMode, TaskSummary,
+    epoch_of, has_item, not_of, read_result, write_result, ContextCache, StageTasks, Task,
+    TaskKind, TaskMode, TaskSummary,
 };
 use crate::control::archive::{ArchiveContext, ArchiveOptions, FirstPass};
 use crate::control::dcp::DcpPackage;
@@ -22,7 +23,7 @@ use crate::pipeline::stages::WorkError;
 use serde::{Deserialize, Serialize};
 use std::collections::HashMap;
 use std::path::{Path, PathBuf};
-use std::sync::{Arc, Mutex};
+use std::sync::Arc;
 use std::time::Instant;
 
 /// What every task of an epoch stage shares (`plan.json`).
@@ -65,13 +66,7 @@ pub struct EpochContext {
 impl EpochContext {
     /// Builds the context from a plan, reading what it names (a worker's way).
     pub fn load(plan: EpochPlan) -> Result<Self, WorkError> {
-        let e = plan
-            .project
-            .epochs()
-            .find(|e| e.name == plan.epoch)
-            .ok_or_else(|| {
-                WorkError::Inconsistent(format!("the project has no epoch {}", plan.epoch))
-            })?;
+        let e = epoch_of(&plan.project, &plan.epoch)?;
         let input = EpochInput::build(&e.spec(), &plan.project.crs, plan.origin)?;
         let opts = crate::pipeline::run::archive_options(&plan.project, e);
         let surface = ControlGround::new(&plan.project, &plan.sources, plan.origin)
@@ -176,16 +171,7 @@ impl EpochTasks {
     }
 }
 
-impl HasItem for OrientResult {
-    fn item(&self) -> &str {
-        &self.photo
-    }
-}
-impl HasItem for ScanResult {
-    fn item(&self) -> &str {
-        &self.photo
-    }
-}
+has_item!(OrientResult => photo, ScanResult => photo);
 
 /// Runs one task with the stage's context and writes its result.
 fn execute_with(
@@ -229,11 +215,8 @@ fn execute_with(
             )?;
             (reason.is_none(), reason)
         }
-        (TaskKind::Screen | TaskKind::Clean, _) => {
-            return Err(WorkError::Inconsistent(format!(
-                "task {}: not a task of an archive epoch",
-                task.name()
-            )))
+        (TaskKind::Screen | TaskKind::Clean | TaskKind::Resample | TaskKind::Ortho, _) => {
+            return Err(not_of(task, "an archive epoch"))
         }
         (TaskKind::Scan, EpochCamera::Frame(_)) => {
             return Err(WorkError::Inconsistent(format!(
@@ -284,26 +267,11 @@ fn execute_with(
     })
 }
 
-/// The context of the last stage this process ran tasks of: a worker runs many tasks of
-/// one stage, and reading the LiDAR surface and the packages once is most of a small
-/// task's cost otherwise.
-static CONTEXT: Mutex<Option<(PathBuf, Arc<EpochContext>)>> = Mutex::new(None);
+static CONTEXT: ContextCache<EpochContext> = ContextCache::new();
 
 /// Runs one task of an epoch stage (see [`super::run_task`]).
 pub(super) fn run_task(task: &Task) -> Result<TaskSummary, WorkError> {
-    let ctx = {
-        let mut cache = CONTEXT.lock().unwrap_or_else(|p| p.into_inner());
-        match &*cache {
-            Some((folder, ctx)) if *folder == task.folder => ctx.clone(),
-            _ => {
-                let plan: EpochPlan =
-                    crate::pipeline::epoch_files::read_json(&task.folder.join("plan.json"))?;
-                let ctx = Arc::new(EpochContext::load(plan)?);
-                *cache = Some((task.folder.clone(), ctx.clone()));
-                ctx
-            }
-        }
-    };
+    let ctx = CONTEXT.get(task, |plan, _| EpochContext::load(plan))?;
     let archive = ArchiveContext::new(&ctx.input, &ctx.packages, &ctx.surface.ground, &ctx.opts)?;
     execute_with(task, &ctx, &archive)
 }

@@ -6,8 +6,8 @@
 //! when every tile is done.
 
 use super::{
-    read_msgpack, read_result, write_msgpack, write_result, HasItem, StageTasks, Task, TaskKind,
-    TaskMode, TaskSummary,
+    has_item, not_of, read_msgpack, read_result, write_msgpack, write_result, StageTasks, Task,
+    TaskKind, TaskMode, TaskSummary,
 };
 use crate::formats::FormatError;
 use crate::lidar::catalogue::TileEntry;
@@ -42,16 +42,7 @@ struct CleanResult {
     report: TileCleanReport,
 }
 
-impl HasItem for ScreenResult {
-    fn item(&self) -> &str {
-        &self.tile
-    }
-}
-impl HasItem for CleanResult {
-    fn item(&self) -> &str {
-        &self.tile
-    }
-}
+has_item!(ScreenResult => tile, CleanResult => tile);
 
 const OFFSETS: &str = "strip_offsets.msgpack";
 const CLEANED: &str = "lidar";
@@ -162,20 +153,9 @@ fn execute(task: &Task, plan: &LidarPlan) -> Result<TaskSummary, WorkError> {
                 },
             )?;
         }
-        TaskKind::Scan | TaskKind::Orient => {
-            return Err(WorkError::Inconsistent(format!(
-                "task {}: not a task of the LiDAR tiles",
-                task.name()
-            )))
-        }
+        _ => return Err(not_of(task, "the LiDAR tiles")),
     }
-    Ok(TaskSummary {
-        task: task.name(),
-        item: task.item.clone(),
-        ok: true,
-        reason: None,
-        seconds: t0.elapsed().as_secs_f64(),
-    })
+    Ok(TaskSummary::done(task, t0))
 }
 
 /// Runs one task of the `sources` stage (see [`super::run_task`]).

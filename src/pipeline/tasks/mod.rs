@@ -14,10 +14,13 @@
 //! - `sources` ([`lidar`]): `screen` (a LiDAR tile's noise points and its share of the
 //!   strip sample), then, after the strip offsets, `clean` (the tile rewritten);
 //! - archive epochs ([`epoch`]): a film epoch's `scan` (the scan's fiducials), then
-//!   `orient` (a photo's first orientation from the control patches).
+//!   `orient` (a photo's first orientation from the control patches);
+//! - an epoch's products ([`outputs`]): a film epoch's `resample` (a scan into its frame
+//!   image), then `ortho` (a run of orthophoto tiles).
 
 pub mod epoch;
 pub mod lidar;
+pub mod outputs;
 
 pub(crate) use epoch::EpochTasks;
 pub use epoch::{open_packages, EpochContext, EpochPlan};
@@ -28,6 +31,7 @@ use crate::matching::ScanOrientation;
 use rayon::prelude::*;
 use serde::{Deserialize, Serialize};
 use std::path::{Path, PathBuf};
+use std::sync::{Arc, Mutex};
 
 /// What a task does.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize)]
@@ -41,6 +45,10 @@ pub enum TaskKind {
     Screen,
     /// A LiDAR tile rewritten, noise classified and strip offsets removed.
     Clean,
+    /// A film scan resampled into its fiducial-frame image.
+    Resample,
+    /// A run of consecutive orthophoto tiles rendered.
+    Ortho,
 }
 
 impl TaskKind {
@@ -50,11 +58,14 @@ impl TaskKind {
             TaskKind::Orient => "orient",
             TaskKind::Screen => "screen",
             TaskKind::Clean => "clean",
+            TaskKind::Resample => "resample",
+            TaskKind::Ortho => "ortho",
         }
     }
 }
 
-/// One task: an item (a photo of an epoch, a tile of the LiDAR) of a stage, and the
+/// One task: an item (a photo of an epoch, a tile of the LiDAR, a run of orthophoto
+/// tiles) of a stage, and the
 /// folder of the stage's tasks (its `plan.json` says the rest).
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 pub struct Task {
@@ -64,7 +75,7 @@ pub struct Task {
     /// Index of the item in the stage (a photo in its sorted photo folder, a tile in the
     /// selection).
     pub index: usize,
-    /// The item's name: the photo's, or the tile's file name.
+    /// The item's name: the photo's, the tile's file name, or `tiles-<first>-<last>`.
     #[serde(alias = "photo")]
     pub item: String,
     /// `orient` tasks of a film epoch: the epoch's majority scan orientation, taken once
@@ -100,6 +111,35 @@ pub struct TaskSummary {
     /// Why not, when not.
     pub reason: Option<String>,
     pub seconds: f64,
+}
+
+impl TaskSummary {
+    /// A task that did its work, started at `t0`.
+    fn done(task: &Task, t0: std::time::Instant) -> Self {
+        Self {
+            task: task.name(),
+            item: task.item.clone(),
+            ok: true,
+            reason: None,
+            seconds: t0.elapsed().as_secs_f64(),
+        }
+    }
+}
+
+/// A task handed to a stage it is not of.
+fn not_of(task: &Task, stage: &str) -> WorkError {
+    WorkError::Inconsistent(format!("task {}: not a task of {stage}", task.name()))
+}
+
+/// Epoch `name` of a plan's project.
+fn epoch_of<'a>(
+    project: &'a super::project::Project,
+    name: &str,
+) -> Result<&'a super::project::Epoch, WorkError> {
+    project
+        .epochs()
+        .find(|e| e.name == name)
+        .ok_or_else(|| WorkError::Inconsistent(format!("the project has no epoch {name}")))
 }
 
 /// Where the tasks run: here (the run does the work itself) or elsewhere (the run stops
@@ -200,6 +240,18 @@ pub(crate) trait HasItem {
     fn item(&self) -> &str;
 }
 
+/// `HasItem` for result types, each naming the field that holds its item.
+macro_rules! has_item {
+    ($($t:ty => $field:ident),* $(,)?) => {
+        $(impl $crate::pipeline::tasks::HasItem for $t {
+            fn item(&self) -> &str {
+                &self.$field
+            }
+        })*
+    };
+}
+pub(crate) use has_item;
+
 pub(crate) fn read_result<T: for<'de> Deserialize<'de> + HasItem>(
     task: &Task,
 ) -> Result<T, WorkError> {
@@ -231,6 +283,35 @@ pub(crate) fn write_result<T: Serialize>(task: &Task, v: &T) -> Result<(), WorkE
     write_msgpack(&task.result(), v)
 }
 
+/// The context of the last stage a process ran tasks of, kept for the next task: a worker
+/// runs many tasks of one stage, and reading the LiDAR surface, the packages or the block
+/// once is most of a small task's cost otherwise.
+pub(crate) struct ContextCache<C>(Mutex<Option<(PathBuf, Arc<C>)>>);
+
+impl<C> ContextCache<C> {
+    pub(crate) const fn new() -> Self {
+        Self(Mutex::new(None))
+    }
+
+    /// The context of `task`'s stage: the cached one, or `load` from its plan.
+    pub(crate) fn get<P: for<'de> Deserialize<'de>>(
+        &self,
+        task: &Task,
+        load: impl FnOnce(P, &Path) -> Result<C, WorkError>,
+    ) -> Result<Arc<C>, WorkError> {
+        let mut cache = self.0.lock().unwrap_or_else(|p| p.into_inner());
+        if let Some((folder, ctx)) = &*cache {
+            if *folder == task.folder {
+                return Ok(ctx.clone());
+            }
+        }
+        let plan: P = super::epoch_files::read_json(&task.folder.join("plan.json"))?;
+        let ctx = Arc::new(load(plan, &task.folder)?);
+        *cache = Some((task.folder.clone(), ctx.clone()));
+        Ok(ctx)
+    }
+}
+
 /// Runs one task (a worker's entry point): reads its stage's plan, runs it, writes its
 /// result atomically. A task whose result exists already (a retried task whose worker
 /// died after writing it) is run again and writes the same result.
@@ -238,5 +319,6 @@ pub fn run_task(task: &Task) -> Result<TaskSummary, WorkError> {
     match task.kind {
         TaskKind::Scan | TaskKind::Orient => epoch::run_task(task),
         TaskKind::Screen | TaskKind::Clean => lidar::run_task(task),
+        TaskKind::Resample | TaskKind::Ortho => outputs::run_task(task),
     }
 }
