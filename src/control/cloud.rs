@@ -412,47 +412,31 @@ pub fn export_records(
             date: p.date.clone(),
         });
     }
-    let half = info.chip_size / 2;
+    // Photo by photo, so one decoded photo is held at a time (a block of hundreds of
+    // photos once held them all here): each photo's chips are cut, then the photo goes.
     let mut chips = BTreeMap::new();
-    let mut images: BTreeMap<PhotoId, DynamicImage> = BTreeMap::new();
-    for cp in points {
-        let id = cp.id;
-        let mut measurements = Vec::new();
-        for ms in &cp.measurements {
-            let (pid, px) = (ms.photo, ms.pixel);
-            if let std::collections::btree_map::Entry::Vacant(e) = images.entry(pid) {
-                e.insert(image_of(pid)?);
+    let mut cut: BTreeMap<(usize, usize), DcpMeasurement> = BTreeMap::new();
+    for &pid in &used {
+        let img = image_of(pid)?;
+        let wanted = points.iter().enumerate().flat_map(|(i, cp)| {
+            cp.measurements
+                .iter()
+                .enumerate()
+                .filter(|(_, ms)| ms.photo == pid)
+                .map(move |(j, ms)| (i, j, ms, cp.id))
+        });
+        for (i, j, ms, id) in wanted {
+            if let Some((file, chip, meas)) = cut_chip(&img, id, pid, ms.pixel, info.chip_size) {
+                chips.insert(file, chip);
+                cut.insert((i, j), meas);
             }
-            let img = &images[&pid];
-            let (cx, cy) = (px[0].floor() as i64, px[1].floor() as i64);
-            let (x0, y0) = (cx - half as i64, cy - half as i64);
-            if x0 < 0
-                || y0 < 0
-                || x0 + info.chip_size as i64 > img.width() as i64
-                || y0 + info.chip_size as i64 > img.height() as i64
-            {
-                continue;
-            }
-            let chip = img.crop_imm(x0 as u32, y0 as u32, info.chip_size, info.chip_size);
-            let chip = match chip {
-                DynamicImage::ImageLuma16(_) => chip,
-                DynamicImage::ImageLuma8(_) => chip,
-                other => DynamicImage::ImageLuma8(other.to_luma8()),
-            };
-            let file = format!("chips/{id}_{pid}.png");
-            chips.insert(file.clone(), chip);
-            measurements.push(DcpMeasurement {
-                photo: pid,
-                pixel: px,
-                chip: ChipRef {
-                    file,
-                    x0: x0 as u32,
-                    y0: y0 as u32,
-                    width: info.chip_size,
-                    height: info.chip_size,
-                },
-            });
         }
+    }
+    for (i, cp) in points.iter().enumerate() {
+        let id = cp.id;
+        let measurements: Vec<DcpMeasurement> = (0..cp.measurements.len())
+            .filter_map(|j| cut.remove(&(i, j)))
+            .collect();
         if measurements.is_empty() {
             continue;
         }
@@ -474,4 +458,44 @@ pub fn export_records(
         .collect();
     m.photos.retain(|p| measured.contains(&p.id));
     Ok((m, chips))
+}
+
+/// The chip of point `id` in photo `pid` around `pixel` (side `size`, greyscale), its file
+/// in the package and its measurement; `None` when the chip would leave the photo.
+fn cut_chip(
+    img: &DynamicImage,
+    id: u64,
+    pid: PhotoId,
+    pixel: [f64; 2],
+    size: u32,
+) -> Option<(String, DynamicImage, DcpMeasurement)> {
+    let half = size / 2;
+    let (cx, cy) = (pixel[0].floor() as i64, pixel[1].floor() as i64);
+    let (x0, y0) = (cx - half as i64, cy - half as i64);
+    if x0 < 0
+        || y0 < 0
+        || x0 + size as i64 > img.width() as i64
+        || y0 + size as i64 > img.height() as i64
+    {
+        return None;
+    }
+    let chip = img.crop_imm(x0 as u32, y0 as u32, size, size);
+    let chip = match chip {
+        DynamicImage::ImageLuma16(_) => chip,
+        DynamicImage::ImageLuma8(_) => chip,
+        other => DynamicImage::ImageLuma8(other.to_luma8()),
+    };
+    let file = format!("chips/{id}_{pid}.png");
+    let meas = DcpMeasurement {
+        photo: pid,
+        pixel,
+        chip: ChipRef {
+            file: file.clone(),
+            x0: x0 as u32,
+            y0: y0 as u32,
+            width: size,
+            height: size,
+        },
+    };
+    Some((file, chip, meas))
 }

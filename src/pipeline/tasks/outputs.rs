@@ -191,11 +191,13 @@ impl OrthoTiles {
     pub(crate) fn tile(&mut self, k: usize) -> crate::formats::Result<RenderedTile> {
         let run = k / ORTHO_TILES_PER_TASK;
         if self.current.as_ref().map(|c| c.0) != Some(run) {
+            let folder = self
+                .tasks
+                .first()
+                .map(|t| t.folder.clone())
+                .unwrap_or_default();
             let task = self.tasks.get(run).ok_or_else(|| {
-                crate::formats::FormatError::invalid(
-                    Path::new(&self.tasks[0].folder),
-                    format!("no task renders tile {k}"),
-                )
+                crate::formats::FormatError::invalid(folder, format!("no task renders tile {k}"))
             })?;
             // read_result fails only reading or decoding the file (a format error).
             let r: OrthoResult = read_result(task).map_err(|e| match e {
