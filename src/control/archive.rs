@@ -13,8 +13,10 @@ use super::dcp::DcpPackage;
 use super::epoch::{
     approximate_orientations, EpochCamera, EpochError, EpochInput, NavigationSigma, PhotoInput,
 };
-use super::epoch_ties::{epoch_ties, tie_pass, TieParams};
+use super::epoch_ties::CutRound;
+use super::epoch_ties::{epoch_ties, tie_pass};
 use super::photo::{orient_photo, PhotoOptions, PhotoOrientation, PhotoReport};
+use super::rounds::{EpochEnv, EpochRounds, InMemory, OrientRound, Round};
 use super::scan_cameras::ScanCameras;
 use crate::adjust::support::{take_unsupported, MIN_POINTS_PER_PHOTO};
 use crate::adjust::{self, AdjustOptions, AdjustReport, Loss, Rejection};
@@ -24,7 +26,6 @@ use crate::block::{
 };
 use crate::formats::crs::Crs;
 use crate::geometry::{Camera, Dem};
-use crate::matching::GreyImage;
 use nalgebra::{Vector2, Vector3};
 use rayon::prelude::*;
 use serde::Serialize;
@@ -239,20 +240,22 @@ pub fn orient_epoch(
     let t0 = Instant::now();
     let ctx = ArchiveContext::new(input, dcp, dem, opts)?;
     let first = first_pass(input, &ctx, dem);
-    finish_epoch(input, &ctx, dem, opts, first, t0)
+    finish_epoch(input, &ctx, dem, opts, first, t0, &InMemory)
 }
 
 /// The epoch-wide part of an archive epoch after its per-photo part (`first`, made here
 /// or by per-photo tasks elsewhere): the second pass, the tie pass, tie points and the
-/// block adjustment. `t0` is when the epoch started (its reported time).
-pub fn finish_epoch(
+/// block adjustment, the per-photo work of each pass a round of `rounds`. `t0` is when the
+/// epoch started (its reported time).
+pub fn finish_epoch<R: EpochRounds>(
     input: &EpochInput,
     ctx: &ArchiveContext,
     dem: &Dem,
     opts: &ArchiveOptions,
     first: FirstPass,
     t0: Instant,
-) -> Result<EpochResult, EpochError> {
+    rounds: &R,
+) -> Result<EpochResult, R::Error> {
     let ep = |message: String| EpochError::Epoch {
         epoch: input.name.clone(),
         message,
@@ -262,20 +265,28 @@ pub fn finish_epoch(
             "{} per-photo results for {} photos",
             first.outcomes.len(),
             input.photos.len()
-        )));
+        ))
+        .into());
     }
     let FirstPass {
         scans,
         mut outcomes,
     } = first;
     let (store, priors) = (&ctx.store, &ctx.priors);
-    let photo_opts = ctx.photo_options(scans.as_ref());
+    let env = EpochEnv::new(
+        input,
+        dem,
+        priors,
+        ctx.photo_options(scans.as_ref()),
+        opts,
+        scans.as_ref(),
+    );
     // A damaged package is an input error of the epoch, not a photo's misfortune.
     if let Some(e) = outcomes.iter().find_map(|o| match &o.report.reason {
         Some(r @ PhotoFailure::Chip { .. }) => Some(r.to_string()),
         _ => None,
     }) {
-        return Err(ep(e));
+        return Err(ep(e).into());
     }
     // Matches refer to DCP points from here on.
     let mut keyed: Vec<Vec<(PointKey, Vector2<f64>, f64)>> = outcomes
@@ -288,33 +299,10 @@ pub fn finish_epoch(
         })
         .collect();
     if opts.epoch_second_pass {
-        second_pass(
-            input,
-            store,
-            priors,
-            dem,
-            &photo_opts,
-            scans.as_ref(),
-            &mut outcomes,
-            &mut keyed,
-        );
+        second_pass(rounds, &env, store, &mut outcomes, &mut keyed)?;
     }
-    let tie_params = TieParams {
-        cell_px: opts.tie_interval_px,
-        window_px: opts.tie_window_px,
-        ncc_threshold: opts.tie_ncc_threshold,
-    };
     let pass_ties = if opts.tie_pass {
-        tie_pass(
-            input,
-            priors,
-            dem,
-            &photo_opts,
-            scans.as_ref(),
-            &tie_params,
-            &mut outcomes,
-            &mut keyed,
-        )
+        tie_pass(rounds, &env, &mut outcomes, &mut keyed)?
     } else {
         Vec::new()
     };
@@ -367,7 +355,7 @@ pub fn finish_epoch(
     }
     let mut ties = pass_ties;
     if opts.ties {
-        let among = epoch_ties(input, &outcomes, dem, &photo_opts, &tie_params);
+        let among = epoch_ties(rounds, &env, &outcomes)?;
         tracing::info!(
             epoch = input.name,
             ties = among.len(),
@@ -553,37 +541,36 @@ fn add_photo(
 
 /// Photos left unoriented (scene change, ambiguity) try again with the control points as
 /// the epoch's own oriented photos show them — same scene state, same radiometry, similar
-/// scale — with chips cut from those photos.
-#[allow(clippy::too_many_arguments)]
-fn second_pass(
-    input: &EpochInput,
+/// scale — with chips cut from those photos (a round), then a round orienting them.
+fn second_pass<R: EpochRounds>(
+    rounds: &R,
+    env: &EpochEnv,
     store: &ChipStore,
-    priors: &BTreeMap<String, crate::block::PosPrior>,
-    dem: &Dem,
-    opts: &PhotoOptions,
-    scans: Option<&ScanCameras>,
     outcomes: &mut [PhotoOrientation],
     keyed: &mut [Vec<(PointKey, Vector2<f64>, f64)>],
-) {
+) -> Result<(), R::Error> {
     let unoriented: Vec<usize> = (0..outcomes.len())
         .filter(|&i| !outcomes[i].report.oriented)
         .collect();
     if unoriented.is_empty() || !outcomes.iter().any(|o| o.report.oriented) {
-        return;
+        return Ok(());
     }
     // Same epoch, similar scale: the chip needs little more than the largest template.
-    let half = opts.patch.template_half + 8;
-    let mut seen: BTreeMap<PointKey, Vec<ChipView>> = BTreeMap::new();
-    for (n, o) in outcomes
+    let half = env.opts.patch.template_half + 8;
+    let jobs: Vec<(usize, Camera, crate::geometry::Pose, Vec<[f64; 2]>)> = outcomes
         .iter()
         .enumerate()
         .filter(|(_, o)| o.report.oriented)
-    {
-        let (Some(cam), Ok(img)) = (&o.camera, GreyImage::load(&input.photos[n].image)) else {
-            continue;
-        };
-        for (key, px, _) in &keyed[n] {
-            if let Some(v) = ChipView::cut(cam, &o.pose, &img, [px.x, px.y], half, Some(n)) {
+        .filter_map(|(n, o)| {
+            let at = keyed[n].iter().map(|(_, px, _)| [px.x, px.y]).collect();
+            Some((n, o.camera.clone()?, o.pose, at))
+        })
+        .collect();
+    let cut = CutRound::at(half, jobs);
+    let mut seen: BTreeMap<PointKey, Vec<ChipView>> = BTreeMap::new();
+    for (n, views) in Round::photos(&cut).into_iter().zip(rounds.run(&cut, env)?) {
+        for ((key, _, _), v) in keyed[n].iter().zip(views.into_at()) {
+            if let Some(v) = v {
                 seen.entry(*key).or_default().push(v);
             }
         }
@@ -596,28 +583,15 @@ fn second_pass(
         })
         .collect();
     if points.is_empty() {
-        return;
+        return Ok(());
     }
-    let own = ChipStore::from_points(store.origin, points);
-    let retried: Vec<(usize, PhotoOrientation)> = unoriented
-        .par_iter()
-        .map(|&i| {
-            let ph = &input.photos[i];
-            (
-                i,
-                orient_photo(
-                    ph,
-                    &input.camera,
-                    priors.get(&ph.name),
-                    &own,
-                    dem,
-                    opts,
-                    scans,
-                ),
-            )
-        })
-        .collect();
-    for (i, mut o) in retried {
+    let round = OrientRound {
+        store: ChipStore::from_points(store.origin, points),
+        photos: unoriented,
+    };
+    let retried = rounds.run(&round, env)?;
+    let own = &round.store;
+    for (&i, mut o) in round.photos.iter().zip(retried) {
         if o.report.oriented {
             keyed[i] = o
                 .matches
@@ -635,6 +609,7 @@ fn second_pass(
             });
         }
     }
+    Ok(())
 }
 
 /// Ground pixel (m) of a photo: its height above the DEM under its centre (the DEM's

@@ -19,23 +19,97 @@ use std::collections::HashMap;
 use std::sync::Arc;
 
 /// A DCP control point: package index and point index in its manifest.
-#[derive(Debug, Clone, Copy, PartialEq, Eq, PartialOrd, Ord, Hash, Serialize)]
+#[derive(Debug, Clone, Copy, PartialEq, Eq, PartialOrd, Ord, Hash, Serialize, Deserialize)]
 pub struct PointKey {
     pub package: usize,
     pub point: usize,
 }
 
 /// Where a view's pixels are.
-#[derive(Debug, Clone)]
+#[derive(Debug, Clone, Serialize, Deserialize)]
+#[serde(rename_all = "snake_case")]
 enum ChipPixels {
     /// A chip file of a package, read (and verified) when first needed.
     Package { package: usize, chip: ChipRef },
-    /// A chip already cut from a photo in memory.
-    Memory(Arc<Pyramid>),
+    /// A chip already cut from a photo in memory. Written as its grey pixels (a task
+    /// file); the reader rebuilds the same pyramid from them.
+    Memory(#[serde(with = "cut_chip")] Arc<Pyramid>),
 }
 
+/// The pyramid of a cut chip written as its level 0 (the levels above follow from it
+/// deterministically), in the narrowest exact form: a photo's grey values are integers
+/// of its file's range, so 8-bit photos take a byte a pixel, not the four of `f32`.
+mod cut_chip {
+    use super::{Arc, GreyImage, Pyramid};
+    use serde::{de::Error, Deserialize, Deserializer, Serialize, Serializer};
+
+    #[derive(Serialize, Deserialize)]
+    #[serde(rename_all = "snake_case")]
+    enum Grey {
+        U8(#[serde(with = "serde_bytes")] Vec<u8>),
+        U16(Vec<u16>),
+        F32(Vec<f32>),
+    }
+
+    #[derive(Serialize, Deserialize)]
+    struct Chip {
+        width: usize,
+        height: usize,
+        grey: Grey,
+    }
+
+    pub fn serialize<S: Serializer>(p: &Arc<Pyramid>, s: S) -> Result<S::Ok, S::Error> {
+        let g = &p.levels[0];
+        let integral = |max: f32| {
+            g.data
+                .iter()
+                .all(|&v| v.fract() == 0.0 && (0.0..=max).contains(&v))
+        };
+        let grey = if integral(255.0) {
+            Grey::U8(g.data.iter().map(|&v| v as u8).collect())
+        } else if integral(65535.0) {
+            Grey::U16(g.data.iter().map(|&v| v as u16).collect())
+        } else {
+            Grey::F32(g.data.clone())
+        };
+        Chip {
+            width: g.width,
+            height: g.height,
+            grey,
+        }
+        .serialize(s)
+    }
+
+    pub fn deserialize<'de, D: Deserializer<'de>>(d: D) -> Result<Arc<Pyramid>, D::Error> {
+        let c = Chip::deserialize(d)?;
+        let data: Vec<f32> = match c.grey {
+            Grey::U8(v) => v.into_iter().map(f32::from).collect(),
+            Grey::U16(v) => v.into_iter().map(f32::from).collect(),
+            Grey::F32(v) => v,
+        };
+        if data.len() != c.width.saturating_mul(c.height) {
+            return Err(D::Error::custom(format!(
+                "chip of {}×{} pixels holds {} values",
+                c.width,
+                c.height,
+                data.len()
+            )));
+        }
+        let g = GreyImage::new(c.width, c.height, data).map_err(D::Error::custom)?;
+        Ok(Arc::new(Pyramid::new(
+            &g,
+            super::CUT_LEVELS,
+            super::CUT_MIN_SIZE,
+        )))
+    }
+}
+
+/// The pyramid of a cut chip: levels, smallest side.
+const CUT_LEVELS: usize = 5;
+const CUT_MIN_SIZE: usize = 8;
+
 /// One view of a control point: its chip in an oriented photo.
-#[derive(Debug, Clone)]
+#[derive(Debug, Clone, Serialize, Deserialize)]
 pub struct ChipView {
     pub camera: Camera,
     /// Block-local pose of the photo the chip was cut from.
@@ -81,13 +155,17 @@ impl ChipView {
             width: size as u32,
             height: size as u32,
             photo,
-            pixels: ChipPixels::Memory(Arc::new(Pyramid::new(&crop, 5, 8))),
+            pixels: ChipPixels::Memory(Arc::new(Pyramid::from_image(
+                crop,
+                CUT_LEVELS,
+                CUT_MIN_SIZE,
+            ))),
         })
     }
 }
 
 /// A control point offered to the photos.
-#[derive(Debug, Clone)]
+#[derive(Debug, Clone, Serialize, Deserialize)]
 pub struct ControlPoint {
     /// The DCP point this is, when it comes from a package (also for chips re-cut from
     /// the epoch's own photos); `None` for a tie point of the epoch.
@@ -174,6 +252,11 @@ impl<'a> ChipStore<'a> {
         }
     }
 
+    /// The points, the store given up.
+    pub fn into_points(self) -> Vec<ControlPoint> {
+        self.points
+    }
+
     /// Indices of the points inside a block-local plan polygon, in a fixed order.
     pub fn query_polygon(&self, polygon: &[[f64; 2]]) -> Vec<usize> {
         self.index.query_polygon(polygon)
@@ -215,9 +298,53 @@ impl<'a> ChipStore<'a> {
                             message: e.to_string(),
                         }
                     })?;
-                Ok(Arc::new(Pyramid::new(&grey, 5, 8)))
+                Ok(Arc::new(Pyramid::from_image(
+                    grey,
+                    CUT_LEVELS,
+                    CUT_MIN_SIZE,
+                )))
             }
         }
+    }
+}
+
+/// A store of cut chips as a task file holds it: origin and points.
+#[derive(Serialize, Deserialize)]
+struct StoreFile<P> {
+    origin: Vector3<f64>,
+    points: P,
+}
+
+/// Only a store of chips cut from photos is written: a package's chips are read from the
+/// package, which the reader opens itself.
+impl Serialize for ChipStore<'_> {
+    fn serialize<S: serde::Serializer>(&self, s: S) -> Result<S::Ok, S::Error> {
+        if !self.packages.is_empty() {
+            return Err(serde::ser::Error::custom(
+                "a store over DCP packages is not written, its packages are",
+            ));
+        }
+        StoreFile {
+            origin: self.origin,
+            points: &self.points,
+        }
+        .serialize(s)
+    }
+}
+
+impl<'de> Deserialize<'de> for ChipStore<'static> {
+    fn deserialize<D: serde::Deserializer<'de>>(d: D) -> Result<Self, D::Error> {
+        let f = StoreFile::<Vec<ControlPoint>>::deserialize(d)?;
+        if f.points
+            .iter()
+            .flat_map(|p| &p.views)
+            .any(|v| matches!(v.pixels, ChipPixels::Package { .. }))
+        {
+            return Err(serde::de::Error::custom(
+                "a written store holds chips cut from photos only",
+            ));
+        }
+        Ok(ChipStore::from_points(f.origin, f.points))
     }
 }
 

@@ -370,94 +370,183 @@ pub fn export_records(
     info: &ExportInfo,
     mut image_of: impl FnMut(PhotoId) -> Result<DynamicImage, String>,
 ) -> Result<(Manifest, BTreeMap<String, DynamicImage>), String> {
-    let origin = Vector3::from(block.origin);
-    let mut m = Manifest::new(
-        &info.crs,
-        info.epoch.clone(),
-        &info.source,
-        info.gsd_m,
-        info.accuracy,
-    );
-    let used: std::collections::BTreeSet<PhotoId> = points
-        .iter()
-        .flat_map(|p| p.measurements.iter().map(|m| m.photo))
-        .collect();
-    for &pid in &used {
-        let p = block.photos.get(&pid).ok_or_else(|| {
-            format!("control point measured in photo {pid}, which the block does not have")
-        })?;
-        let r = p.pose.rotation;
-        let c = p.pose.center + origin;
-        m.photos.push(DcpPhoto {
-            id: pid,
-            name: p.name.clone(),
-            camera: block
-                .cameras
-                .get(&p.camera)
-                .ok_or_else(|| format!("photo {pid} ({}): unknown camera {}", p.name, p.camera))?
-                .model
-                .clone(),
-            rotation: [
-                r[(0, 0)],
-                r[(0, 1)],
-                r[(0, 2)],
-                r[(1, 0)],
-                r[(1, 1)],
-                r[(1, 2)],
-                r[(2, 0)],
-                r[(2, 1)],
-                r[(2, 2)],
-            ],
-            center: [c.x, c.y, c.z],
-            date: p.date.clone(),
-        });
-    }
+    let plan = ExportPlan::new(block, points, info)?;
     // Photo by photo, so one decoded photo is held at a time (a block of hundreds of
     // photos once held them all here): each photo's chips are cut, then the photo goes.
-    let mut chips = BTreeMap::new();
-    let mut cut: BTreeMap<(usize, usize), DcpMeasurement> = BTreeMap::new();
-    for &pid in &used {
-        let img = image_of(pid)?;
-        let wanted = points.iter().enumerate().flat_map(|(i, cp)| {
-            cp.measurements
-                .iter()
-                .enumerate()
-                .filter(|(_, ms)| ms.photo == pid)
-                .map(move |(j, ms)| (i, j, ms, cp.id))
-        });
-        for (i, j, ms, id) in wanted {
-            if let Some((file, chip, meas)) = cut_chip(&img, id, pid, ms.pixel, info.chip_size) {
-                chips.insert(file, chip);
-                cut.insert((i, j), meas);
-            }
-        }
+    let mut cuts = Vec::with_capacity(plan.photos.len());
+    for job in &plan.photos {
+        cuts.push(job.cut(&image_of(job.photo)?, info.chip_size));
     }
-    for (i, cp) in points.iter().enumerate() {
-        let id = cp.id;
-        let measurements: Vec<DcpMeasurement> = (0..cp.measurements.len())
-            .filter_map(|j| cut.remove(&(i, j)))
+    Ok(plan.assemble(points, cuts))
+}
+
+/// A package's manifest before its points, and the chips it wants from each photo: the
+/// part of an export that needs the photos' pixels, one photo at a time, in whatever
+/// process reads that photo ([`PhotoChips::cut`]), between two global parts.
+#[derive(Debug, Clone, Serialize, Deserialize)]
+pub struct ExportPlan {
+    pub manifest: Manifest,
+    pub photos: Vec<PhotoChips>,
+}
+
+/// The chips of one photo: per measurement in it, the record (index), the measurement
+/// (index in the record), the point id and the pixel.
+#[derive(Debug, Clone, Serialize, Deserialize)]
+pub struct PhotoChips {
+    pub photo: PhotoId,
+    pub wanted: Vec<(usize, usize, u64, [f64; 2])>,
+}
+
+/// A chip cut from a photo for record `point`'s measurement `measurement`: its file in
+/// the package, its pixels (`T`: the image, or its PNG bytes) and its measurement.
+#[derive(Debug, Clone, Serialize, Deserialize)]
+pub struct CutChip<T> {
+    pub point: usize,
+    pub measurement: usize,
+    pub file: String,
+    pub chip: T,
+    pub meas: DcpMeasurement,
+}
+
+impl<T> CutChip<T> {
+    /// The same chip with its pixels mapped (encoded).
+    pub fn map<U, E>(self, f: impl FnOnce(T) -> Result<U, E>) -> Result<CutChip<U>, E> {
+        Ok(CutChip {
+            point: self.point,
+            measurement: self.measurement,
+            file: self.file,
+            chip: f(self.chip)?,
+            meas: self.meas,
+        })
+    }
+}
+
+impl ExportPlan {
+    /// The manifest's photos (every photo a record is measured in, by id) and each one's
+    /// chips.
+    pub fn new(
+        block: &Block,
+        points: &[ControlPointRecord],
+        info: &ExportInfo,
+    ) -> Result<Self, String> {
+        let origin = Vector3::from(block.origin);
+        let mut m = Manifest::new(
+            &info.crs,
+            info.epoch.clone(),
+            &info.source,
+            info.gsd_m,
+            info.accuracy,
+        );
+        let used: std::collections::BTreeSet<PhotoId> = points
+            .iter()
+            .flat_map(|p| p.measurements.iter().map(|m| m.photo))
             .collect();
-        if measurements.is_empty() {
-            continue;
+        for &pid in &used {
+            let p = block.photos.get(&pid).ok_or_else(|| {
+                format!("control point measured in photo {pid}, which the block does not have")
+            })?;
+            let r = p.pose.rotation;
+            let c = p.pose.center + origin;
+            m.photos.push(DcpPhoto {
+                id: pid,
+                name: p.name.clone(),
+                camera: block
+                    .cameras
+                    .get(&p.camera)
+                    .ok_or_else(|| {
+                        format!("photo {pid} ({}): unknown camera {}", p.name, p.camera)
+                    })?
+                    .model
+                    .clone(),
+                // Row-major, as the manifest stores it.
+                rotation: std::array::from_fn(|k| r[(k / 3, k % 3)]),
+                center: [c.x, c.y, c.z],
+                date: p.date.clone(),
+            });
         }
-        m.points.push(DcpPoint {
-            id,
-            name: cp.name.clone(),
-            xyz: cp.xyz,
-            sigma: cp.sigma,
-            normal: Some(cp.normal),
-            quality: cp.quality.clone(),
-            measurements,
-        });
+        let photos = used
+            .iter()
+            .map(|&pid| PhotoChips {
+                photo: pid,
+                wanted: points
+                    .iter()
+                    .enumerate()
+                    .flat_map(|(i, cp)| {
+                        cp.measurements
+                            .iter()
+                            .enumerate()
+                            .filter(|(_, ms)| ms.photo == pid)
+                            .map(move |(j, ms)| (i, j, cp.id, ms.pixel))
+                    })
+                    .collect(),
+            })
+            .collect();
+        Ok(Self {
+            manifest: m,
+            photos,
+        })
     }
-    // Photos that ended with no measurement are dropped to keep the package minimal.
-    let measured: std::collections::BTreeSet<u32> = m
-        .points
-        .iter()
-        .flat_map(|p| p.measurements.iter().map(|m| m.photo))
-        .collect();
-    m.photos.retain(|p| measured.contains(&p.id));
-    Ok((m, chips))
+
+    /// The manifest with its points (each with the measurements whose chip was cut; a
+    /// point without any is left out) and the chips by file, from every photo's cut.
+    pub fn assemble<T>(
+        self,
+        points: &[ControlPointRecord],
+        cuts: Vec<Vec<CutChip<T>>>,
+    ) -> (Manifest, BTreeMap<String, T>) {
+        let mut m = self.manifest;
+        let mut chips = BTreeMap::new();
+        let mut cut: BTreeMap<(usize, usize), DcpMeasurement> = BTreeMap::new();
+        for c in cuts.into_iter().flatten() {
+            chips.insert(c.file, c.chip);
+            cut.insert((c.point, c.measurement), c.meas);
+        }
+        for (i, cp) in points.iter().enumerate() {
+            let measurements: Vec<DcpMeasurement> = (0..cp.measurements.len())
+                .filter_map(|j| cut.remove(&(i, j)))
+                .collect();
+            if measurements.is_empty() {
+                continue;
+            }
+            m.points.push(DcpPoint {
+                id: cp.id,
+                name: cp.name.clone(),
+                xyz: cp.xyz,
+                sigma: cp.sigma,
+                normal: Some(cp.normal),
+                quality: cp.quality.clone(),
+                measurements,
+            });
+        }
+        // Photos that ended with no measurement are dropped to keep the package minimal.
+        let measured: std::collections::BTreeSet<u32> = m
+            .points
+            .iter()
+            .flat_map(|p| p.measurements.iter().map(|m| m.photo))
+            .collect();
+        m.photos.retain(|p| measured.contains(&p.id));
+        (m, chips)
+    }
+}
+
+impl PhotoChips {
+    /// The chips of this photo (image `img`) of side `size`; a chip that would leave the
+    /// photo is not cut.
+    pub fn cut(&self, img: &DynamicImage, size: u32) -> Vec<CutChip<DynamicImage>> {
+        self.wanted
+            .iter()
+            .filter_map(|&(point, measurement, id, pixel)| {
+                let (file, chip, meas) = cut_chip(img, id, self.photo, pixel, size)?;
+                Some(CutChip {
+                    point,
+                    measurement,
+                    file,
+                    chip,
+                    meas,
+                })
+            })
+            .collect()
+    }
 }
 
 /// The chip of point `id` in photo `pid` around `pixel` (side `size`, greyscale), its file

@@ -420,8 +420,29 @@ impl DcpPackage {
     /// that replaces `dir` only when complete. Checksums are computed here.
     pub fn write(
         dir: &Path,
-        mut manifest: Manifest,
+        manifest: Manifest,
         chips: &BTreeMap<String, DynamicImage>,
+    ) -> Result<Self> {
+        let encoded = chips
+            .iter()
+            .map(|(file, img)| {
+                let png = encode_chip(img).map_err(|e| DcpError::Chip {
+                    package: dir.into(),
+                    file: file.clone(),
+                    message: format!("cannot be encoded ({e})"),
+                })?;
+                Ok((file.clone(), png))
+            })
+            .collect::<Result<BTreeMap<_, _>>>()?;
+        Self::write_encoded(dir, manifest, &encoded)
+    }
+
+    /// [`DcpPackage::write`] of chips already encoded as PNG ([`encode_chip`]): chips cut
+    /// and encoded elsewhere (a task of a distributed run) give the same package.
+    pub fn write_encoded(
+        dir: &Path,
+        mut manifest: Manifest,
+        chips: &BTreeMap<String, Vec<u8>>,
     ) -> Result<Self> {
         let parent = dir
             .parent()
@@ -445,7 +466,7 @@ impl DcpPackage {
                 })?;
             }
             manifest.files.clear();
-            for (file, img) in chips {
+            for (file, bytes) in chips {
                 if !safe_relative(file) {
                     return Err(invalid(
                         dir,
@@ -459,19 +480,11 @@ impl DcpPackage {
                         source: e,
                     })?;
                 }
-                let mut buf = std::io::Cursor::new(Vec::new());
-                img.write_to(&mut buf, image::ImageFormat::Png)
-                    .map_err(|e| DcpError::Chip {
-                        package: dir.into(),
-                        file: file.clone(),
-                        message: format!("cannot be encoded ({e})"),
-                    })?;
-                let bytes = buf.into_inner();
-                std::fs::write(&path, &bytes).map_err(|e| DcpError::Io {
+                std::fs::write(&path, bytes).map_err(|e| DcpError::Io {
                     path: path.clone(),
                     source: e,
                 })?;
-                manifest.files.insert(file.clone(), sha256_hex(&bytes));
+                manifest.files.insert(file.clone(), sha256_hex(bytes));
             }
             Self::validate_manifest(&manifest, dir)?;
             let json =
@@ -861,4 +874,11 @@ fn store_crs(store: &Path) -> Result<Option<(String, PathBuf)>> {
         }
     }
     Ok(found)
+}
+
+/// A chip as a package stores it: PNG (lossless, 8 or 16 bits grey).
+pub fn encode_chip(img: &DynamicImage) -> std::result::Result<Vec<u8>, image::ImageError> {
+    let mut buf = std::io::Cursor::new(Vec::new());
+    img.write_to(&mut buf, image::ImageFormat::Png)?;
+    Ok(buf.into_inner())
 }

@@ -12,20 +12,20 @@
 //! those tie points, as aerial triangulation bridges a photo without control. A photo
 //! oriented that way can itself pass points on in the next round.
 
-use super::archive::ground_pixel;
+use super::archive::{ground_pixel, ArchiveOptions};
 use super::chips::{ChipMatchOptions, ChipStore, ChipView, ControlPoint, PointKey};
-use super::epoch::{EpochCamera, EpochInput};
+use super::epoch::EpochCamera;
 use super::orient::ControlPatch;
-use super::photo::{orient_photo, PhotoOptions, PhotoOrientation};
+use super::photo::{PhotoOptions, PhotoOrientation};
 use super::predict::Prediction;
-use super::scan_cameras::ScanCameras;
+use super::rounds::{EpochEnv, EpochRounds, OrientRound, Round, RoundKind};
 use crate::adjust::rays::{intersect_rays, intersect_robust, intersection_cofactor, Ray};
-use crate::block::{Observation, PhotoFailure, PhotoId, PosPrior};
+use crate::block::{Observation, PhotoFailure, PhotoId};
 use crate::geometry::{self, Camera, Dem, Pose};
 use crate::matching::pyramid::downsample;
 use crate::matching::{forstner, ForstnerOptions, GreyImage, MatchOptions, Pyramid};
 use nalgebra::{Matrix3, Vector2, Vector3};
-use rayon::prelude::*;
+use serde::{Deserialize, Serialize};
 use std::collections::BTreeMap;
 
 /// A tie point's approximate block-local position and its observations (photo ids).
@@ -46,10 +46,20 @@ const TIE_HEIGHT_SIGMA_M: f64 = 2.0;
 /// searched ±`window_px` around their prediction where the poses are known, accepted at
 /// `ncc_threshold`.
 #[derive(Debug, Clone, Copy)]
-pub(super) struct TieParams {
+pub struct TieParams {
     pub cell_px: f64,
     pub window_px: f64,
     pub ncc_threshold: f64,
+}
+
+impl TieParams {
+    pub fn of(opts: &ArchiveOptions) -> Self {
+        Self {
+            cell_px: opts.tie_interval_px,
+            window_px: opts.tie_window_px,
+            ncc_threshold: opts.tie_ncc_threshold,
+        }
+    }
 }
 
 /// Same epoch, same scene: a tie found where the poses predict it must correlate clearly
@@ -76,8 +86,8 @@ const INTEREST_MAX_PIXELS: usize = 4_000_000;
 
 /// The points of one photo: those whose ray meets the DEM, placed there, and those
 /// beyond it, placed on the middle of the [`Band`] until other rays intersect them.
-#[derive(Default)]
-struct PhotoPoints {
+#[derive(Default, Serialize, Deserialize)]
+pub struct PhotoPoints {
     on_dem: Vec<ControlPoint>,
     beyond: Vec<ControlPoint>,
 }
@@ -87,7 +97,7 @@ struct PhotoPoints {
 /// widened by half that range either side (at least [`BAND_MIN_HALF_M`]): a film block of
 /// kilometres reaches far beyond a LiDAR survey of a few hundred metres, over the same
 /// landscape.
-#[derive(Debug, Clone, Copy)]
+#[derive(Debug, Clone, Copy, Serialize, Deserialize)]
 struct Band {
     lo: f64,
     hi: f64,
@@ -119,28 +129,27 @@ impl Band {
     }
 }
 
-/// Förstner points of oriented photo `n` (one per cell of `cell` px, at most
-/// [`MAX_POINTS_PER_SIDE`] a side), each with a chip of half size `half`, that `keep`
-/// accepts; `None` when the photo has no camera or its image cannot be read.
+/// Förstner points of oriented photo `n` (image `img`; one per cell of `cell` px, at
+/// most [`MAX_POINTS_PER_SIDE`] a side), each with a chip of half size `half`, that fall
+/// in one of the `footprints` (all points without).
+#[allow(clippy::too_many_arguments)]
 fn photo_points(
-    input: &EpochInput,
+    env: &EpochEnv,
     n: usize,
-    o: &PhotoOrientation,
-    dem: &Dem,
+    (cam, pose): (&Camera, &Pose),
+    img: &GreyImage,
     cell: f64,
     half: usize,
-    keep: &(dyn Fn(&Vector3<f64>) -> bool + Sync),
-) -> Option<PhotoPoints> {
-    let cam = o.camera.as_ref()?;
-    let img = GreyImage::load(&input.photos[n].image).ok()?;
-    let pose = &o.pose;
+    footprints: Option<&[(Camera, Pose)]>,
+) -> PhotoPoints {
+    let (input, dem) = (env.input, env.dem);
     let side = img.width.max(img.height) as f64;
     let cell = cell.max(16.0).max(side / MAX_POINTS_PER_SIDE);
     let gsd = ground_pixel(cam, pose, dem);
     let mut interest: Option<GreyImage> = None;
     let mut f = 1.0;
-    while interest.as_ref().unwrap_or(&img).data.len() > INTEREST_MAX_PIXELS {
-        interest = Some(downsample(interest.as_ref().unwrap_or(&img)));
+    while interest.as_ref().unwrap_or(img).data.len() > INTEREST_MAX_PIXELS {
+        interest = Some(downsample(interest.as_ref().unwrap_or(img)));
         f *= 2.0;
     }
     let fo = ForstnerOptions {
@@ -154,7 +163,7 @@ fn photo_points(
     };
     let band = Band::of(dem);
     let mut points = PhotoPoints::default();
-    for ip in forstner(interest.as_ref().unwrap_or(&img), &fo) {
+    for ip in forstner(interest.as_ref().unwrap_or(img), &fo) {
         // Level-L pixel i is centred on level-0 pixels 2^L·i … 2^L·i + 2^L − 1.
         let px = [(ip.x + 0.5) * f - 0.5, (ip.y + 0.5) * f - 0.5];
         let Ok(ray) = geometry::back_project(cam, pose, px) else {
@@ -169,10 +178,10 @@ fn photo_points(
                 _ => continue,
             },
         };
-        if !keep(&x) {
+        if footprints.is_some_and(|f| !in_footprints(&x, f)) {
             continue;
         }
-        let Some(view) = ChipView::cut(cam, pose, &img, px, half, Some(n)) else {
+        let Some(view) = ChipView::cut(cam, pose, img, px, half, Some(n)) else {
             continue;
         };
         let k = points.on_dem.len() + points.beyond.len();
@@ -193,7 +202,146 @@ fn photo_points(
             });
         }
     }
-    Some(points)
+    points
+}
+
+/// Whether a point falls in some photo's approximate footprint (`cam`, `pose` from its
+/// navigation, off by its σ: the frame is widened by a tenth).
+fn in_footprints(x: &Vector3<f64>, footprints: &[(Camera, Pose)]) -> bool {
+    footprints.iter().any(|(cam, pose)| {
+        let (w, h) = cam.image_size();
+        let (mx, my) = (0.1 * w as f64, 0.1 * h as f64);
+        geometry::project(cam, pose, x).is_ok_and(|p| {
+            p.pixel.x > -mx
+                && p.pixel.y > -my
+                && p.pixel.x < w as f64 + mx
+                && p.pixel.y < h as f64 + my
+        })
+    })
+}
+
+/// Chips cut from oriented photos: Förstner points (tie points), or chips at given pixels
+/// (the control points as the second pass sees them in the epoch's own photos).
+#[derive(Serialize, Deserialize)]
+pub struct CutRound {
+    /// Half size of every chip.
+    half: usize,
+    /// Förstner points of every photo, when tie points are cut.
+    interest: Option<Interest>,
+    jobs: Vec<CutJob>,
+}
+
+/// Where a [`CutRound`] looks for tie points: one per cell of `cell` px, those in one of
+/// the `footprints` (all without).
+#[derive(Serialize, Deserialize)]
+struct Interest {
+    cell: f64,
+    footprints: Option<Vec<(Camera, Pose)>>,
+}
+
+/// One photo of a [`CutRound`]: its camera and pose, and the pixels chips are cut at.
+#[derive(Serialize, Deserialize)]
+struct CutJob {
+    photo: usize,
+    camera: Camera,
+    pose: Pose,
+    at: Vec<[f64; 2]>,
+}
+
+/// What a [`CutRound`] cut from one photo: its Förstner points, its chips at the pixels
+/// asked for (`None` where a chip would leave the photo). Empty when the image cannot be
+/// read.
+#[derive(Default, Serialize, Deserialize)]
+pub struct CutOutput {
+    points: PhotoPoints,
+    at: Vec<Option<ChipView>>,
+}
+
+impl CutRound {
+    /// Förstner points of the oriented `photos` (one per `cell` px), those in one of the
+    /// `footprints` (all without), with chips of half size `half`.
+    fn interest(
+        outcomes: &[PhotoOrientation],
+        photos: &[usize],
+        cell: f64,
+        half: usize,
+        footprints: Option<Vec<(Camera, Pose)>>,
+    ) -> Self {
+        Self {
+            half,
+            interest: Some(Interest { cell, footprints }),
+            jobs: photos
+                .iter()
+                .filter_map(|&n| {
+                    Some(CutJob {
+                        photo: n,
+                        camera: outcomes[n].camera.clone()?,
+                        pose: outcomes[n].pose,
+                        at: Vec::new(),
+                    })
+                })
+                .collect(),
+        }
+    }
+
+    /// Chips of half size `half` at the given pixels of oriented photos (camera, pose).
+    pub(super) fn at(half: usize, jobs: Vec<(usize, Camera, Pose, Vec<[f64; 2]>)>) -> Self {
+        Self {
+            half,
+            interest: None,
+            jobs: jobs
+                .into_iter()
+                .map(|(photo, camera, pose, at)| CutJob {
+                    photo,
+                    camera,
+                    pose,
+                    at,
+                })
+                .collect(),
+        }
+    }
+}
+
+impl CutOutput {
+    pub(super) fn into_at(self) -> Vec<Option<ChipView>> {
+        self.at
+    }
+}
+
+impl Round for CutRound {
+    type Output = CutOutput;
+    const KIND: RoundKind = RoundKind::Cut;
+
+    fn photos(&self) -> Vec<usize> {
+        self.jobs.iter().map(|j| j.photo).collect()
+    }
+
+    fn run(&self, k: usize, env: &EpochEnv) -> CutOutput {
+        let j = &self.jobs[k];
+        let Ok(img) = GreyImage::load(&env.input.photos[j.photo].image) else {
+            return CutOutput::default();
+        };
+        let view = (&j.camera, &j.pose);
+        CutOutput {
+            points: match &self.interest {
+                Some(i) => photo_points(
+                    env,
+                    j.photo,
+                    view,
+                    &img,
+                    i.cell,
+                    self.half,
+                    i.footprints.as_deref(),
+                ),
+                None => PhotoPoints::default(),
+            },
+            at: j
+                .at
+                .iter()
+                .map(|px| ChipView::cut(&j.camera, &j.pose, &img, *px, self.half, Some(j.photo)))
+                .collect(),
+        }
+    }
 }
 
 /// Tie points beyond the DEM, intersected: each point is searched in the other oriented
@@ -202,38 +350,29 @@ fn photo_points(
 /// the rays give. These are the points a photo beyond the control is oriented from: in a
 /// strip, the triple overlap of two oriented photos and the next; across strips, the side
 /// lap seen by two photos of the oriented strip.
-fn intersect_beyond(
-    input: &EpochInput,
+fn intersect_beyond<R: EpochRounds>(
+    rounds: &R,
+    env: &EpochEnv,
     outcomes: &[PhotoOrientation],
     photos: &[usize],
     points: Vec<ControlPoint>,
     band: Band,
-    opts: &PhotoOptions,
-    ties: &TieParams,
-) -> Vec<(ControlPoint, TieTrack)> {
+) -> Result<Vec<(ControlPoint, TieTrack)>, R::Error> {
     if points.is_empty() {
-        return Vec::new();
+        return Ok(Vec::new());
     }
-    let floor = opts.sigma_floor_px;
-    let mut store = ChipStore::from_points(Vector3::from(input.origin), points);
-    let mut tracks: Vec<(usize, TieTrack)> = store
+    let floor = env.opts.sigma_floor_px;
+    let store = ChipStore::from_points(Vector3::from(env.input.origin), points);
+    let tracks: Vec<(usize, TieTrack)> = store
         .points
         .iter()
         .enumerate()
         .map(|(i, p)| (i, source_track(p, floor)))
         .collect();
-    extend_tracks(
-        input,
-        outcomes,
-        photos,
-        &store,
-        &mut tracks,
-        opts,
-        ties,
-        Some(band),
-    );
+    let (store, tracks) = extend_tracks(rounds, env, outcomes, photos, store, tracks, Some(band))?;
     // The tracks are in the store's order, one a point.
-    std::mem::take(&mut store.points)
+    Ok(store
+        .into_points()
         .into_iter()
         .zip(tracks)
         .filter(|(_, (_, t))| t.1.len() >= 2)
@@ -247,7 +386,7 @@ fn intersect_beyond(
             p.sigma = [0, 1, 2].map(|k| cof[(k, k)].max(0.0).sqrt().max(gsd));
             Some((p, (x, obs)))
         })
-        .collect()
+        .collect())
 }
 
 /// The consistent rays of a track beyond the DEM: its robust intersection (each ray at
@@ -316,103 +455,120 @@ fn observation(n: usize, px: Vector2<f64>, sigma_px: f64) -> Observation {
 /// source photo). Points off the DEM (roofs, trees) are still true correspondences; the
 /// block adjustment intersects them anew. Points beyond the DEM are searched along their
 /// ray ([`intersect_beyond`]): they tie the photos beyond the control to one another.
-pub(super) fn epoch_ties(
-    input: &EpochInput,
+pub(super) fn epoch_ties<R: EpochRounds>(
+    rounds: &R,
+    env: &EpochEnv,
     outcomes: &[PhotoOrientation],
-    dem: &Dem,
-    opts: &PhotoOptions,
-    ties: &TieParams,
-) -> Vec<TieTrack> {
+) -> Result<Vec<TieTrack>, R::Error> {
     let oriented: Vec<usize> = (0..outcomes.len())
         .filter(|&n| outcomes[n].report.oriented && outcomes[n].camera.is_some())
         .collect();
     if oriented.len() < 2 {
-        return Vec::new();
+        return Ok(Vec::new());
     }
-    let half = opts.patch.template_half + 8;
-    let (on_dem, beyond) = points_of(input, outcomes, &oriented, dem, ties, half, &|_| true);
-    let store = ChipStore::from_points(Vector3::from(input.origin), on_dem);
-    let mut tracks: Vec<(usize, TieTrack)> = store
+    let (on_dem, beyond) = points_of(rounds, env, outcomes, &oriented, None)?;
+    let store = ChipStore::from_points(Vector3::from(env.input.origin), on_dem);
+    let tracks: Vec<(usize, TieTrack)> = store
         .points
         .iter()
         .enumerate()
-        .map(|(i, p)| (i, source_track(p, opts.sigma_floor_px)))
+        .map(|(i, p)| (i, source_track(p, env.opts.sigma_floor_px)))
         .collect();
-    extend_tracks(
-        input,
-        outcomes,
-        &oriented,
-        &store,
-        &mut tracks,
-        opts,
-        ties,
-        None,
-    );
-    let band = Band::of(dem);
-    let beyond = intersect_beyond(input, outcomes, &oriented, beyond, band, opts, ties);
-    tracks
+    let (_, tracks) = extend_tracks(rounds, env, outcomes, &oriented, store, tracks, None)?;
+    let band = Band::of(env.dem);
+    let beyond = intersect_beyond(rounds, env, outcomes, &oriented, beyond, band)?;
+    Ok(tracks
         .into_iter()
         .map(|(_, t)| t)
         .filter(|t| t.1.len() >= 2)
         .chain(beyond.into_iter().map(|(_, t)| t))
-        .collect()
+        .collect())
 }
 
-/// The points of photos `photos` that `keep` accepts (on the DEM, beyond it), read a
-/// photo at a time per thread.
-fn points_of(
-    input: &EpochInput,
+/// The points of photos `photos` (on the DEM, beyond it) that fall in one of the
+/// `footprints` (all without), a round of one photo's image at a time.
+fn points_of<R: EpochRounds>(
+    rounds: &R,
+    env: &EpochEnv,
     outcomes: &[PhotoOrientation],
     photos: &[usize],
-    dem: &Dem,
-    ties: &TieParams,
-    half: usize,
-    keep: &(dyn Fn(&Vector3<f64>) -> bool + Sync),
-) -> (Vec<ControlPoint>, Vec<ControlPoint>) {
-    let all: Vec<PhotoPoints> = photos
-        .par_iter()
-        .filter_map(|&n| photo_points(input, n, &outcomes[n], dem, ties.cell_px, half, keep))
-        .collect();
+    footprints: Option<Vec<(Camera, Pose)>>,
+) -> Result<(Vec<ControlPoint>, Vec<ControlPoint>), R::Error> {
+    let half = env.opts.patch.template_half + 8;
+    let round = CutRound::interest(outcomes, photos, env.ties.cell_px, half, footprints);
     let mut on_dem = Vec::new();
     let mut beyond = Vec::new();
-    for p in all {
-        on_dem.extend(p.on_dem);
-        beyond.extend(p.beyond);
+    for c in rounds.run(&round, env)? {
+        on_dem.extend(c.points.on_dem);
+        beyond.extend(c.points.beyond);
     }
-    (on_dem, beyond)
+    Ok((on_dem, beyond))
 }
 
 /// Adds to each track (a point of `store` and its observations) its match in every photo
 /// of `photos` that does not observe it yet: predicted from the track's position through
 /// the photo's pose, searched ±`window_px`; with a `band`, the track's height is unknown
 /// within it, and the search spans where the source ray's stretch between the band's
-/// heights falls in the photo. One photo's image is in memory at a time per thread, so a
-/// film epoch's scans are never all held at once.
-#[allow(clippy::too_many_arguments)]
-fn extend_tracks(
-    input: &EpochInput,
+/// heights falls in the photo. A round of one photo's image at a time, so a film epoch's
+/// scans are never all held at once. Gives the store back with the tracks.
+#[allow(clippy::type_complexity)]
+fn extend_tracks<R: EpochRounds>(
+    rounds: &R,
+    env: &EpochEnv,
     outcomes: &[PhotoOrientation],
     photos: &[usize],
-    store: &ChipStore,
-    tracks: &mut [(usize, TieTrack)],
-    opts: &PhotoOptions,
-    ties: &TieParams,
+    store: ChipStore<'static>,
+    tracks: Vec<(usize, TieTrack)>,
     band: Option<Band>,
-) {
-    let tie_patch = tie_match_options(opts, ties);
-    let floor = opts.sigma_floor_px;
-    let margin = opts.patch.template_half as f64 + 1.0;
-    // (track, photo) candidates: where the track's position (or the stretch of its
-    // source ray) falls inside the photo, with the search window's half size.
-    let predict = |b: usize, t: &TieTrack| -> Option<Search> {
-        let cam = outcomes[b].camera.as_ref()?;
-        let pose = &outcomes[b].pose;
-        let (px, half) = match band {
+) -> Result<(ChipStore<'static>, Vec<(usize, TieTrack)>), R::Error> {
+    let round = MatchRound {
+        store,
+        tracks,
+        views: outcomes
+            .iter()
+            .map(|o| o.camera.clone().map(|c| (c, o.pose)))
+            .collect(),
+        photos: photos.to_vec(),
+        band,
+    };
+    let found = rounds.run(&round, env)?;
+    let MatchRound {
+        store, mut tracks, ..
+    } = round;
+    for (b, matches) in photos.iter().zip(found) {
+        for (k, px, s) in matches {
+            tracks[k].1 .1.push(observation(*b, px, s));
+        }
+    }
+    Ok((store, tracks))
+}
+
+/// Tracks of tie points (a point of `store` and its observations) searched in photos.
+#[derive(Serialize, Deserialize)]
+pub struct MatchRound {
+    store: ChipStore<'static>,
+    tracks: Vec<(usize, TieTrack)>,
+    /// Camera and pose of every photo of the epoch that has a camera.
+    views: Vec<Option<(Camera, Pose)>>,
+    photos: Vec<usize>,
+    band: Option<Band>,
+}
+
+impl MatchRound {
+    /// Where track `t` is searched in photo `b` (see [`extend_tracks`]), if it falls
+    /// inside it.
+    fn predict(&self, b: usize, t: &TieTrack, env: &EpochEnv) -> Option<Search> {
+        let (cam, pose) = self.views.get(b)?.as_ref()?;
+        let margin = env.opts.patch.template_half as f64 + 1.0;
+        let (px, half) = match self.band {
             None => (geometry::project(cam, pose, &t.0).ok()?.pixel, [0.0; 2]),
             Some(band) => {
                 let src = t.1.first()?;
-                let o = outcomes.get((src.photo as usize).checked_sub(1)?)?;
-                let ray = geometry::back_project(o.camera.as_ref()?, &o.pose, src.pixel).ok()?;
+                let (sc, sp) = self
+                    .views
+                    .get((src.photo as usize).checked_sub(1)?)?
+                    .as_ref()?;
+                let ray = geometry::back_project(sc, sp, src.pixel).ok()?;
                 let a = geometry::project(cam, pose, &Band::at(&ray, band.lo)?)
                     .ok()?
                     .pixel;
@@ -425,55 +581,66 @@ fn extend_tracks(
                 )
             }
         };
-        let half = half.map(|v| v + ties.window_px);
+        let half = half.map(|v| v + env.ties.window_px);
         let (w, h) = cam.image_size();
         (px.x >= margin + half[0]
             && px.y >= margin + half[1]
             && px.x <= w as f64 - margin - half[0]
             && px.y <= h as f64 - margin - half[1])
             .then_some((px, half))
-    };
-    let found: Vec<(usize, usize, Vector2<f64>, f64)> = photos
-        .par_iter()
-        .flat_map_iter(|&b| {
-            let pid = b as PhotoId + 1;
-            let wanted: Vec<(usize, Search)> = tracks
-                .iter()
-                .enumerate()
-                .filter(|(_, (_, t))| t.1.iter().all(|o| o.photo != pid))
-                .filter_map(|(k, (_, t))| Some((k, predict(b, t)?)))
-                .collect();
-            let mut out = Vec::new();
-            let (Some(cam), false) = (outcomes[b].camera.as_ref(), wanted.is_empty()) else {
-                return out;
+    }
+}
+
+impl Round for MatchRound {
+    /// Per photo: the tracks found in it (index), with pixel and σ (px).
+    type Output = Vec<(usize, Vector2<f64>, f64)>;
+    const KIND: RoundKind = RoundKind::Match;
+
+    fn photos(&self) -> Vec<usize> {
+        self.photos.clone()
+    }
+
+    fn run(&self, k: usize, env: &EpochEnv) -> Self::Output {
+        let b = self.photos[k];
+        let tie_patch = tie_match_options(&env.opts, &env.ties);
+        let floor = env.opts.sigma_floor_px;
+        let pid = b as PhotoId + 1;
+        let wanted: Vec<(usize, Search)> = self
+            .tracks
+            .iter()
+            .enumerate()
+            .filter(|(_, (_, t))| t.1.iter().all(|o| o.photo != pid))
+            .filter_map(|(k, (_, t))| Some((k, self.predict(b, t, env)?)))
+            .collect();
+        let mut out = Vec::new();
+        let (Some((cam, pose)), false) = (
+            self.views.get(b).and_then(|v| v.as_ref()),
+            wanted.is_empty(),
+        ) else {
+            return out;
+        };
+        let Ok(img) = GreyImage::load(&env.input.photos[b].image) else {
+            return out;
+        };
+        let pyr = Pyramid::from_image(img, 6, 16);
+        let mut matcher = super::chips::ChipMatcher::new(cam, &pyr, &self.store, &tie_patch);
+        for (k, (px, half)) in wanted {
+            let (i, t) = &self.tracks[k];
+            let pred = Prediction {
+                pixel: px,
+                covariance: nalgebra::Matrix2::identity(),
             };
-            let Ok(img) = GreyImage::load(&input.photos[b].image) else {
-                return out;
+            let patch = ControlPatch {
+                id: *i,
+                position: t.0,
+                covariance: Matrix3::zeros(),
             };
-            let pyr = Pyramid::from_image(img, 6, 16);
-            let pose = &outcomes[b].pose;
-            let mut matcher = super::chips::ChipMatcher::new(cam, &pyr, store, &tie_patch);
-            for (k, (px, half)) in wanted {
-                let (i, t) = &tracks[k];
-                let pred = Prediction {
-                    pixel: px,
-                    covariance: nalgebra::Matrix2::identity(),
-                };
-                let patch = ControlPatch {
-                    id: *i,
-                    position: t.0,
-                    covariance: Matrix3::zeros(),
-                };
-                use super::orient::PatchMatcher;
-                if let Some(mt) = matcher.find(&patch, pose, &pred, half) {
-                    out.push((k, b, mt.pixel, mt.sigma_px.max(floor)));
-                }
+            use super::orient::PatchMatcher;
+            if let Some(mt) = matcher.find(&patch, pose, &pred, half) {
+                out.push((k, mt.pixel, mt.sigma_px.max(floor)));
             }
-            out
-        })
-        .collect();
-    for (k, b, px, s) in found {
-        tracks[k].1 .1.push(observation(b, px, s));
+        }
+        out
     }
 }
 
@@ -536,19 +703,14 @@ fn ties_can_help(reason: Option<&PhotoFailure>) -> bool {
 /// `tie_pass` in its report and no control matches; the returned tracks (the source
 /// photo's point and the new photo's match) are its observations for the adjustment. A
 /// photo that fails keeps its reason, with what the tie pass found added.
-#[allow(clippy::too_many_arguments)]
-pub(super) fn tie_pass(
-    input: &EpochInput,
-    priors: &BTreeMap<String, PosPrior>,
-    dem: &Dem,
-    opts: &PhotoOptions,
-    scans: Option<&ScanCameras>,
-    ties: &TieParams,
+pub(super) fn tie_pass<R: EpochRounds>(
+    rounds: &R,
+    env: &EpochEnv,
     outcomes: &mut [PhotoOrientation],
     keyed: &mut [Vec<(PointKey, Vector2<f64>, f64)>],
-) -> Vec<TieTrack> {
-    let half = opts.patch.template_half + 8;
-    let floor = opts.sigma_floor_px;
+) -> Result<Vec<TieTrack>, R::Error> {
+    let input = env.input;
+    let floor = env.opts.sigma_floor_px;
     let mut tracks = Vec::new();
     let mut tried: BTreeMap<usize, PhotoFailure> = BTreeMap::new();
     loop {
@@ -557,7 +719,7 @@ pub(super) fn tie_pass(
         let waiting: Vec<(usize, Camera, Pose)> = (0..outcomes.len())
             .filter(|&i| ties_can_help(outcomes[i].report.reason.as_ref()))
             .filter_map(|i| {
-                let prior = priors.get(&input.photos[i].name)?;
+                let prior = env.priors.get(&input.photos[i].name)?;
                 let cam = match (&outcomes[i].camera, &input.camera) {
                     (Some(c), _) => c.clone(),
                     (None, EpochCamera::Frame(f)) => Camera::Frame(f.clone()),
@@ -573,46 +735,25 @@ pub(super) fn tie_pass(
             break;
         }
         // A point is worth a chip when it falls in some waiting photo's approximate
-        // footprint (its navigation is off by its σ: the frame is widened by a tenth).
-        let keep = |x: &Vector3<f64>| {
-            waiting.iter().any(|(_, cam, pose)| {
-                let (w, h) = cam.image_size();
-                let (mx, my) = (0.1 * w as f64, 0.1 * h as f64);
-                geometry::project(cam, pose, x).is_ok_and(|p| {
-                    p.pixel.x > -mx
-                        && p.pixel.y > -my
-                        && p.pixel.x < w as f64 + mx
-                        && p.pixel.y < h as f64 + my
-                })
-            })
-        };
-        let (mut points, beyond) = points_of(input, outcomes, &sources, dem, ties, half, &keep);
-        let band = Band::of(dem);
-        let beyond = intersect_beyond(input, outcomes, &sources, beyond, band, opts, ties);
+        // footprint.
+        let footprints = waiting.iter().map(|(_, c, p)| (c.clone(), *p)).collect();
+        let (mut points, beyond) = points_of(rounds, env, outcomes, &sources, Some(footprints))?;
+        let band = Band::of(env.dem);
+        let beyond = intersect_beyond(rounds, env, outcomes, &sources, beyond, band)?;
         points.extend(beyond.into_iter().map(|(p, _)| p));
         if points.is_empty() {
             break;
         }
-        let store = ChipStore::from_points(Vector3::from(input.origin), points);
-        let results: Vec<(usize, PhotoOrientation)> = waiting
-            .par_iter()
-            .map(|(i, _, _)| {
-                let ph = &input.photos[*i];
-                let o = orient_photo(
-                    ph,
-                    &input.camera,
-                    priors.get(&ph.name),
-                    &store,
-                    dem,
-                    opts,
-                    scans,
-                );
-                (*i, o)
-            })
-            .collect();
+        let round = OrientRound {
+            store: ChipStore::from_points(Vector3::from(input.origin), points),
+            photos: waiting.iter().map(|(i, _, _)| *i).collect(),
+        };
+        let results = rounds.run(&round, env)?;
+        let store = round.store;
         let mut round: BTreeMap<usize, TieTrack> = BTreeMap::new();
         let mut oriented_any = false;
-        for (i, mut o) in results {
+        for ((i, _, _), mut o) in waiting.iter().zip(results) {
+            let i = *i;
             if !o.report.oriented {
                 if let Some(r) = o.report.reason.take() {
                     tried.insert(i, r);
@@ -641,16 +782,14 @@ pub(super) fn tie_pass(
         // photo's relative orientation to the source, but not its distance along the
         // base, which only the point's position gives. Every other oriented photo that
         // sees the point adds its ray, from where the two rays put it.
-        let mut round: Vec<(usize, TieTrack)> = round
+        let round: Vec<(usize, TieTrack)> = round
             .into_iter()
             .map(|(j, (x, obs))| (j, (intersect_track(outcomes, &obs).unwrap_or(x), obs)))
             .collect();
         let oriented: Vec<usize> = (0..outcomes.len())
             .filter(|&n| outcomes[n].report.oriented && outcomes[n].camera.is_some())
             .collect();
-        extend_tracks(
-            input, outcomes, &oriented, &store, &mut round, opts, ties, None,
-        );
+        let (_, round) = extend_tracks(rounds, env, outcomes, &oriented, store, round, None)?;
         tracks.extend(round.into_iter().map(|(_, t)| t));
         if !oriented_any {
             break;
@@ -668,5 +807,5 @@ pub(super) fn tie_pass(
             });
         }
     }
-    tracks
+    Ok(tracks)
 }

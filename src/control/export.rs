@@ -5,12 +5,16 @@
 //! image files, with the control surface of its LiDAR ([`OrientedBlock`] reads both from
 //! an epoch's `block.json` / `images.json`).
 
-use super::cloud::{self, CloudOptions, ControlPointRecord, ControlSurface, ExportInfo};
-use super::dcp::{Accuracy, DcpPackage, EpochInfo};
+use super::cloud::{
+    self, CloudOptions, ControlPointRecord, ControlSurface, CutChip, ExportInfo, ExportPlan,
+    PhotoChips,
+};
+use super::dcp::{encode_chip, Accuracy, DcpPackage, EpochInfo};
 use super::epoch::{input_err, EpochError};
 use crate::block::{Block, PhotoId};
 use crate::lidar::{lidar_surfaces, GroundSurface};
 use crate::matching::{forstner, ForstnerOptions, GreyImage, Pyramid};
+use rayon::prelude::*;
 use serde::{Deserialize, Serialize};
 use std::collections::BTreeMap;
 use std::path::{Path, PathBuf};
@@ -196,7 +200,8 @@ pub fn select_control_points(
 }
 
 /// Selects cloud control points in an oriented block ([`select_control_points`]) and
-/// writes them with their chips as a DCP package at `out`.
+/// writes them with their chips as a DCP package at `out`, the photos' chips cut on this
+/// process's threads.
 pub fn export_dcp(
     block: &Block,
     surface: &dyn ControlSurface,
@@ -204,6 +209,33 @@ pub fn export_dcp(
     out: &Path,
     opts: &DcpExportOptions,
 ) -> Result<DcpPackage, EpochError> {
+    export_dcp_with(block, surface, epoch, out, opts, |plan, size| {
+        plan.photos
+            .par_iter()
+            .map(|job| {
+                let image = block
+                    .photos
+                    .get(&job.photo)
+                    .and_then(|p| p.image.as_deref())
+                    .ok_or_else(|| format!("no image for photo {}", job.photo))?;
+                cut_photo_chips(image, job, size)
+            })
+            .collect::<Result<Vec<_>, String>>()
+            .map_err(|e| input_err(out, e))
+    })
+}
+
+/// [`export_dcp`] with the photos' chips cut by `cut` (elsewhere, for a distributed run):
+/// given the plan and the chip size, every photo's chips ([`cut_photo_chips`]) in the
+/// plan's photo order.
+pub fn export_dcp_with<E: From<EpochError>>(
+    block: &Block,
+    surface: &dyn ControlSurface,
+    epoch: EpochInfo,
+    out: &Path,
+    opts: &DcpExportOptions,
+    cut: impl FnOnce(&ExportPlan, u32) -> Result<Vec<Vec<CutChip<Vec<u8>>>>, E>,
+) -> Result<DcpPackage, E> {
     let set = select_control_points(block, surface, opts)?;
     let info = ExportInfo {
         crs: set.crs.clone(),
@@ -215,16 +247,29 @@ pub fn export_dcp(
     };
     // Every chip fits (the selection's border is half a chip and the images have the
     // cameras' size), so the package holds exactly the points of `set`.
-    let (m, chips) = cloud::export_records(block, &set.points, &info, |pid| {
-        let p = block
-            .photos
-            .get(&pid)
-            .and_then(|p| p.image.as_ref())
-            .ok_or_else(|| format!("no image for photo {pid}"))?;
-        crate::formats::image_open::decode_image(p).map_err(|e| e.to_string())
-    })
-    .map_err(|e| input_err(out, e))?;
-    Ok(DcpPackage::write(out, m, &chips)?)
+    let plan = ExportPlan::new(block, &set.points, &info).map_err(|e| input_err(out, e))?;
+    let cuts = cut(&plan, info.chip_size)?;
+    let (m, chips) = plan.assemble(&set.points, cuts);
+    Ok(DcpPackage::write_encoded(out, m, &chips).map_err(EpochError::from)?)
+}
+
+/// The chips of one photo of an export plan, read from `image`, PNG-encoded as the
+/// package stores them.
+pub fn cut_photo_chips(
+    image: &Path,
+    job: &PhotoChips,
+    size: u32,
+) -> Result<Vec<CutChip<Vec<u8>>>, String> {
+    let img = crate::formats::image_open::decode_image(image).map_err(|e| e.to_string())?;
+    job.cut(&img, size)
+        .into_iter()
+        .map(|c| {
+            let file = c.file.clone();
+            c.map(|chip| {
+                encode_chip(&chip).map_err(|e| format!("chip {file} cannot be encoded ({e})"))
+            })
+        })
+        .collect()
 }
 
 /// An oriented block as the workflow writes each epoch — `block.json` (the [`Block`]) and

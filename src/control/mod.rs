@@ -11,7 +11,8 @@
 //! - [`dcp`]: the package format, its store and index;
 //! - [`chips`], [`predict`], [`orient`], [`photo`]: one photo from control patches;
 //!   [`scan_cameras`]: a film epoch's fiducial interior orientations, measured once;
-//! - [`archive`]: an archive epoch; [`checkpoints`]: the checkpoint evaluation;
+//! - [`archive`]: an archive epoch, its global passes' per-photo work as [`rounds`];
+//!   [`checkpoints`]: the checkpoint evaluation;
 //! - [`strips`]: approximate orientation from strip end points.
 
 pub mod archive;
@@ -30,6 +31,7 @@ pub mod photo;
 pub mod plan_index;
 pub mod predict;
 pub mod reference;
+pub mod rounds;
 pub mod scan_cameras;
 pub mod strips;
 

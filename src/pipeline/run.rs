@@ -20,6 +20,7 @@ use super::ground::{control_dem, ControlGround};
 use super::project::{Epoch, Project, ProjectError};
 use super::report::{self, EpochReport, IcpIteration, OrthoPreview};
 use super::stages::{Inputs, Runner, StageError, WorkError};
+use super::tasks::dcp::cut_chips;
 use super::tasks::lidar::{clean_sources, LidarPlan};
 use super::tasks::outputs::{OutputTasks, OutputsPlan};
 use super::tasks::{open_packages, EpochContext, EpochPlan, EpochTasks, Task, TaskMode};
@@ -33,6 +34,7 @@ use crate::control::existing::{self, ExistingOptions};
 use crate::control::export::{self, DcpExportOptions};
 use crate::control::ortho_source::{orthophoto_dcp, OrthoControlOptions, OrthoSource};
 use crate::control::reference::{self, ReferenceOptions};
+use crate::control::rounds::InMemory;
 use crate::formats::control_points;
 use crate::formats::crs::{Crs, Transformer};
 use crate::lidar::{self, Catalogue, ScanOptions, TileStore};
@@ -706,7 +708,18 @@ fn run_stages(
                 let dem = &ctx.surface.ground;
                 let archive = ArchiveContext::new(&ctx.input, &ctx.packages, dem, &ctx.opts)?;
                 let first = tasks.first_pass(&ctx, &archive, task_mode)?;
-                let r = archive::finish_epoch(&ctx.input, &archive, dem, &ctx.opts, first, t0)?;
+                // The global passes' rounds: on this process's threads, or as tasks of
+                // the stage for a planning run.
+                let r = match task_mode {
+                    TaskMode::InProcess => archive::finish_epoch(
+                        &ctx.input, &archive, dem, &ctx.opts, first, t0, &InMemory,
+                    )?,
+                    TaskMode::Plan => {
+                        let majority = first.scans.as_ref().and_then(|s| s.majority);
+                        let rounds = tasks.rounds(&ctx, task_mode, majority);
+                        archive::finish_epoch(&ctx.input, &archive, dem, &ctx.opts, first, t0, &rounds)?
+                    }
+                };
                 tasks.clear();
                 (r, Vec::new())
             };
@@ -735,13 +748,14 @@ fn run_stages(
         if k + 1 == epochs.len() {
             break;
         }
+        let dcp_stage = format!("dcp-{}", e.name);
         let ddir = stage!(
-            format!("dcp-{}", e.name),
+            keyed dcp_stage.clone(),
             Inputs::new()
                 .file(&sources)
                 .file(&edir)
                 .param("thresholds", &project.thresholds),
-            |dir: &Path| {
+            |dir: &Path, key: &str| {
                 let block = load_block(&edir)?;
                 // A control point is measured in two oriented photos at least: an epoch
                 // with fewer gives no package, and the older epochs take the DCPs of the
@@ -776,16 +790,38 @@ fn run_stages(
                         rep.gsd_m
                     },
                 };
-                export::export_dcp(
-                    &block,
-                    lidar.surface()?,
-                    EpochInfo {
-                        name: e.name.clone(),
-                        date: Some(e.date.clone()),
-                    },
-                    &dir.join("package"),
-                    &opts,
-                )?;
+                let info = EpochInfo {
+                    name: e.name.clone(),
+                    date: Some(e.date.clone()),
+                };
+                let package = dir.join("package");
+                let surface = lidar.surface()?;
+                // The photos' chips: on this process's threads, or as tasks of the stage
+                // for a planning run.
+                match task_mode {
+                    TaskMode::InProcess => {
+                        export::export_dcp(&block, surface, info, &package, &opts)?;
+                    }
+                    TaskMode::Plan => {
+                        export::export_dcp_with(
+                            &block,
+                            surface,
+                            info,
+                            &package,
+                            &opts,
+                            |plan, size| {
+                                cut_chips(
+                                    (out, &dcp_stage, key),
+                                    &block,
+                                    plan,
+                                    size,
+                                    task_mode,
+                                    &package,
+                                )
+                            },
+                        )?;
+                    }
+                }
                 Ok(())
             }
         );

@@ -104,4 +104,15 @@ fn task_sample_is_read_and_a_task_without_its_plan_is_an_io_error() {
     assert!(tile
         .result()
         .ends_with("sources/0123456789abcdef/screen-00012.msgpack"));
+    // A task of an epoch's round: the round in its name (a Dask key) and result file.
+    let round: Task = serde_json::from_str(
+        r#"{"kind": "match", "stage": "epoch-film_1978", "folder": "/data/run/tasks/epoch-film_1978/41530d51a57a95aa",
+            "index": 3, "item": "film_s02_001", "round": 2}"#,
+    )
+    .unwrap();
+    assert_eq!((round.kind, round.round), (TaskKind::Match, Some(2)));
+    assert_eq!(round.name(), "epoch-film_1978/match-2/film_s02_001");
+    assert!(round
+        .result()
+        .ends_with("41530d51a57a95aa/match-002-00003.msgpack"));
 }

@@ -12,6 +12,7 @@ mod control_checkpoints;
 mod control_epoch;
 mod control_photo;
 mod control_predict;
+mod control_rounds;
 mod control_strips;
 mod estimators;
 mod estimators_similarity2;

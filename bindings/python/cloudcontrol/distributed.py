@@ -1,7 +1,10 @@
 """The workflow on Dask: the per-tile tasks of the LiDAR cleaning, the per-photo tasks of
 the archive epochs and the products' film resampling and orthophoto tiles fan out to the
-workers of a ``dask.distributed.Client``; the rest of each stage (the strip offsets, the
-epoch-wide adjustment, the files written from the tasks' results) runs in this process.
+workers of a ``dask.distributed.Client``, and so do the per-photo rounds of an epoch's
+second pass, tie pass and tie points (``cut``, ``match``, ``reorient``) and the chips of
+each DCP package, photo by photo (``chips``); the rest of each
+stage (the strip offsets, what a round's results add up to, the epoch-wide adjustment, the
+files written from the tasks' results) runs in this process.
 
 A run alternates between :func:`cloudcontrol.pipeline.plan`, which runs every stage it can
 and stops at the first one whose tasks have not all run, and a round of those
@@ -41,8 +44,9 @@ def run(project: str | os.PathLike, client, retries: int = 3, on_round=None) -> 
             return res
         tasks = pending["tasks"]
         t1 = time.perf_counter()
-        # Keys name the stage, kind and item: a rerun of the same task is the same key.
-        futures = client.map(run_task, tasks, key=[f"cloudcontrol:{t['stage']}/{t['kind']}/{t['item']}:{t['folder']}" for t in tasks],
+        # Keys name the stage, kind (and round) and item: a rerun of the same task is the
+        # same key.
+        futures = client.map(run_task, tasks, key=[_key(t) for t in tasks],
                              retries=retries, pure=False)
         if on_round is not None:
             on_round(pending["stage"], futures)
@@ -56,3 +60,8 @@ def run(project: str | os.PathLike, client, retries: int = 3, on_round=None) -> 
             "task_seconds": sum(d["seconds"] for d in done),
             "failed": [{"item": d["item"], "reason": d["reason"]} for d in done if not d["ok"]],
         })
+
+
+def _key(task: dict) -> str:
+    kind = task["kind"] if task.get("round") is None else f"{task['kind']}-{task['round']}"
+    return f"cloudcontrol:{task['stage']}/{kind}/{task['item']}:{task['folder']}"

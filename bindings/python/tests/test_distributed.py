@@ -74,15 +74,29 @@ def test_dask_run_with_a_killed_worker_gives_the_products_of_a_plain_run(shared_
 
     # Every round of tasks ran; the bad scan is reported, photo and reason, and the
     # epoch went on.
+    # The epochs' global passes ran their per-photo rounds as tasks too: the film epoch's
+    # second pass (chips of its oriented photos, then the bad scan tried with them; no tie
+    # pass, since ties cannot help a scan that cannot be read), and both epochs' tie points
+    # (chips, tracks on the DEM, tracks beyond it). Each DCP export cut its chips photo by
+    # photo.
     kinds = [(r["stage"], r["kind"]) for r in res["rounds"]]
+    ties = ["cut", "match", "match"]
     assert kinds == [("sources", "screen"), ("sources", "clean"),
-                     ("epoch-digital_2012", "orient"), ("epoch-film_1978", "scan"),
-                     ("epoch-film_1978", "orient"), ("outputs-reference_2024", "ortho"),
+                     ("dcp-reference_2024", "chips"),
+                     ("epoch-digital_2012", "orient"),
+                     *[("epoch-digital_2012", k) for k in ties],
+                     ("dcp-digital_2012", "chips"),
+                     ("epoch-film_1978", "scan"), ("epoch-film_1978", "orient"),
+                     ("epoch-film_1978", "cut"), ("epoch-film_1978", "reorient"),
+                     *[("epoch-film_1978", k) for k in ties],
+                     ("outputs-reference_2024", "ortho"),
                      ("outputs-digital_2012", "ortho"), ("outputs-film_1978", "resample"),
                      ("outputs-film_1978", "ortho")]
-    film_scan = res["rounds"][3]
-    assert [f["item"] for f in film_scan["failed"]] == [BAD_SCAN]
-    assert "read" in film_scan["failed"][0]["reason"]
+    film = [r for r in res["rounds"] if r["stage"] == "epoch-film_1978"]
+    assert [f["item"] for f in film[0]["failed"]] == [BAD_SCAN]
+    assert "read" in film[0]["failed"][0]["reason"]
+    retried = film[3]
+    assert retried["tasks"] == 1 and [f["item"] for f in retried["failed"]] == [BAD_SCAN]
     film = {e["name"]: e for e in res["report"]["epochs"]}["film_1978"]
     assert film["photos_oriented"] == film["photos_total"] - 1
     assert not (block / "run_dask" / "tasks").exists()

@@ -165,10 +165,44 @@ impl EpochTasks {
         Ok(FirstPass { scans, outcomes })
     }
 
+    /// The rounds of the epoch's global passes as tasks of this stage (`majority`: a film
+    /// epoch's majority scan orientation, from its first pass).
+    pub(crate) fn rounds<'a>(
+        &'a self,
+        ctx: &'a EpochContext,
+        mode: TaskMode,
+        majority: Option<ScanOrientation>,
+    ) -> super::rounds::TaskRounds<'a> {
+        super::rounds::TaskRounds::new(&self.0, ctx, mode, majority)
+    }
+
     /// Removes the stage's task results (the stage has finished).
     pub(crate) fn clear(&self) {
         self.0.clear()
     }
+}
+
+/// A film photo's candidate cameras as its `orient` task found them, with the epoch's
+/// majority scan orientation (the task's): what a round task of the photo orients it
+/// with. `None` for a frame camera.
+pub(super) fn own_scans(task: &Task, ctx: &EpochContext) -> Result<Option<ScanCameras>, WorkError> {
+    if !matches!(ctx.input.camera, EpochCamera::Film(_)) {
+        return Ok(None);
+    }
+    let own: OrientResult = read_result(&Task {
+        kind: TaskKind::Orient,
+        round: None,
+        ..task.clone()
+    })?;
+    let by_photo = own
+        .candidates
+        .into_iter()
+        .map(|c| (own.photo.clone(), c))
+        .collect();
+    Ok(Some(ScanCameras::from_parts(
+        by_photo,
+        task.scan_orientation,
+    )))
 }
 
 has_item!(OrientResult => photo, ScanResult => photo);
@@ -215,8 +249,16 @@ fn execute_with(
             )?;
             (reason.is_none(), reason)
         }
-        (TaskKind::Screen | TaskKind::Clean | TaskKind::Resample | TaskKind::Ortho, _) => {
-            return Err(not_of(task, "an archive epoch"))
+        (
+            TaskKind::Screen
+            | TaskKind::Clean
+            | TaskKind::Resample
+            | TaskKind::Ortho
+            | TaskKind::Chips,
+            _,
+        ) => return Err(not_of(task, "an archive epoch")),
+        (TaskKind::Cut | TaskKind::Match | TaskKind::Reorient, _) => {
+            return super::rounds::run_task(task, ctx, archive)
         }
         (TaskKind::Scan, EpochCamera::Frame(_)) => {
             return Err(WorkError::Inconsistent(format!(

@@ -14,13 +14,19 @@
 //! - `sources` ([`lidar`]): `screen` (a LiDAR tile's noise points and its share of the
 //!   strip sample), then, after the strip offsets, `clean` (the tile rewritten);
 //! - archive epochs ([`epoch`]): a film epoch's `scan` (the scan's fiducials), then
-//!   `orient` (a photo's first orientation from the control patches);
+//!   `orient` (a photo's first orientation from the control patches); then the rounds of
+//!   the epoch's global passes ([`rounds`]): `cut` (chips cut from an oriented photo),
+//!   `match` (tie tracks found in a photo), `reorient` (a photo oriented from a store of
+//!   the epoch's own chips), each round's data in `round-<n>-<kind>.msgpack`;
+//! - `dcp-<epoch>` ([`dcp`]): `chips` (one photo's chips of the package, cut and encoded);
 //! - an epoch's products ([`outputs`]): a film epoch's `resample` (a scan into its frame
 //!   image), then `ortho` (a run of orthophoto tiles).
 
+pub mod dcp;
 pub mod epoch;
 pub mod lidar;
 pub mod outputs;
+pub mod rounds;
 
 pub(crate) use epoch::EpochTasks;
 pub use epoch::{open_packages, EpochContext, EpochPlan};
@@ -49,6 +55,14 @@ pub enum TaskKind {
     Resample,
     /// A run of consecutive orthophoto tiles rendered.
     Ortho,
+    /// Chips cut from an oriented photo of an epoch (a round of its global passes).
+    Cut,
+    /// Tie tracks found in a photo of an epoch (a round).
+    Match,
+    /// A photo oriented from the epoch's own chips (a round).
+    Reorient,
+    /// One photo's chips of a DCP package, cut and encoded.
+    Chips,
 }
 
 impl TaskKind {
@@ -60,6 +74,10 @@ impl TaskKind {
             TaskKind::Clean => "clean",
             TaskKind::Resample => "resample",
             TaskKind::Ortho => "ortho",
+            TaskKind::Cut => "cut",
+            TaskKind::Match => "match",
+            TaskKind::Reorient => "reorient",
+            TaskKind::Chips => "chips",
         }
     }
 }
@@ -82,22 +100,30 @@ pub struct Task {
     /// from its `scan` round (an undecided scan takes it).
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub scan_orientation: Option<ScanOrientation>,
+    /// Tasks of an epoch's global passes: the round they belong to (rounds are numbered
+    /// in the order the epoch runs them, the same in every run).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub round: Option<usize>,
 }
 
 impl Task {
-    /// A name unique within a run (Dask keys): stage, kind, item.
+    /// A name unique within a run (Dask keys): stage, kind (and round), item.
     pub fn name(&self) -> String {
-        format!("{}/{}/{}", self.stage, self.kind.label(), self.item)
+        match self.round {
+            Some(r) => format!("{}/{}-{r}/{}", self.stage, self.kind.label(), self.item),
+            None => format!("{}/{}/{}", self.stage, self.kind.label(), self.item),
+        }
     }
 
     /// The task's result file.
     pub fn result(&self) -> PathBuf {
-        result_path(&self.folder, self.kind, self.index)
+        let kind = self.kind.label();
+        let index = self.index;
+        self.folder.join(match self.round {
+            Some(r) => format!("{kind}-{r:03}-{index:05}.msgpack"),
+            None => format!("{kind}-{index:05}.msgpack"),
+        })
     }
-}
-
-fn result_path(folder: &Path, kind: TaskKind, index: usize) -> PathBuf {
-    folder.join(format!("{}-{index:05}.msgpack", kind.label()))
 }
 
 /// What a finished task reports (small, JSON: what a Dask future returns).
@@ -181,6 +207,10 @@ impl StageTasks {
         &self.folder
     }
 
+    pub(crate) fn stage(&self) -> &str {
+        &self.stage
+    }
+
     /// One task of `kind` per item (index, name).
     pub(crate) fn tasks<'a>(
         &self,
@@ -198,6 +228,7 @@ impl StageTasks {
                 index,
                 item: item.to_string(),
                 scan_orientation,
+                round: None,
             })
             .collect()
     }
@@ -317,8 +348,13 @@ impl<C> ContextCache<C> {
 /// died after writing it) is run again and writes the same result.
 pub fn run_task(task: &Task) -> Result<TaskSummary, WorkError> {
     match task.kind {
-        TaskKind::Scan | TaskKind::Orient => epoch::run_task(task),
+        TaskKind::Scan
+        | TaskKind::Orient
+        | TaskKind::Cut
+        | TaskKind::Match
+        | TaskKind::Reorient => epoch::run_task(task),
         TaskKind::Screen | TaskKind::Clean => lidar::run_task(task),
         TaskKind::Resample | TaskKind::Ortho => outputs::run_task(task),
+        TaskKind::Chips => dcp::run_task(task),
     }
 }

@@ -1,0 +1,140 @@
+//! The per-photo work of an archive epoch's global passes, as rounds.
+//!
+//! After its first pass, an epoch builds chip stores from its own oriented photos (the
+//! second pass, the tie pass, the tie points among its photos) and looks for them in its
+//! other photos. Each such step is a [`Round`]: data saying what every photo has to do
+//! (cut chips, match tracks, orient from a store), and the work for one photo. Where the
+//! rounds run is the caller's: [`InMemory`] runs a round's photos on this process's
+//! threads; the pipeline writes a round to its task folder and runs its photos as tasks,
+//! here or on other machines. A round's photos read nothing but the round, the epoch's
+//! inputs ([`EpochEnv`]) and their own image, and their results are combined in the
+//! round's photo order, so both give the same epoch.
+
+use super::archive::ArchiveOptions;
+use super::chips::ChipStore;
+use super::epoch::EpochInput;
+use super::epoch_ties::TieParams;
+use super::photo::{orient_photo, PhotoOptions, PhotoOrientation};
+use super::scan_cameras::ScanCameras;
+use super::EpochError;
+use crate::block::PosPrior;
+use crate::geometry::Dem;
+use rayon::prelude::*;
+use serde::de::DeserializeOwned;
+use serde::{Deserialize, Serialize};
+use std::collections::BTreeMap;
+
+/// What a photo's work in a round reads besides the round: the epoch's inputs and
+/// options, the same in every process.
+pub struct EpochEnv<'a> {
+    pub input: &'a EpochInput,
+    pub dem: &'a Dem,
+    /// Approximate orientations by photo name.
+    pub priors: &'a BTreeMap<String, PosPrior>,
+    pub opts: PhotoOptions,
+    pub ties: TieParams,
+    /// A film epoch's candidate cameras of its scans (a process running one photo's work
+    /// needs only that photo's).
+    pub scans: Option<&'a ScanCameras>,
+}
+
+impl<'a> EpochEnv<'a> {
+    pub fn new(
+        input: &'a EpochInput,
+        dem: &'a Dem,
+        priors: &'a BTreeMap<String, PosPrior>,
+        opts: PhotoOptions,
+        archive: &ArchiveOptions,
+        scans: Option<&'a ScanCameras>,
+    ) -> Self {
+        Self {
+            input,
+            dem,
+            priors,
+            opts,
+            ties: TieParams::of(archive),
+            scans,
+        }
+    }
+}
+
+/// What a round's photos do.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum RoundKind {
+    /// Cut chips from oriented photos.
+    Cut,
+    /// Find tracks of tie points in photos.
+    Match,
+    /// Orient photos from a chip store.
+    Reorient,
+}
+
+/// One round of an epoch's global passes: per photo, one piece of work.
+pub trait Round: Serialize + DeserializeOwned + Sync {
+    type Output: Serialize + DeserializeOwned + Send;
+    const KIND: RoundKind;
+    /// The epoch photos (indices) the round has work for, in the order its outputs are
+    /// combined.
+    fn photos(&self) -> Vec<usize>;
+    /// The work of the `k`-th of [`Round::photos`].
+    fn run(&self, k: usize, env: &EpochEnv) -> Self::Output;
+    /// Why a photo's work came to nothing, when that is a failure worth reporting.
+    fn failure(_output: &Self::Output) -> Option<String> {
+        None
+    }
+}
+
+/// Where an epoch's rounds run.
+pub trait EpochRounds {
+    type Error: From<EpochError>;
+    /// The outputs of every photo of `round`, in its photo order.
+    fn run<R: Round>(&self, round: &R, env: &EpochEnv) -> Result<Vec<R::Output>, Self::Error>;
+}
+
+/// Rounds on this process's threads, one photo (and its image) per thread.
+pub struct InMemory;
+
+impl EpochRounds for InMemory {
+    type Error = EpochError;
+
+    fn run<R: Round>(&self, round: &R, env: &EpochEnv) -> Result<Vec<R::Output>, EpochError> {
+        Ok((0..round.photos().len())
+            .into_par_iter()
+            .map(|k| round.run(k, env))
+            .collect())
+    }
+}
+
+/// Photos oriented from a store of chips cut from the epoch's own oriented photos (the
+/// second pass, the tie pass).
+#[derive(Serialize, Deserialize)]
+pub struct OrientRound {
+    pub store: ChipStore<'static>,
+    pub photos: Vec<usize>,
+}
+
+impl Round for OrientRound {
+    type Output = PhotoOrientation;
+    const KIND: RoundKind = RoundKind::Reorient;
+
+    fn photos(&self) -> Vec<usize> {
+        self.photos.clone()
+    }
+
+    fn run(&self, k: usize, env: &EpochEnv) -> PhotoOrientation {
+        let ph = &env.input.photos[self.photos[k]];
+        orient_photo(
+            ph,
+            &env.input.camera,
+            env.priors.get(&ph.name),
+            &self.store,
+            env.dem,
+            &env.opts,
+            env.scans,
+        )
+    }
+
+    fn failure(o: &PhotoOrientation) -> Option<String> {
+        o.report.reason.as_ref().map(|r| r.to_string())
+    }
+}

@@ -1,0 +1,214 @@
+//! The rounds of an archive epoch's global passes (second pass, tie pass, tie points) as
+//! tasks: one task per photo of a round, the round's data written once to the stage's
+//! folder for the processes that run them. A planning run replays the epoch's global
+//! part from its first pass each time it is called: rounds whose results are all there
+//! are read back, the first one that is not is written and its tasks returned. The
+//! rounds are the same in every replay (their inputs are the results before them), so
+//! round `n` of one replay is round `n` of the next.
+
+use super::epoch::{own_scans, EpochContext};
+use super::{read_msgpack, read_result, write_msgpack, write_result, StageTasks, Task, TaskKind};
+use super::{TaskMode, TaskSummary};
+use crate::control::archive::ArchiveContext;
+use crate::control::epoch_ties::{CutRound, MatchRound};
+use crate::control::rounds::{EpochEnv, EpochRounds, OrientRound, Round, RoundKind};
+use crate::matching::ScanOrientation;
+use crate::pipeline::stages::WorkError;
+use serde::{Deserialize, Serialize};
+use std::cell::Cell;
+use std::path::{Path, PathBuf};
+use std::sync::{Arc, Mutex};
+use std::time::Instant;
+
+fn task_kind(kind: RoundKind) -> TaskKind {
+    match kind {
+        RoundKind::Cut => TaskKind::Cut,
+        RoundKind::Match => TaskKind::Match,
+        RoundKind::Reorient => TaskKind::Reorient,
+    }
+}
+
+/// The file holding round `round` of a stage, for the processes running its tasks.
+fn round_file(folder: &Path, kind: TaskKind, round: usize) -> PathBuf {
+    folder.join(format!("round-{round:03}-{}.msgpack", kind.label()))
+}
+
+/// A round task's result: the photo's output.
+#[derive(Serialize, Deserialize)]
+struct RoundResult<T> {
+    photo: String,
+    output: T,
+}
+
+impl<T> super::HasItem for RoundResult<T> {
+    fn item(&self) -> &str {
+        &self.photo
+    }
+}
+
+/// An epoch's rounds as tasks of its stage (a planning run: [`TaskMode::Plan`]).
+pub(crate) struct TaskRounds<'a> {
+    tasks: &'a StageTasks,
+    ctx: &'a EpochContext,
+    mode: TaskMode,
+    /// A film epoch's majority scan orientation (its tasks carry it, as `orient` tasks do).
+    majority: Option<ScanOrientation>,
+    next: Cell<usize>,
+}
+
+impl<'a> TaskRounds<'a> {
+    pub(crate) fn new(
+        tasks: &'a StageTasks,
+        ctx: &'a EpochContext,
+        mode: TaskMode,
+        majority: Option<ScanOrientation>,
+    ) -> Self {
+        Self {
+            tasks,
+            ctx,
+            mode,
+            majority,
+            next: Cell::new(0),
+        }
+    }
+}
+
+impl EpochRounds for TaskRounds<'_> {
+    type Error = WorkError;
+
+    fn run<R: Round>(&self, round: &R, env: &EpochEnv) -> Result<Vec<R::Output>, WorkError> {
+        let r = self.next.get();
+        self.next.set(r + 1);
+        let photos = round.photos();
+        let kind = task_kind(R::KIND);
+        let tasks: Vec<Task> = photos
+            .iter()
+            .map(|&n| Task {
+                kind,
+                stage: self.tasks.stage().to_string(),
+                folder: self.tasks.folder().to_path_buf(),
+                index: n,
+                item: self.ctx.input.photos[n].name.clone(),
+                scan_orientation: self.majority,
+                round: Some(r),
+            })
+            .collect();
+        let file = round_file(self.tasks.folder(), kind, r);
+        if self.mode == TaskMode::Plan
+            && tasks.iter().any(|t| !t.result().is_file())
+            && !file.is_file()
+        {
+            write_msgpack(&file, round)?;
+        }
+        self.tasks.ensure(&tasks, self.mode, |t| {
+            let k = photos.iter().position(|&n| n == t.index).unwrap_or(0);
+            execute(t, round, k, env)
+        })?;
+        tasks
+            .iter()
+            .map(|t| read_result::<RoundResult<R::Output>>(t).map(|r| r.output))
+            .collect()
+    }
+}
+
+/// Runs the `k`-th photo of `round` (task `task`) and writes its result.
+fn execute<R: Round>(
+    task: &Task,
+    round: &R,
+    k: usize,
+    env: &EpochEnv,
+) -> Result<TaskSummary, WorkError> {
+    let t0 = Instant::now();
+    let output = round.run(k, env);
+    let reason = R::failure(&output);
+    write_result(
+        task,
+        &RoundResult {
+            photo: task.item.clone(),
+            output,
+        },
+    )?;
+    Ok(TaskSummary {
+        ok: reason.is_none(),
+        reason,
+        ..TaskSummary::done(task, t0)
+    })
+}
+
+/// A round as a process read it from its file.
+#[derive(Clone)]
+enum Loaded {
+    Cut(Arc<CutRound>),
+    Match(Arc<MatchRound>),
+    Reorient(Arc<OrientRound>),
+}
+
+/// The round a process last read, kept for its next task of that round (a worker runs
+/// many photos of one round); one at a time, since a round can hold thousands of chips.
+static ROUND: Mutex<Option<(PathBuf, Loaded)>> = Mutex::new(None);
+
+/// The round in `file`, of the kind of `task`.
+fn load(file: &Path, task: &Task) -> Result<Loaded, WorkError> {
+    let mut cache = ROUND.lock().unwrap_or_else(|p| p.into_inner());
+    if let Some((f, r)) = &*cache {
+        if f == file {
+            return Ok(r.clone());
+        }
+    }
+    // The last round's data is dropped before the next is read.
+    *cache = None;
+    let r = match task.kind {
+        TaskKind::Cut => Loaded::Cut(Arc::new(read_msgpack(file)?)),
+        TaskKind::Match => Loaded::Match(Arc::new(read_msgpack(file)?)),
+        TaskKind::Reorient => Loaded::Reorient(Arc::new(read_msgpack(file)?)),
+        _ => return Err(super::not_of(task, "an epoch's rounds")),
+    };
+    *cache = Some((file.to_path_buf(), r.clone()));
+    Ok(r)
+}
+
+/// Runs one round task in a process of its own: the round read from its file, the photo's
+/// environment built as the epoch's process built it.
+pub(super) fn run_task(
+    task: &Task,
+    ctx: &EpochContext,
+    archive: &ArchiveContext,
+) -> Result<TaskSummary, WorkError> {
+    let round = task.round.ok_or_else(|| {
+        WorkError::Inconsistent(format!(
+            "task {}: a round task without its round",
+            task.name()
+        ))
+    })?;
+    let file = round_file(&task.folder, task.kind, round);
+    let scans = own_scans(task, ctx)?;
+    let env = EpochEnv::new(
+        &ctx.input,
+        &ctx.surface.ground,
+        &archive.priors,
+        archive.photo_options(scans.as_ref()),
+        &ctx.opts,
+        scans.as_ref(),
+    );
+    match load(&file, task)? {
+        Loaded::Cut(r) => run_from(task, &*r, &env),
+        Loaded::Match(r) => run_from(task, &*r, &env),
+        Loaded::Reorient(r) => run_from(task, &*r, &env),
+    }
+}
+
+fn run_from<R: Round>(task: &Task, round: &R, env: &EpochEnv) -> Result<TaskSummary, WorkError> {
+    let k = round
+        .photos()
+        .iter()
+        .position(|&n| n == task.index)
+        .ok_or_else(|| {
+            WorkError::Inconsistent(format!(
+                "task {}: photo {} has no work in round {:?}",
+                task.name(),
+                task.item,
+                task.round
+            ))
+        })?;
+    execute(task, round, k, env)
+}
