@@ -717,7 +717,9 @@ fn run_stages(
                     TaskMode::Plan => {
                         let majority = first.scans.as_ref().and_then(|s| s.majority);
                         let rounds = tasks.rounds(&ctx, task_mode, majority);
-                        archive::finish_epoch(&ctx.input, &archive, dem, &ctx.opts, first, t0, &rounds)?
+                        archive::finish_epoch(
+                            &ctx.input, &archive, dem, &ctx.opts, first, t0, &rounds,
+                        )?
                     }
                 };
                 tasks.clear();

@@ -100,10 +100,8 @@ impl EpochRounds for TaskRounds<'_> {
         {
             write_msgpack(&file, round)?;
         }
-        self.tasks.ensure(&tasks, self.mode, |t| {
-            let k = photos.iter().position(|&n| n == t.index).unwrap_or(0);
-            execute(t, round, k, env)
-        })?;
+        self.tasks
+            .ensure(&tasks, self.mode, |t| run_from(t, round, env))?;
         tasks
             .iter()
             .map(|t| read_result::<RoundResult<R::Output>>(t).map(|r| r.output))
