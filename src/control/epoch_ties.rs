@@ -555,6 +555,22 @@ pub struct MatchRound {
 }
 
 impl MatchRound {
+    /// Whether a round read from a file is whole: every track's point in the store, every
+    /// photo among the views (a damaged file is an error, not an index out of range).
+    pub fn check(&self) -> Result<(), String> {
+        let n = self.store.points.len();
+        if let Some((i, _)) = self.tracks.iter().find(|(i, _)| *i >= n) {
+            return Err(format!("a track of point {i}, the store has {n} points"));
+        }
+        if let Some(b) = self.photos.iter().find(|&&b| b >= self.views.len()) {
+            return Err(format!(
+                "photo {b}, the round has {} views",
+                self.views.len()
+            ));
+        }
+        Ok(())
+    }
+
     /// Where track `t` is searched in photo `b` (see [`extend_tracks`]), if it falls
     /// inside it.
     fn predict(&self, b: usize, t: &TieTrack, env: &EpochEnv) -> Option<Search> {

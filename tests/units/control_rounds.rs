@@ -93,4 +93,21 @@ mod tests {
             "written sizes {sizes:?}"
         );
     }
+
+    #[test]
+    fn a_match_round_naming_points_or_photos_it_lacks_is_refused() {
+        use cloudcontrol::control::epoch_ties::MatchRound;
+        let round = |tracks: &str, photos: &str| -> MatchRound {
+            serde_json::from_str(&format!(
+                r#"{{"store": {{"origin": [0, 0, 0], "points": []}}, "tracks": {tracks},
+                    "views": [null], "photos": {photos}, "band": null}}"#
+            ))
+            .unwrap()
+        };
+        assert!(round("[]", "[0]").check().is_ok());
+        let e = round("[[3, [[0, 0, 0], []]]]", "[0]").check().unwrap_err();
+        assert!(e.contains("point 3") && e.contains("0 points"), "{e}");
+        let e = round("[]", "[2]").check().unwrap_err();
+        assert!(e.contains("photo 2") && e.contains("1 views"), "{e}");
+    }
 }

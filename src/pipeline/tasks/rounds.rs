@@ -157,7 +157,12 @@ fn load(file: &Path, task: &Task) -> Result<Loaded, WorkError> {
     *cache = None;
     let r = match task.kind {
         TaskKind::Cut => Loaded::Cut(Arc::new(read_msgpack(file)?)),
-        TaskKind::Match => Loaded::Match(Arc::new(read_msgpack(file)?)),
+        TaskKind::Match => {
+            let r: MatchRound = read_msgpack(file)?;
+            r.check()
+                .map_err(|e| crate::formats::FormatError::invalid(file, e))?;
+            Loaded::Match(Arc::new(r))
+        }
         TaskKind::Reorient => Loaded::Reorient(Arc::new(read_msgpack(file)?)),
         _ => return Err(super::not_of(task, "an epoch's rounds")),
     };
