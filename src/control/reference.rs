@@ -19,7 +19,12 @@ use crate::block::{
 use crate::formats::pos::photo_key;
 use crate::geometry::{matrix_from_opk, Camera, Dem, Pose, Similarity};
 use crate::lidar::{icp_point_to_plane, IcpOptions, IcpResult, PlaneIndex};
-use crate::matching::oriented::{block_tie_points, BlockTieOptions, BlockTieReport, Surface};
+use crate::matching::oriented::{
+    write_ties, BlockTieOptions, BlockTieReport, OrientedPhoto, Surface, TiePhotos,
+};
+use crate::matching::pair_matching::{
+    plan_pairs, InMemory, MatchedPairs, PairMatching, PhotoPairs,
+};
 use crate::matching::Pixels;
 use nalgebra::Vector3;
 use rayon::prelude::*;
@@ -264,6 +269,76 @@ pub fn orient_reference(
     dem: &Dem,
     opts: &ReferenceOptions,
 ) -> Result<(EpochResult, ReferenceReport), EpochError> {
+    let here = HereMatching { epoch: &input.name };
+    orient_reference_with(input, lidar, dem, opts, &here)
+}
+
+/// The epoch's photo pairs matched in this process; a failure names the epoch.
+struct HereMatching<'a> {
+    epoch: &'a str,
+}
+
+impl PairMatching for HereMatching<'_> {
+    type Error = EpochError;
+
+    fn match_pairs(
+        &self,
+        photos: &[OrientedPhoto],
+        ids: &[PhotoId],
+        jobs: &[PhotoPairs],
+        surface: &Surface,
+        opts: &BlockTieOptions,
+    ) -> Result<Vec<MatchedPairs>, EpochError> {
+        InMemory
+            .match_pairs(photos, ids, jobs, surface, opts)
+            .map_err(|e| EpochError::Epoch {
+                epoch: self.epoch.to_string(),
+                message: format!("tie points: {e}"),
+            })
+    }
+}
+
+/// The reference epoch's photos as its tie matching sees them: the block at the POS and
+/// each photo's image file (checked to exist, so that a missing photo is named before
+/// any work; the images are decoded when a pair needs them).
+pub fn tie_photos(
+    input: &EpochInput,
+) -> Result<(Block, BTreeMap<PhotoId, Pixels<'_>>), EpochError> {
+    let block = pos_block(input)?;
+    let mut images: BTreeMap<PhotoId, Pixels> = BTreeMap::new();
+    for (k, p) in input.photos.iter().enumerate() {
+        if !p.image.is_file() {
+            return Err(EpochError::Input {
+                path: p.image.clone(),
+                message: "photo image not found".into(),
+            });
+        }
+        images.insert(k as PhotoId + 1, Pixels::File(&p.image));
+    }
+    Ok((block, images))
+}
+
+/// The surface the reference epoch's tie search is predicted over: the LiDAR DEM.
+pub fn tie_surface<'a>(dem: &'a Dem, opts: &ReferenceOptions) -> Surface<'a> {
+    Surface::Dem {
+        dem,
+        origin: Vector3::zeros(),
+        sigma_m: opts.dem_sigma_m,
+    }
+}
+
+/// [`orient_reference`] with the tie matching of its photo pairs run by `matcher` (the
+/// pipeline runs each photo's pairs as a task).
+pub fn orient_reference_with<M: PairMatching>(
+    input: &EpochInput,
+    lidar: &PlaneIndex,
+    dem: &Dem,
+    opts: &ReferenceOptions,
+    matcher: &M,
+) -> Result<(EpochResult, ReferenceReport), M::Error>
+where
+    M::Error: From<EpochError>,
+{
     let t0 = Instant::now();
     let ep = |message: String| EpochError::Epoch {
         epoch: input.name.clone(),
@@ -275,37 +350,29 @@ pub fn orient_reference(
             "the LiDAR index origin {:?} differs from the epoch origin {:?}",
             lidar.origin(),
             input.origin
-        )));
+        ))
+        .into());
     }
-    let mut block = pos_block(input)?;
-    // Photos are decoded when tie matching needs them (bounded cache); here only their
-    // files are checked, so a missing photo is named before any work.
-    let mut images: BTreeMap<PhotoId, Pixels> = BTreeMap::new();
-    for (k, p) in input.photos.iter().enumerate() {
-        if !p.image.is_file() {
-            return Err(EpochError::Input {
-                path: p.image.clone(),
-                message: "photo image not found".into(),
-            });
-        }
-        images.insert(k as PhotoId + 1, Pixels::File(&p.image));
-    }
+    let (mut block, images) = tie_photos(input)?;
 
     // 1. Tie points, searched around their POS prediction over the LiDAR ground.
-    let surface = Surface::Dem {
-        dem,
-        origin: Vector3::zeros(),
-        sigma_m: opts.dem_sigma_m,
-    };
-    let ties = block_tie_points(
+    let surface = tie_surface(dem, opts);
+    let tp =
+        TiePhotos::of(&block, &images, &opts.ties).map_err(|e| ep(format!("tie points: {e}")))?;
+    let photos = tp.photos();
+    let jobs = plan_pairs(&photos, &surface, &opts.ties);
+    let matched = matcher.match_pairs(&photos, tp.ids(), &jobs, &surface, &opts.ties)?;
+    drop(photos);
+    let ties = write_ties(
         &mut block,
-        &images,
+        &tp,
+        jobs,
+        matched,
         &surface,
         opts.min_per_position,
         &opts.ties,
-    )
-    .map_err(|e| ep(format!("tie points: {e}")))?;
-    drop(images);
+    );
+    drop((tp, images));
     tracing::info!(
         epoch = %input.name,
         points = ties.points_added,
@@ -376,7 +443,8 @@ pub fn orient_reference(
     if plane_constraints < 3 {
         return Err(ep(format!(
             "only {plane_constraints} tie points lie on planar LiDAR surfaces; the LiDAR cannot control the block"
-        )));
+        ))
+        .into());
     }
     let report = adjust::adjust(
         &mut block,

@@ -14,6 +14,7 @@ pub mod lsm;
 pub mod matcher;
 pub mod ncc;
 pub mod oriented;
+pub mod pair_matching;
 pub mod pyramid;
 pub mod resample;
 pub mod ties;
@@ -29,7 +30,11 @@ pub use lsm::{lsm, LsmOptions, LsmResult};
 pub use matcher::{match_template, MatchOptions, MatchResult};
 pub use ncc::{ncc_search, ncc_search_pyramid, NccPeak, Window};
 pub use oriented::{
-    block_tie_points, oriented_tie_points, BlockTieOptions, BlockTieReport, OrientedPhoto, Surface,
+    block_tie_points, oriented_tie_points, write_ties, BlockTieOptions, BlockTieReport,
+    OrientedPhoto, Surface, TiePhotos,
+};
+pub use pair_matching::{
+    match_photo_pairs, plan_pairs, InMemory, MatchedPairs, PairMatching, PhotoPairs, PreparedPhotos,
 };
 pub use pyramid::Pyramid;
 pub use resample::{warp_patch, Interpolation, PatchWarp};

@@ -7,21 +7,16 @@
 //! their observations, σ and provenance; each photo's coverage of the standard positions
 //! is reported.
 
-use super::forstner::forstner;
 use super::image::Pixels;
-use super::ties::{
-    coverage, relative_orientation, search_candidates, PairPrediction, RobustMethod, SearchPoint,
-    TieOptions, TieResult, Track,
-};
-use super::{invalid, Pyramid, Result};
+use super::pair_matching::{plan_pairs, InMemory, MatchedPairs, PairMatching, PhotoPairs};
+use super::ties::{coverage, PairPrediction, RobustMethod, TieOptions, TieResult, Track};
+use super::{invalid, Result};
 use crate::block::{Block, ObjectPoint, Observation, PhotoId, PointKind};
-use crate::cache::Lru;
 use crate::geometry::{
     back_project, dlt_null_matrix, hartley_normalisation, project, Camera, Dem, Pose, Ray,
 };
 use nalgebra::{DMatrix, Matrix3, Vector3};
-use rayon::prelude::*;
-use serde::Serialize;
+use serde::{Deserialize, Serialize};
 use std::collections::BTreeMap;
 
 /// The terrain the predictions are carried over, in block-local coordinates.
@@ -82,7 +77,7 @@ pub struct OrientedPhoto<'a> {
 
 impl OrientedPhoto<'_> {
     /// Width and height (px): the camera's, which the image must match.
-    fn size(&self) -> (f64, f64) {
+    pub(super) fn size(&self) -> (f64, f64) {
         let (w, h) = self.usize_size();
         (w as f64, h as f64)
     }
@@ -232,45 +227,8 @@ fn fit_homography(pa: &[[f64; 2]], pb: &[[f64; 2]]) -> Option<Matrix3<f64>> {
     (s.abs() > 1e-12 && hm.iter().all(|v| v.is_finite())).then(|| hm / s)
 }
 
-/// Search points of photo a for photo b: each point's own transfer through the surface
-/// and the local shape of the transfer (central differences over ±2 px).
-fn search_points(
-    a: &OrientedPhoto,
-    b: &OrientedPhoto,
-    surface: &Surface,
-    points: &[[f64; 2]],
-    margin: f64,
-) -> Vec<SearchPoint> {
-    let (wb, hb) = b.size();
-    points
-        .par_iter()
-        .filter_map(|&p| {
-            let q = a.transfer(b, surface, p)?;
-            if q[0] < margin || q[1] < margin || q[0] > wb - margin || q[1] > hb - margin {
-                return None;
-            }
-            const D: f64 = 2.0;
-            let xp = a.transfer(b, surface, [p[0] + D, p[1]])?;
-            let xm = a.transfer(b, surface, [p[0] - D, p[1]])?;
-            let yp = a.transfer(b, surface, [p[0], p[1] + D])?;
-            let ym = a.transfer(b, surface, [p[0], p[1] - D])?;
-            let s = 1.0 / (2.0 * D);
-            Some(SearchPoint {
-                a: p,
-                predicted_b: q,
-                affine: Some([
-                    (xp[0] - xm[0]) * s,
-                    (yp[0] - ym[0]) * s,
-                    (xp[1] - xm[1]) * s,
-                    (yp[1] - ym[1]) * s,
-                ]),
-            })
-        })
-        .collect()
-}
-
 /// What happened to one pair.
-#[derive(Debug, Clone, Serialize)]
+#[derive(Debug, Clone, Serialize, Deserialize)]
 pub struct PairReport {
     pub a: PhotoId,
     pub b: PhotoId,
@@ -343,194 +301,52 @@ pub fn oriented_tie_points(
     surface: &Surface,
     opts: &BlockTieOptions,
 ) -> Result<OrientedTies> {
+    check_ids(photos, ids)?;
+    let jobs = plan_pairs(photos, surface, opts);
+    let matched = InMemory.match_pairs(photos, ids, &jobs, surface, opts)?;
+    Ok(link_pairs(photos, jobs, matched, opts))
+}
+
+fn check_ids(photos: &[OrientedPhoto], ids: &[PhotoId]) -> Result<()> {
     if ids.len() != photos.len() {
         return Err(invalid(
             "photo ids",
             format!("{} ids for {} photos", ids.len(), photos.len()),
         ));
     }
-    let t = &opts.ties;
-    // Ground footprints (centre and radius) screen the pairs cheaply, so that a block of
-    // thousands of photos does not transfer a grid for every one of its n² pairs.
-    let footprints: Vec<Option<(Vector3<f64>, f64)>> =
-        photos.par_iter().map(|p| footprint(p, surface)).collect();
-    let mut pairs = Vec::new();
-    let mut matches = Vec::new();
-    let mut reports = Vec::new();
-    // Photos are prepared (decoded, pyramid, interest points) when their first pair is
-    // matched and kept in a cache bounded in bytes: pairs run in photo order, so a photo's
-    // partners in the next strip are prepared once and reused by its neighbours.
-    let mut cache: Lru<usize, Prepared> = Lru::new(opts.image_cache_bytes);
-    for ia in 0..photos.len() {
-        // The pairs of `ia` by geometry alone, then their photos prepared in parallel.
-        let mut todo = Vec::new();
-        for ib in ia + 1..photos.len() {
-            if let (Some((ca, ra)), Some((cb, rb))) = (footprints[ia], footprints[ib]) {
-                if (ca.xy() - cb.xy()).norm() > ra + rb {
-                    continue;
-                }
-            }
-            if let Some(pair) = predict_oriented_pair(photos, ia, ib, surface, opts) {
-                todo.push((ib, pair));
-            }
-        }
-        let matched = |pair: &OrientedPair| pair.prediction.search_radius_px <= opts.max_radius_px;
-        let mut need: Vec<usize> = todo
-            .iter()
-            .filter(|(_, pair)| matched(pair))
-            .map(|(ib, _)| *ib)
-            .collect();
-        if !need.is_empty() {
-            need.push(ia);
-        }
-        need.retain(|k| !cache.contains(k));
-        let made: Vec<(usize, Result<Prepared>)> = need
-            .par_iter()
-            .map(|&k| (k, prepare(&photos[k], ids[k], t)))
-            .collect();
-        for (k, r) in made {
-            let p = r?;
-            cache.get_or_load(&k, || Ok::<_, super::MatchingError>(p.weighed()))?;
-        }
-        for (ib, pair) in todo {
-            let radius = pair.prediction.search_radius_px;
-            let mut report = PairReport {
-                a: ids[ia],
-                b: ids[ib],
-                overlap: pair.overlap,
-                search_radius_px: radius,
-                points: 0,
-                candidates: 0,
-                accepted: 0,
-                sigma_px: f64::NAN,
-                skipped: None,
-            };
-            let ok = matched(&pair);
-            pairs.push(pair);
-            if !ok {
-                report.skipped = Some(format!(
-                    "predicted uncertainty needs a {radius:.0} px search (limit {:.0} px)",
-                    opts.max_radius_px
-                ));
-                reports.push(report);
-                continue;
-            }
-            let mut get = |k: usize| {
-                cache.get_or_load(&k, || prepare(&photos[k], ids[k], t).map(Prepared::weighed))
-            };
-            let (pa, pb) = (get(ia)?, get(ib)?);
-            let margin = t.template_half as f64 + 2.0;
-            let sp = search_points(&photos[ia], &photos[ib], surface, &pa.points, margin);
-            report.points = sp.len();
-            let cands = search_candidates(&pa.pyramid.levels[0], &pb.pyramid, &sp, radius, t);
-            report.candidates = cands.len();
-            if cands.len() < opts.min_pair_matches {
-                report.skipped = Some(format!(
-                    "{} candidates, fewer than {} needed for a verified relative orientation",
-                    cands.len(),
-                    opts.min_pair_matches
-                ));
-                reports.push(report);
-                continue;
-            }
-            match relative_orientation(ia, ib, cands, t) {
-                Ok(pm) => {
-                    let n = pm.inliers.iter().filter(|&&i| i).count();
-                    report.accepted = n;
-                    report.sigma_px = pm.sigma_px;
-                    if n < opts.min_pair_matches {
-                        report.skipped = Some(format!(
-                            "{n} matches consistent with the relative orientation, fewer than {}",
-                            opts.min_pair_matches
-                        ));
-                    } else {
-                        matches.push(pm);
-                    }
-                }
-                Err(e) => report.skipped = Some(e.to_string()),
-            }
-            tracing::debug!(
-                a = report.a,
-                b = report.b,
-                radius,
-                points = report.points,
-                candidates = report.candidates,
-                accepted = report.accepted,
-                "oriented tie pair"
-            );
-            reports.push(report);
-        }
+    Ok(())
+}
+
+/// The photos' matches, in photo order, linked into tracks.
+fn link_pairs(
+    photos: &[OrientedPhoto],
+    jobs: Vec<PhotoPairs>,
+    matched: Vec<MatchedPairs>,
+    opts: &BlockTieOptions,
+) -> OrientedTies {
+    let pairs: Vec<OrientedPair> = jobs
+        .into_iter()
+        .flat_map(|j| j.pairs.into_iter().map(|(_, p)| p))
+        .collect();
+    let (mut matches, mut reports, mut prepared) = (Vec::new(), Vec::new(), 0);
+    for m in matched {
+        matches.extend(m.matches);
+        reports.extend(m.reports);
+        prepared += m.prepared;
     }
     tracing::debug!(
         photos = photos.len(),
-        prepared = cache.loads(),
+        prepared,
         "photos prepared for tie matching"
     );
     let sizes: Vec<(usize, usize)> = photos.iter().map(|p| p.usize_size()).collect();
     let preds: Vec<PairPrediction> = pairs.iter().map(|p| p.prediction).collect();
-    Ok(OrientedTies {
-        prepared: cache.loads(),
-        ties: TieResult::link(matches, &sizes, &preds, t.merge_px),
+    OrientedTies {
+        prepared,
+        ties: TieResult::link(matches, &sizes, &preds, opts.ties.merge_px),
         pairs,
         reports,
-    })
-}
-
-/// A photo ready for tie matching: its pyramid (level 0 is the image) and its Förstner
-/// points.
-struct Prepared {
-    pyramid: Pyramid,
-    points: Vec<[f64; 2]>,
-}
-
-impl Prepared {
-    /// With its weight in the cache: the bytes it holds.
-    fn weighed(self) -> (Self, u64) {
-        let bytes =
-            self.pyramid.bytes() + (self.points.len() * std::mem::size_of::<[f64; 2]>()) as u64;
-        (self, bytes)
     }
-}
-
-/// Decodes a photo (checking its size against the camera) and prepares it.
-fn prepare(p: &OrientedPhoto, id: PhotoId, t: &TieOptions) -> Result<Prepared> {
-    let img = p.image.get()?;
-    let (w, h) = p.camera.image_size();
-    if (w as usize, h as usize) != (img.width, img.height) {
-        return Err(invalid(
-            format!("photo {id}"),
-            format!(
-                "image is {}×{} px but its camera is {w}×{h} px",
-                img.width, img.height
-            ),
-        ));
-    }
-    let points = forstner(&img, &t.forstner)
-        .iter()
-        .map(|q| [q.x, q.y])
-        .collect();
-    Ok(Prepared {
-        pyramid: Pyramid::from_image(img.into_owned(), 6, 32),
-        points,
-    })
-}
-
-/// Ground centre of a photo and the radius that contains its footprint (image centre and
-/// corners carried onto the surface); `None` when a ray misses the surface (the pair is
-/// then judged by the grid transfer alone).
-fn footprint(p: &OrientedPhoto, surface: &Surface) -> Option<(Vector3<f64>, f64)> {
-    let (w, h) = p.size();
-    let ground = |q: [f64; 2]| {
-        back_project(p.camera, &p.pose, q)
-            .ok()
-            .and_then(|r| surface.intersect(&r))
-    };
-    let c = ground([w / 2.0, h / 2.0])?;
-    let mut r: f64 = 0.0;
-    for q in [[0.0, 0.0], [w, 0.0], [0.0, h], [w, h]] {
-        r = r.max((ground(q)?.xy() - c.xy()).norm());
-    }
-    Some((c, r))
 }
 
 /// Least-squares intersection of the observation rays (the point nearest to all of
@@ -561,6 +377,78 @@ fn intersect_rays(rays: &[Ray]) -> Option<Vector3<f64>> {
         .then_some(x)
 }
 
+/// The photos of a block that have an image, as tie matching sees them: their ids,
+/// cameras (cloned, so that the block can take the new points while they are in use),
+/// approximate orientations and the σ of those.
+pub struct TiePhotos<'a> {
+    ids: Vec<PhotoId>,
+    setup: Vec<(Pixels<'a>, Camera, Pose, f64, f64)>,
+}
+
+impl<'a> TiePhotos<'a> {
+    /// The photos of `block` with an image in `images` (at least two); a photo without a
+    /// prior takes the default σ of `opts`.
+    pub fn of(
+        block: &Block,
+        images: &BTreeMap<PhotoId, Pixels<'a>>,
+        opts: &BlockTieOptions,
+    ) -> Result<Self> {
+        let mut ids = Vec::new();
+        let mut setup = Vec::new();
+        for (id, img) in images {
+            let photo = block.photos.get(id).ok_or_else(|| {
+                invalid(
+                    format!("image for photo {id}"),
+                    "no such photo in the block",
+                )
+            })?;
+            let cam = block.camera_of(photo).ok_or_else(|| {
+                invalid(
+                    format!("photo {id} ({})", photo.name),
+                    format!("unknown camera {}", photo.camera),
+                )
+            })?;
+            let (cs, rs) = match &photo.prior {
+                Some(p) => (
+                    p.center_sigma.iter().cloned().fold(0.0, f64::max),
+                    if p.rotation.is_some() {
+                        p.rotation_sigma_rad
+                    } else {
+                        opts.default_angle_sigma_rad
+                    },
+                ),
+                None => (opts.default_center_sigma_m, opts.default_angle_sigma_rad),
+            };
+            ids.push(*id);
+            setup.push((*img, cam.model.clone(), photo.pose, cs, rs));
+        }
+        if ids.len() < 2 {
+            return Err(invalid(
+                "tie points",
+                format!("{} photo(s) with an image; at least 2 needed", ids.len()),
+            ));
+        }
+        Ok(Self { ids, setup })
+    }
+
+    pub fn ids(&self) -> &[PhotoId] {
+        &self.ids
+    }
+
+    pub fn photos(&self) -> Vec<OrientedPhoto<'_>> {
+        self.setup
+            .iter()
+            .map(|(image, camera, pose, cs, rs)| OrientedPhoto {
+                image: *image,
+                camera,
+                pose: *pose,
+                center_sigma_m: *cs,
+                angle_sigma_rad: *rs,
+            })
+            .collect()
+    }
+}
+
 /// Tie points for a whole block from its approximate orientations: matches every
 /// overlapping pair of the photos that have an image, and appends one tie
 /// [`ObjectPoint`] per track with its observations (σ from the match, at least
@@ -574,53 +462,36 @@ pub fn block_tie_points(
     min_per_position: usize,
     opts: &BlockTieOptions,
 ) -> Result<BlockTieReport> {
-    // Cameras are cloned so the block can take the new points while they are in use.
-    let mut ids = Vec::new();
-    let mut setup: Vec<(Pixels, Camera, Pose, f64, f64)> = Vec::new();
-    for (id, img) in images {
-        let photo = block.photos.get(id).ok_or_else(|| {
-            invalid(
-                format!("image for photo {id}"),
-                "no such photo in the block",
-            )
-        })?;
-        let cam = block.camera_of(photo).ok_or_else(|| {
-            invalid(
-                format!("photo {id} ({})", photo.name),
-                format!("unknown camera {}", photo.camera),
-            )
-        })?;
-        let (cs, rs) = match &photo.prior {
-            Some(p) => (
-                p.center_sigma.iter().cloned().fold(0.0, f64::max),
-                if p.rotation.is_some() {
-                    p.rotation_sigma_rad
-                } else {
-                    opts.default_angle_sigma_rad
-                },
-            ),
-            None => (opts.default_center_sigma_m, opts.default_angle_sigma_rad),
-        };
-        ids.push(*id);
-        setup.push((*img, cam.model.clone(), photo.pose, cs, rs));
-    }
-    let photos: Vec<OrientedPhoto> = setup
-        .iter()
-        .map(|(image, camera, pose, cs, rs)| OrientedPhoto {
-            image: *image,
-            camera,
-            pose: *pose,
-            center_sigma_m: *cs,
-            angle_sigma_rad: *rs,
-        })
-        .collect();
-    if photos.len() < 2 {
-        return Err(invalid(
-            "tie points",
-            format!("{} photo(s) with an image; at least 2 needed", photos.len()),
-        ));
-    }
-    let ties = oriented_tie_points(&photos, &ids, surface, opts)?;
+    let tp = TiePhotos::of(block, images, opts)?;
+    let photos = tp.photos();
+    let jobs = plan_pairs(&photos, surface, opts);
+    let matched = InMemory.match_pairs(&photos, tp.ids(), &jobs, surface, opts)?;
+    Ok(write_ties(
+        block,
+        &tp,
+        jobs,
+        matched,
+        surface,
+        min_per_position,
+        opts,
+    ))
+}
+
+/// The matches of the photos' pairs (what [`PairMatching`] gave for `jobs`, from
+/// [`plan_pairs`]), linked into tracks and written into the block as tie points
+/// (see [`block_tie_points`]).
+pub fn write_ties(
+    block: &mut Block,
+    tp: &TiePhotos,
+    jobs: Vec<PhotoPairs>,
+    matched: Vec<MatchedPairs>,
+    surface: &Surface,
+    min_per_position: usize,
+    opts: &BlockTieOptions,
+) -> BlockTieReport {
+    let photos = tp.photos();
+    let ids = tp.ids();
+    let ties = link_pairs(&photos, jobs, matched, opts);
     let provenance = format!(
         "ties: Förstner + NCC + LSM, guided by approximate EO, {} relative orientation",
         match opts.ties.robust {
@@ -692,7 +563,7 @@ pub fn block_tie_points(
             missing: c.missing(min_per_position),
         })
         .collect();
-    Ok(BlockTieReport {
+    BlockTieReport {
         pairs: ties.reports,
         tracks: ties.ties.tracks.len(),
         points_added: added,
@@ -701,5 +572,5 @@ pub fn block_tie_points(
         coverage,
         min_per_position,
         photos_prepared: ties.prepared,
-    })
+    }
 }

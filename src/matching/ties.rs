@@ -15,7 +15,7 @@ use crate::estimators::{Estimator, RobustOptions};
 use crate::geometry::{dlt_null_matrix, hartley_normalisation};
 use nalgebra::{DMatrix, Matrix3, Vector3};
 use rayon::prelude::*;
-use serde::Serialize;
+use serde::{Deserialize, Serialize};
 
 /// The robust driver of the relative orientation (RANSAC uses `ro_threshold_px`).
 pub use crate::estimators::RobustMethod;
@@ -74,7 +74,7 @@ impl PairPrediction {
 }
 
 /// One candidate correspondence.
-#[derive(Debug, Clone, Copy, PartialEq, Serialize)]
+#[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
 pub struct TieCandidate {
     pub a: [f64; 2],
     pub b: [f64; 2],
@@ -82,7 +82,7 @@ pub struct TieCandidate {
     pub sigma_px: f64,
 }
 
-#[derive(Debug, Clone, Serialize)]
+#[derive(Debug, Clone, Serialize, Deserialize)]
 pub struct PairMatches {
     pub a: usize,
     pub b: usize,

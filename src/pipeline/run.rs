@@ -23,6 +23,7 @@ use super::stages::{Inputs, Runner, StageError, WorkError};
 use super::tasks::dcp::cut_chips;
 use super::tasks::lidar::{clean_sources, LidarPlan};
 use super::tasks::outputs::{OutputTasks, OutputsPlan};
+use super::tasks::reference::ReferenceTasks;
 use super::tasks::{open_packages, EpochContext, EpochPlan, EpochTasks, Task, TaskMode};
 use crate::block::Block;
 use crate::control::archive::{self, ArchiveContext, ArchiveOptions};
@@ -354,7 +355,7 @@ fn icp_rows(iterations: &[lidar::IcpIteration]) -> Vec<IcpIteration> {
 
 /// The reference adjustment tests its gross errors by Baarda's data snooping (its tie
 /// points are many and precise; `reject_k` is the archive adjustments' k·σ0).
-fn reference_options(epoch: &Epoch) -> ReferenceOptions {
+pub(crate) fn reference_options(epoch: &Epoch) -> ReferenceOptions {
     let mut o = ReferenceOptions::default();
     if let Some(sc) = &epoch.self_calibration {
         o.self_calibration = sc.clone();
@@ -673,12 +674,30 @@ fn run_stages(
                 (r, icp)
             } else if is_reference {
                 let input = EpochInput::build(&e.spec(), &project.crs, origin)?;
-                let (r, rep) = reference::orient_reference(
-                    &input,
-                    lidar.planes()?,
-                    &lidar.surface()?.ground,
-                    &reference_options(e),
-                )?;
+                let (planes, ground) = (lidar.planes()?, &lidar.surface()?.ground);
+                let opts = reference_options(e);
+                // The tie matching of its photo pairs: on this process's threads, or as
+                // tasks of the stage for a planning run.
+                let (r, rep) = match task_mode {
+                    TaskMode::InProcess => {
+                        reference::orient_reference(&input, planes, ground, &opts)?
+                    }
+                    TaskMode::Plan => {
+                        let plan = EpochPlan {
+                            project: project.clone(),
+                            epoch: e.name.clone(),
+                            sources: sources.clone(),
+                            packages: Vec::new(),
+                            origin,
+                        };
+                        let tasks = ReferenceTasks::new(out, &stage_name, key, &plan, &input)?;
+                        let r = reference::orient_reference_with(
+                            &input, planes, ground, &opts, &tasks,
+                        )?;
+                        tasks.clear();
+                        r
+                    }
+                };
                 write_json(&dir.join("reference.json"), &rep)?;
                 let icp = rep
                     .icp

@@ -446,6 +446,33 @@ fn block_ties_from_approximate_orientation() {
         images.len()
     );
     assert!(cramped.photos_prepared > images.len());
+
+    // Each photo's pairs matched on its own, in reverse order, by a "process" with nothing
+    // prepared and its result passed through MessagePack (what a reference epoch's `pairs`
+    // task does): the same tie points.
+    use cloudcontrol::matching::{
+        match_photo_pairs, plan_pairs, write_ties, MatchedPairs, PreparedPhotos, TiePhotos,
+    };
+    let opts = BlockTieOptions::default();
+    let mut c = block.clone();
+    let pixels = held(&images);
+    let tp = TiePhotos::of(&c, &pixels, &opts).unwrap();
+    let photos = tp.photos();
+    let jobs = plan_pairs(&photos, &surface, &opts);
+    let mut matched: Vec<MatchedPairs> = jobs
+        .iter()
+        .rev()
+        .map(|j| {
+            let mut own = PreparedPhotos::new(opts.image_cache_bytes);
+            let m = match_photo_pairs(&photos, tp.ids(), j, &surface, &opts, &mut own).unwrap();
+            rmp_serde::from_slice(&rmp_serde::to_vec_named(&m).unwrap()).unwrap()
+        })
+        .collect();
+    matched.reverse();
+    let apart = write_ties(&mut c, &tp, jobs, matched, &surface, 1, &opts);
+    assert_eq!(a.points, c.points);
+    assert_eq!(apart.tracks, roomy.tracks);
+    assert!(apart.photos_prepared > images.len());
 }
 
 /// A photo turned by 35° about its axis against its neighbour (a crab angle or a cross

@@ -1,5 +1,6 @@
-"""The workflow on Dask: the per-tile tasks of the LiDAR cleaning, the per-photo tasks of
-the archive epochs and the products' film resampling and orthophoto tiles fan out to the
+"""The workflow on Dask: the per-tile tasks of the LiDAR cleaning, the reference epoch's
+tie matching photo by photo (``pairs``), the per-photo tasks of the archive epochs and the
+products' film resampling and orthophoto tiles fan out to the
 workers of a ``dask.distributed.Client``, and so do the per-photo rounds of an epoch's
 second pass, tie pass and tie points (``cut``, ``match``, ``reorient``) and the chips of
 each DCP package, photo by photo (``chips``); the rest of each

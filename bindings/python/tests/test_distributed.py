@@ -74,7 +74,8 @@ def test_dask_run_with_a_killed_worker_gives_the_products_of_a_plain_run(shared_
 
     # Every round of tasks ran; the bad scan is reported, photo and reason, and the
     # epoch went on.
-    # The epochs' global passes ran their per-photo rounds as tasks too: the film epoch's
+    # The reference epoch matched each photo's pairs as tasks. The archive epochs' global
+    # passes ran their per-photo rounds as tasks too: the film epoch's
     # second pass (chips of its oriented photos, then the bad scan tried with them; no tie
     # pass, since ties cannot help a scan that cannot be read), and both epochs' tie points
     # (chips, tracks on the DEM, tracks beyond it). Each DCP export cut its chips photo by
@@ -82,6 +83,7 @@ def test_dask_run_with_a_killed_worker_gives_the_products_of_a_plain_run(shared_
     kinds = [(r["stage"], r["kind"]) for r in res["rounds"]]
     ties = ["cut", "match", "match"]
     assert kinds == [("sources", "screen"), ("sources", "clean"),
+                     ("epoch-reference_2024", "pairs"),
                      ("dcp-reference_2024", "chips"),
                      ("epoch-digital_2012", "orient"),
                      *[("epoch-digital_2012", k) for k in ties],

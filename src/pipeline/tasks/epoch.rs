@@ -254,7 +254,8 @@ fn execute_with(
             | TaskKind::Clean
             | TaskKind::Resample
             | TaskKind::Ortho
-            | TaskKind::Chips,
+            | TaskKind::Chips
+            | TaskKind::Pairs,
             _,
         ) => return Err(not_of(task, "an archive epoch")),
         (TaskKind::Cut | TaskKind::Match | TaskKind::Reorient, _) => {

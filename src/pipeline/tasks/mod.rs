@@ -18,6 +18,8 @@
 //!   the epoch's global passes ([`rounds`]): `cut` (chips cut from an oriented photo),
 //!   `match` (tie tracks found in a photo), `reorient` (a photo oriented from a store of
 //!   the epoch's own chips), each round's data in `round-<n>-<kind>.msgpack`;
+//! - the reference epoch ([`reference`]): `pairs` (a photo's tie matching with the later
+//!   photos it overlaps);
 //! - `dcp-<epoch>` ([`dcp`]): `chips` (one photo's chips of the package, cut and encoded);
 //! - an epoch's products ([`outputs`]): a film epoch's `resample` (a scan into its frame
 //!   image), then `ortho` (a run of orthophoto tiles).
@@ -26,6 +28,7 @@ pub mod dcp;
 pub mod epoch;
 pub mod lidar;
 pub mod outputs;
+pub mod reference;
 pub mod rounds;
 
 pub(crate) use epoch::EpochTasks;
@@ -63,6 +66,8 @@ pub enum TaskKind {
     Reorient,
     /// One photo's chips of a DCP package, cut and encoded.
     Chips,
+    /// The reference epoch's tie matching of a photo with the later photos it overlaps.
+    Pairs,
 }
 
 impl TaskKind {
@@ -78,6 +83,7 @@ impl TaskKind {
             TaskKind::Match => "match",
             TaskKind::Reorient => "reorient",
             TaskKind::Chips => "chips",
+            TaskKind::Pairs => "pairs",
         }
     }
 }
@@ -356,5 +362,6 @@ pub fn run_task(task: &Task) -> Result<TaskSummary, WorkError> {
         TaskKind::Screen | TaskKind::Clean => lidar::run_task(task),
         TaskKind::Resample | TaskKind::Ortho => outputs::run_task(task),
         TaskKind::Chips => dcp::run_task(task),
+        TaskKind::Pairs => reference::run_task(task),
     }
 }
