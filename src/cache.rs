@@ -44,6 +44,11 @@ impl<K: PartialEq + Clone, V> Lru<K, V> {
         self.entries.iter().any(|e| e.0 == *key)
     }
 
+    /// Drops every entry whose key `keep` refuses.
+    pub fn retain(&mut self, mut keep: impl FnMut(&K) -> bool) {
+        self.entries.retain(|e| keep(&e.0));
+    }
+
     /// The entry of `key`, from the cache or made by `load`, which returns the value and
     /// its weight. Least recently used entries are dropped first to make room.
     pub fn get_or_load<E>(

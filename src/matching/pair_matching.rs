@@ -61,6 +61,13 @@ impl PreparedPhotos {
     pub fn loads(&self) -> usize {
         self.0.loads()
     }
+
+    /// Keeps only the photos of `job` (its photo and its partners): what the next photo's
+    /// pairs share with them, in a process that runs one photo's pairs at a time.
+    pub fn keep_job(&mut self, job: &PhotoPairs) {
+        self.0
+            .retain(|&k| k == job.a || job.pairs.iter().any(|(b, _)| *b == k));
+    }
 }
 
 /// Where the photos' pair matching runs.

@@ -353,6 +353,9 @@ impl<C> ContextCache<C> {
 /// result atomically. A task whose result exists already (a retried task whose worker
 /// died after writing it) is run again and writes the same result.
 pub fn run_task(task: &Task) -> Result<TaskSummary, WorkError> {
+    if task.kind != TaskKind::Pairs {
+        reference::release();
+    }
     match task.kind {
         TaskKind::Scan
         | TaskKind::Orient

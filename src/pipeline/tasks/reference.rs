@@ -112,31 +112,44 @@ fn tie_error(stage: &str, e: impl std::fmt::Display) -> WorkError {
     .into()
 }
 
-/// What the `pairs` tasks of a reference epoch read, built once per process.
+/// What the `pairs` tasks of a reference epoch read, built once per process: the epoch,
+/// its ground and every photo's pairs as the epoch plans them.
 struct ReferenceContext {
     input: EpochInput,
     surface: Arc<GroundSurface>,
     opts: ReferenceOptions,
+    jobs: Vec<PhotoPairs>,
 }
 
 impl ReferenceContext {
-    fn load(plan: EpochPlan) -> Result<Self, WorkError> {
+    fn load(plan: EpochPlan, stage: &str) -> Result<Self, WorkError> {
         let e = epoch_of(&plan.project, &plan.epoch)?;
+        let input = EpochInput::build(&e.spec(), &plan.project.crs, plan.origin)?;
+        let surface = ControlGround::new(&plan.project, &plan.sources, plan.origin)
+            .surface_arc()?
+            .clone();
+        let opts = crate::pipeline::run::reference_options(e);
+        let jobs = {
+            let (block, images) = reference::tie_photos(&input)?;
+            let tp = TiePhotos::of(&block, &images, &opts.ties).map_err(|e| tie_error(stage, e))?;
+            let ground = reference::tie_surface(&surface.ground, &opts);
+            plan_pairs(&tp.photos(), &ground, &opts.ties)
+        };
         Ok(Self {
-            input: EpochInput::build(&e.spec(), &plan.project.crs, plan.origin)?,
-            surface: ControlGround::new(&plan.project, &plan.sources, plan.origin)
-                .surface_arc()?
-                .clone(),
-            opts: crate::pipeline::run::reference_options(e),
+            input,
+            surface,
+            opts,
+            jobs,
         })
     }
 }
 
 static CONTEXT: ContextCache<ReferenceContext> = ContextCache::new();
 
-/// Photos a process prepared for a stage's pairs, kept for its next task (a worker runs
-/// photos in about their order, so a photo's partners serve its neighbours too). A task
-/// takes them while it runs; a task running beside it prepares its own.
+/// The photos of the last `pairs` task a process ran, kept for its next one (a worker runs
+/// photos in about their order, so a photo's partners serve its neighbours too), and
+/// dropped when it runs a task of another kind. A task takes them while it runs; a task
+/// running beside it prepares its own.
 static PREPARED: Mutex<Option<(PathBuf, PreparedPhotos)>> = Mutex::new(None);
 
 /// Runs one `pairs` task (see [`super::run_task`]): the photo's pairs as the epoch plans
@@ -146,7 +159,7 @@ pub(super) fn run_task(task: &Task) -> Result<TaskSummary, WorkError> {
         return Err(super::not_of(task, "a reference epoch"));
     }
     let t0 = Instant::now();
-    let ctx = CONTEXT.get(task, |plan, _| ReferenceContext::load(plan))?;
+    let ctx = CONTEXT.get(task, |plan, _| ReferenceContext::load(plan, &task.stage))?;
     if ctx.input.photos.get(task.index).map(|p| &p.name) != Some(&task.item) {
         return Err(WorkError::Inconsistent(format!(
             "task {}: photo {} is not photo {} of the epoch",
@@ -155,15 +168,11 @@ pub(super) fn run_task(task: &Task) -> Result<TaskSummary, WorkError> {
             task.index
         )));
     }
-    let (block, images) = reference::tie_photos(&ctx.input)?;
     let opts = &ctx.opts.ties;
-    let surface = reference::tie_surface(&ctx.surface.ground, &ctx.opts);
-    let tp = TiePhotos::of(&block, &images, opts).map_err(|e| tie_error(&task.stage, e))?;
-    let photos = tp.photos();
-    let job = plan_pairs(&photos, &surface, opts)
-        .into_iter()
-        .find(|j| j.a == task.index)
-        .filter(|j| j.has_search(opts))
+    let job = ctx
+        .jobs
+        .get(task.index)
+        .filter(|j| j.a == task.index && j.has_search(opts))
         .ok_or_else(|| {
             WorkError::Inconsistent(format!(
                 "task {}: photo {} has no pair to search",
@@ -171,14 +180,19 @@ pub(super) fn run_task(task: &Task) -> Result<TaskSummary, WorkError> {
                 task.item
             ))
         })?;
+    let (block, images) = reference::tie_photos(&ctx.input)?;
+    let surface = reference::tie_surface(&ctx.surface.ground, &ctx.opts);
+    let tp = TiePhotos::of(&block, &images, opts).map_err(|e| tie_error(&task.stage, e))?;
+    let photos = tp.photos();
     let taken = PREPARED.lock().unwrap_or_else(|p| p.into_inner()).take();
     let mut prepared = match taken {
         Some((folder, p)) if folder == task.folder => p,
         // Another stage's photos are dropped before this one's are prepared.
         _ => PreparedPhotos::new(opts.image_cache_bytes),
     };
-    let matched = match_photo_pairs(&photos, tp.ids(), &job, &surface, opts, &mut prepared)
+    let matched = match_photo_pairs(&photos, tp.ids(), job, &surface, opts, &mut prepared)
         .map_err(|e| tie_error(&task.stage, e));
+    prepared.keep_job(job);
     *PREPARED.lock().unwrap_or_else(|p| p.into_inner()) = Some((task.folder.clone(), prepared));
     let matched = matched?;
     write_result(
@@ -189,4 +203,9 @@ pub(super) fn run_task(task: &Task) -> Result<TaskSummary, WorkError> {
         },
     )?;
     Ok(TaskSummary::done(task, t0))
+}
+
+/// Drops the photos kept for the next `pairs` task (the process runs other work now).
+pub(super) fn release() {
+    PREPARED.lock().unwrap_or_else(|p| p.into_inner()).take();
 }
