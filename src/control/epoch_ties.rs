@@ -530,6 +530,7 @@ fn extend_tracks<R: EpochRounds>(
             .collect(),
         photos: photos.to_vec(),
         band,
+        ids: Vec::new(),
     };
     let found = rounds.run(&round, env)?;
     let MatchRound {
@@ -552,6 +553,10 @@ pub struct MatchRound {
     views: Vec<Option<(Camera, Pose)>>,
     photos: Vec<usize>,
     band: Option<Band>,
+    /// A part of a round (one photo's, [`Round::part`]): the index in the whole round of
+    /// each of `tracks`, which the photo's output names. Empty: the whole round.
+    #[serde(default, skip_serializing_if = "Vec::is_empty")]
+    ids: Vec<usize>,
 }
 
 impl MatchRound {
@@ -568,7 +573,31 @@ impl MatchRound {
                 self.views.len()
             ));
         }
+        if !self.ids.is_empty() && self.ids.len() != self.tracks.len() {
+            return Err(format!(
+                "{} track indices for {} tracks",
+                self.ids.len(),
+                self.tracks.len()
+            ));
+        }
         Ok(())
+    }
+
+    /// The tracks searched in photo `b` (those not observed in it whose prediction falls
+    /// inside it), with where.
+    fn wanted(&self, b: usize, env: &EpochEnv) -> Vec<(usize, Search)> {
+        let pid = b as PhotoId + 1;
+        self.tracks
+            .iter()
+            .enumerate()
+            .filter(|(_, (_, t))| t.1.iter().all(|o| o.photo != pid))
+            .filter_map(|(k, (_, t))| Some((k, self.predict(b, t, env)?)))
+            .collect()
+    }
+
+    /// Index of track `k` in the whole round.
+    fn track_id(&self, k: usize) -> usize {
+        self.ids.get(k).copied().unwrap_or(k)
     }
 
     /// Where track `t` is searched in photo `b` (see [`extend_tracks`]), if it falls
@@ -616,18 +645,38 @@ impl Round for MatchRound {
         self.photos.clone()
     }
 
+    /// Photo `k`'s tracks and only their points: a process running that photo holds its
+    /// share of the epoch's tie points, not all of them.
+    fn part(&self, k: usize, env: &EpochEnv) -> Option<Self> {
+        let b = *self.photos.get(k)?;
+        let mut of_store: BTreeMap<usize, usize> = BTreeMap::new();
+        let mut points = Vec::new();
+        let mut tracks = Vec::new();
+        let mut ids = Vec::new();
+        for (t, _) in self.wanted(b, env) {
+            let (i, track) = &self.tracks[t];
+            let j = *of_store.entry(*i).or_insert_with(|| {
+                points.push(self.store.points[*i].clone());
+                points.len() - 1
+            });
+            tracks.push((j, track.clone()));
+            ids.push(self.track_id(t));
+        }
+        Some(Self {
+            store: ChipStore::from_points(self.store.origin, points),
+            tracks,
+            views: self.views.clone(),
+            photos: vec![b],
+            band: self.band,
+            ids,
+        })
+    }
+
     fn run(&self, k: usize, env: &EpochEnv) -> Self::Output {
         let b = self.photos[k];
         let tie_patch = tie_match_options(&env.opts, &env.ties);
         let floor = env.opts.sigma_floor_px;
-        let pid = b as PhotoId + 1;
-        let wanted: Vec<(usize, Search)> = self
-            .tracks
-            .iter()
-            .enumerate()
-            .filter(|(_, (_, t))| t.1.iter().all(|o| o.photo != pid))
-            .filter_map(|(k, (_, t))| Some((k, self.predict(b, t, env)?)))
-            .collect();
+        let wanted = self.wanted(b, env);
         let mut out = Vec::new();
         let (Some((cam, pose)), false) = (
             self.views.get(b).and_then(|v| v.as_ref()),
@@ -653,7 +702,7 @@ impl Round for MatchRound {
             };
             use super::orient::PatchMatcher;
             if let Some(mt) = matcher.find(&patch, pose, &pred, half) {
-                out.push((k, mt.pixel, mt.sigma_px.max(floor)));
+                out.push((self.track_id(k), mt.pixel, mt.sigma_px.max(floor)));
             }
         }
         out

@@ -78,6 +78,15 @@ pub trait Round: Serialize + DeserializeOwned + Sync {
     fn photos(&self) -> Vec<usize>;
     /// The work of the `k`-th of [`Round::photos`].
     fn run(&self, k: usize, env: &EpochEnv) -> Self::Output;
+    /// The round as the `k`-th photo needs it, when that is a part of the whole (a process
+    /// running only that photo then reads only its part); its run of that photo gives
+    /// what the whole round's does. `None`: the photo needs the whole round.
+    fn part(&self, _k: usize, _env: &EpochEnv) -> Option<Self>
+    where
+        Self: Sized,
+    {
+        None
+    }
     /// Why a photo's work came to nothing, when that is a failure worth reporting.
     fn failure(_output: &Self::Output) -> Option<String> {
         None

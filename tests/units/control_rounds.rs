@@ -97,17 +97,21 @@ mod tests {
     #[test]
     fn a_match_round_naming_points_or_photos_it_lacks_is_refused() {
         use cloudcontrol::control::epoch_ties::MatchRound;
-        let round = |tracks: &str, photos: &str| -> MatchRound {
+        let part = |tracks: &str, photos: &str, ids: &str| -> MatchRound {
             serde_json::from_str(&format!(
                 r#"{{"store": {{"origin": [0, 0, 0], "points": []}}, "tracks": {tracks},
-                    "views": [null], "photos": {photos}, "band": null}}"#
+                    "views": [null], "photos": {photos}, "band": null{ids}}}"#
             ))
             .unwrap()
         };
+        let round = |tracks: &str, photos: &str| part(tracks, photos, "");
         assert!(round("[]", "[0]").check().is_ok());
         let e = round("[[3, [[0, 0, 0], []]]]", "[0]").check().unwrap_err();
         assert!(e.contains("point 3") && e.contains("0 points"), "{e}");
         let e = round("[]", "[2]").check().unwrap_err();
         assert!(e.contains("photo 2") && e.contains("1 views"), "{e}");
+        // A photo's part names each track's index in the whole round.
+        let e = part("[]", "[0]", r#", "ids": [4]"#).check().unwrap_err();
+        assert!(e.contains("1 track indices for 0 tracks"), "{e}");
     }
 }

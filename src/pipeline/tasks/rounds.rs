@@ -33,6 +33,14 @@ fn round_file(folder: &Path, kind: TaskKind, round: usize) -> PathBuf {
     folder.join(format!("round-{round:03}-{}.msgpack", kind.label()))
 }
 
+/// The file holding the part of round `round` that photo `index` needs ([`Round::part`]).
+fn part_file(folder: &Path, kind: TaskKind, round: usize, index: usize) -> PathBuf {
+    folder.join(format!(
+        "round-{round:03}-{}-{index:05}.msgpack",
+        kind.label()
+    ))
+}
+
 /// A round task's result: the photo's output.
 #[derive(Serialize, Deserialize)]
 struct RoundResult<T> {
@@ -93,12 +101,20 @@ impl EpochRounds for TaskRounds<'_> {
                 round: Some(r),
             })
             .collect();
-        let file = round_file(self.tasks.folder(), kind, r);
-        if self.mode == TaskMode::Plan
-            && tasks.iter().any(|t| !t.result().is_file())
-            && !file.is_file()
-        {
-            write_msgpack(&file, round)?;
+        if self.mode == TaskMode::Plan {
+            // Each unfinished photo's part of the round, or the whole round once when a
+            // photo needs all of it.
+            let file = round_file(self.tasks.folder(), kind, r);
+            for (k, t) in tasks.iter().enumerate() {
+                let part = part_file(self.tasks.folder(), kind, r, t.index);
+                if t.result().is_file() || part.is_file() || file.is_file() {
+                    continue;
+                }
+                match round.part(k, env) {
+                    Some(p) => write_msgpack(&part, &p)?,
+                    None => write_msgpack(&file, round)?,
+                }
+            }
         }
         self.tasks
             .ensure(&tasks, self.mode, |t| run_from(t, round, env))?;
@@ -141,8 +157,9 @@ enum Loaded {
     Reorient(Arc<OrientRound>),
 }
 
-/// The round a process last read, kept for its next task of that round (a worker runs
-/// many photos of one round); one at a time, since a round can hold thousands of chips.
+/// The round (or a photo's part of it) a process last read, kept for its next task of
+/// that round (a worker runs many photos of one round); one at a time, since a round can
+/// hold thousands of chips.
 static ROUND: Mutex<Option<(PathBuf, Loaded)>> = Mutex::new(None);
 
 /// The round in `file`, of the kind of `task`.
@@ -183,7 +200,12 @@ pub(super) fn run_task(
             task.name()
         ))
     })?;
-    let file = round_file(&task.folder, task.kind, round);
+    let part = part_file(&task.folder, task.kind, round, task.index);
+    let file = if part.is_file() {
+        part
+    } else {
+        round_file(&task.folder, task.kind, round)
+    };
     let scans = own_scans(task, ctx)?;
     let env = EpochEnv::new(
         &ctx.input,
