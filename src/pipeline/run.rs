@@ -690,7 +690,7 @@ fn run_stages(
                             packages: Vec::new(),
                             origin,
                         };
-                        let tasks = ReferenceTasks::new(out, &stage_name, key, &plan, &input)?;
+                        let tasks = ReferenceTasks::new(out, &stage_name, key, &plan)?;
                         let r = reference::orient_reference_with(
                             &input, planes, ground, &opts, &tasks,
                         )?;
