@@ -291,10 +291,15 @@ impl PairMatching for HereMatching<'_> {
     ) -> Result<Vec<MatchedPairs>, EpochError> {
         InMemory
             .match_pairs(photos, ids, jobs, surface, opts)
-            .map_err(|e| EpochError::Epoch {
-                epoch: self.epoch.to_string(),
-                message: format!("tie points: {e}"),
-            })
+            .map_err(|e| tie_error(self.epoch, e))
+    }
+}
+
+/// A failure of the tie matching of epoch `epoch`.
+pub fn tie_error(epoch: &str, e: impl std::fmt::Display) -> EpochError {
+    EpochError::Epoch {
+        epoch: epoch.to_string(),
+        message: format!("tie points: {e}"),
     }
 }
 
@@ -305,17 +310,20 @@ pub fn tie_photos(
     input: &EpochInput,
 ) -> Result<(Block, BTreeMap<PhotoId, Pixels<'_>>), EpochError> {
     let block = pos_block(input)?;
-    let mut images: BTreeMap<PhotoId, Pixels> = BTreeMap::new();
-    for (k, p) in input.photos.iter().enumerate() {
-        if !p.image.is_file() {
-            return Err(EpochError::Input {
-                path: p.image.clone(),
-                message: "photo image not found".into(),
-            });
-        }
-        images.insert(k as PhotoId + 1, Pixels::File(&p.image));
+    if let Some(p) = input.photos.iter().find(|p| !p.image.is_file()) {
+        return Err(EpochError::Input {
+            path: p.image.clone(),
+            message: "photo image not found".into(),
+        });
     }
-    Ok((block, images))
+    Ok((block, tie_images(input)))
+}
+
+/// Each photo's image file by photo id (not checked: see [`tie_photos`]).
+pub fn tie_images(input: &EpochInput) -> BTreeMap<PhotoId, Pixels<'_>> {
+    (input.photos.iter().enumerate())
+        .map(|(k, p)| (k as PhotoId + 1, Pixels::File(&p.image)))
+        .collect()
 }
 
 /// The surface the reference epoch's tie search is predicted over: the LiDAR DEM.
@@ -357,8 +365,7 @@ where
 
     // 1. Tie points, searched around their POS prediction over the LiDAR ground.
     let surface = tie_surface(dem, opts);
-    let tp =
-        TiePhotos::of(&block, &images, &opts.ties).map_err(|e| ep(format!("tie points: {e}")))?;
+    let tp = TiePhotos::of(&block, &images, &opts.ties).map_err(|e| tie_error(&input.name, e))?;
     let photos = tp.photos();
     let jobs = plan_pairs(&photos, &surface, &opts.ties);
     let matched = matcher.match_pairs(&photos, tp.ids(), &jobs, &surface, &opts.ties)?;

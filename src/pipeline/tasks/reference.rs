@@ -6,8 +6,9 @@
 
 use super::{epoch_of, has_item, read_result, write_result, ContextCache, StageTasks, Task};
 use super::{TaskKind, TaskMode, TaskSummary};
+use crate::block::{Block, PhotoId};
 use crate::control::epoch::EpochInput;
-use crate::control::reference::{self, ReferenceOptions};
+use crate::control::reference::{self, tie_error, ReferenceOptions};
 use crate::lidar::GroundSurface;
 use crate::matching::oriented::{BlockTieOptions, OrientedPhoto, Surface, TiePhotos};
 use crate::matching::pair_matching::{
@@ -16,7 +17,6 @@ use crate::matching::pair_matching::{
 use crate::pipeline::ground::ControlGround;
 use crate::pipeline::stages::WorkError;
 use crate::pipeline::tasks::EpochPlan;
-use crate::{block::PhotoId, control::EpochError};
 use serde::{Deserialize, Serialize};
 use std::path::{Path, PathBuf};
 use std::sync::{Arc, Mutex};
@@ -35,6 +35,7 @@ has_item!(PairsResult => item);
 /// tasks for other processes).
 pub(crate) struct ReferenceTasks {
     tasks: StageTasks,
+    epoch: String,
 }
 
 impl ReferenceTasks {
@@ -48,6 +49,7 @@ impl ReferenceTasks {
     ) -> Result<Self, WorkError> {
         Ok(Self {
             tasks: StageTasks::new(output, stage, key, plan)?,
+            epoch: plan.epoch.clone(),
         })
     }
 
@@ -110,7 +112,7 @@ impl PairMatching for ReferenceTasks {
                 None => {
                     let mut none = PreparedPhotos::new(0);
                     match_photo_pairs(photos, ids, job, surface, opts, &mut none)
-                        .map_err(|e| tie_error(self.tasks.stage(), e))
+                        .map_err(|e| WorkError::from(tie_error(&self.epoch, e)))
                 }
             })
             .collect()
@@ -141,40 +143,34 @@ fn run_item(run: &[usize], jobs: &[PhotoPairs]) -> String {
     format!("photos-{}-{}", a(run.first()), a(run.last()))
 }
 
-/// A tie matching failure of the epoch of stage `stage`.
-fn tie_error(stage: &str, e: impl std::fmt::Display) -> WorkError {
-    EpochError::Epoch {
-        epoch: stage.trim_start_matches("epoch-").to_string(),
-        message: format!("tie points: {e}"),
-    }
-    .into()
-}
-
 /// What the `pairs` tasks of a reference epoch read, built once per process: the epoch,
-/// its ground and every photo's pairs as the epoch plans them.
+/// its block at the POS (its photos' files checked once), its ground and every photo's
+/// pairs as the epoch plans them.
 struct ReferenceContext {
     input: EpochInput,
+    block: Block,
     surface: Arc<GroundSurface>,
     opts: ReferenceOptions,
     jobs: Vec<PhotoPairs>,
 }
 
 impl ReferenceContext {
-    fn load(plan: EpochPlan, stage: &str) -> Result<Self, WorkError> {
+    fn load(plan: EpochPlan) -> Result<Self, WorkError> {
         let e = epoch_of(&plan.project, &plan.epoch)?;
         let input = EpochInput::build(&e.spec(), &plan.project.crs, plan.origin)?;
         let surface = ControlGround::new(&plan.project, &plan.sources, plan.origin)
             .surface_arc()?
             .clone();
         let opts = crate::pipeline::run::reference_options(e);
-        let jobs = {
-            let (block, images) = reference::tie_photos(&input)?;
-            let tp = TiePhotos::of(&block, &images, &opts.ties).map_err(|e| tie_error(stage, e))?;
-            let ground = reference::tie_surface(&surface.ground, &opts);
-            plan_pairs(&tp.photos(), &ground, &opts.ties)
-        };
+        let (block, images) = reference::tie_photos(&input)?;
+        let tp =
+            TiePhotos::of(&block, &images, &opts.ties).map_err(|e| tie_error(&input.name, e))?;
+        let ground = reference::tie_surface(&surface.ground, &opts);
+        let jobs = plan_pairs(&tp.photos(), &ground, &opts.ties);
+        drop((tp, images));
         Ok(Self {
             input,
+            block,
             surface,
             opts,
             jobs,
@@ -197,7 +193,7 @@ pub(super) fn run_task(task: &Task) -> Result<TaskSummary, WorkError> {
         return Err(super::not_of(task, "a reference epoch"));
     }
     let t0 = Instant::now();
-    let ctx = CONTEXT.get(task, |plan, _| ReferenceContext::load(plan, &task.stage))?;
+    let ctx = CONTEXT.get(task, |plan, _| ReferenceContext::load(plan))?;
     let opts = &ctx.opts.ties;
     let run = runs(&ctx.jobs, opts)
         .into_iter()
@@ -209,9 +205,9 @@ pub(super) fn run_task(task: &Task) -> Result<TaskSummary, WorkError> {
                 task.name()
             ))
         })?;
-    let (block, images) = reference::tie_photos(&ctx.input)?;
+    let images = reference::tie_images(&ctx.input);
     let surface = reference::tie_surface(&ctx.surface.ground, &ctx.opts);
-    let tp = TiePhotos::of(&block, &images, opts).map_err(|e| tie_error(&task.stage, e))?;
+    let tp = TiePhotos::of(&ctx.block, &images, opts).map_err(|e| tie_error(&ctx.input.name, e))?;
     let photos = tp.photos();
     let taken = PREPARED.lock().unwrap_or_else(|p| p.into_inner()).take();
     let mut prepared = match taken {
@@ -230,7 +226,7 @@ pub(super) fn run_task(task: &Task) -> Result<TaskSummary, WorkError> {
                 opts,
                 &mut prepared,
             )
-            .map_err(|e| tie_error(&task.stage, e))
+            .map_err(|e| WorkError::from(tie_error(&ctx.input.name, e)))
         })
         .collect();
     if let Some(&last) = run.last() {
