@@ -595,7 +595,7 @@ fn a_photo_beyond_the_dem_is_oriented_through_tie_points_its_neighbours_intersec
 /// over this block (relief of ±13 m under 750 m, control only in the 300 × 220 m LiDAR
 /// area of 2.7 km frames), so it is flagged and held at the file's value; every scan's
 /// camera holds the one adjusted principal point, and the checkpoints stay within the
-/// targets.
+/// targets. Where camera centres fix the flying height, f is recovered (next test).
 #[test]
 fn film_self_calibration_is_one_camera_for_all_scans_and_holds_what_the_block_cannot_determine() {
     let s = rough();
@@ -681,4 +681,105 @@ fn film_self_calibration_is_one_camera_for_all_scans_and_holds_what_the_block_ca
         eval.rmse_plan_px <= 1.0 && eval.rmse_height_px <= 1.5,
         "{eval:?}"
     );
+}
+
+/// Issue 19: where the geometry determines the principal distance, self-calibration
+/// recovers it. A film flight with GNSS camera centres (film cameras flew with GPS from
+/// the 1990s): the centres known to 0.15 m (1σ) tie the flying height down, so the
+/// scale of the frames separates f from it. The same nominal camera as above (f 0.5 %
+/// long, principal point 0.1 mm off in each axis) self-calibrated, against the true
+/// camera held fixed, from the same navigation.
+#[test]
+fn film_self_calibration_recovers_f_when_gnss_centres_fix_the_flying_height() {
+    use rand::SeedableRng;
+    use rand_distr::{Distribution, Normal};
+    let s = rough();
+    let truth = synth_truth_block(&s.dir, "film_1978").unwrap();
+    let origin = nalgebra::Vector3::from(truth.origin);
+    let mut input = EpochInput::from_synth_epoch(&s.dir, "film_1978").unwrap();
+    let Navigation::Pos(records) = &mut input.navigation else {
+        panic!("POS")
+    };
+    let sigma = 0.15;
+    let mut rng = rand_chacha::ChaCha8Rng::seed_from_u64(19);
+    let noise = Normal::new(0.0, sigma).unwrap();
+    for r in records.iter_mut() {
+        let key = cloudcontrol::formats::pos::photo_key(&r.name);
+        let p = truth.photos.values().find(|p| p.name == key).unwrap();
+        let c = p.pose.center + origin;
+        r.center = [0, 1, 2].map(|i| c[i] + noise.sample(&mut rng));
+        r.sigma_xyz = Some(sigma);
+    }
+    let EpochCamera::Film(def) = &input.camera else {
+        panic!("film epoch")
+    };
+    let (f_true, pp_true) = (def.focal_mm, def.principal_point_mm);
+    let run = |input: &EpochInput, free: &[&str]| {
+        let opts = ArchiveOptions {
+            film_self_calibration: free.iter().map(|p| p.to_string()).collect(),
+            ..ArchiveOptions::default()
+        };
+        let result = archive::orient_epoch(
+            input,
+            std::slice::from_ref(&s.reference),
+            &s.surface.ground,
+            &opts,
+        )
+        .unwrap();
+        let (meas, surveyed) = synth_checkpoints(&s.dir, "film_1978");
+        let eval = checkpoints::evaluate_checkpoints(&result.block, &meas, &surveyed, result.gsd_m)
+            .unwrap();
+        let oriented = result.photos.iter().filter(|p| p.oriented).count();
+        println!(
+            "free {free:?}: {oriented}/{} oriented, checkpoints plan {:.3}, height {:.3} GSD",
+            result.photos.len(),
+            eval.rmse_plan_px,
+            eval.rmse_height_px
+        );
+        assert_eq!(oriented, result.photos.len(), "{:?}", result.photos);
+        (result, eval)
+    };
+    let (_, known) = run(&input, &[]);
+    let EpochCamera::Film(def) = &mut input.camera else {
+        unreachable!()
+    };
+    def.focal_mm *= 1.005;
+    def.principal_point_mm[0] += 0.1;
+    def.principal_point_mm[1] -= 0.1;
+    let (result, eval) = run(&input, &["f_mm", "x0_mm", "y0_mm"]);
+    let rep = result.adjustment.as_ref().unwrap();
+    for c in &rep.calibration {
+        println!(
+            "{} = {:.4} ± {:.4} (corr {:.4} with {}, held {:?})",
+            c.param, c.value, c.sigma, c.max_correlation, c.correlated_with, c.held_because
+        );
+    }
+    let cal = |p: &str| rep.calibration.iter().find(|c| c.param == p).unwrap();
+    let f = cal("f_mm");
+    println!(
+        "f {:.4} mm, true {f_true}: error {:+.4} %; principal point true {pp_true:?}",
+        f.value,
+        100.0 * (f.value / f_true - 1.0)
+    );
+    assert!(f.determinable && !f.fixed, "{f:?}");
+    assert!((f.value / f_true - 1.0).abs() < 1e-3, "{f:?}");
+    // The principal point back within 3σ of the truth, or held as not significant only
+    // where its nominal offset is within noise (it is not: 0.1 mm is ~10σ here).
+    for (p, truth) in [("x0_mm", pp_true[0]), ("y0_mm", pp_true[1])] {
+        let c = cal(p);
+        assert!(
+            !c.fixed && (c.value - truth).abs() < 3.0 * c.sigma + 0.01,
+            "{c:?}"
+        );
+    }
+    // The same checkpoint accuracy as the true camera's (within a quarter and 0.05 GSD).
+    for (got, with_truth) in [
+        (eval.rmse_plan_px, known.rmse_plan_px),
+        (eval.rmse_height_px, known.rmse_height_px),
+    ] {
+        assert!(
+            got <= 1.25 * with_truth + 0.05,
+            "{eval:?} against {known:?}"
+        );
+    }
 }

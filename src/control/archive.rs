@@ -127,6 +127,14 @@ pub struct ArchiveContext<'a> {
     photo_opts: PhotoOptions,
 }
 
+/// The interior parameters the epoch's adjustment self-calibrates.
+fn self_calibrated<'o>(input: &EpochInput, opts: &'o ArchiveOptions) -> &'o [String] {
+    match &input.camera {
+        EpochCamera::Frame(_) => &opts.self_calibration,
+        EpochCamera::Film(_) => &opts.film_self_calibration,
+    }
+}
+
 impl<'a> ArchiveContext<'a> {
     /// Checks the packages against the epoch (CRS, any at all) and gathers their points.
     pub fn new(
@@ -160,6 +168,9 @@ impl<'a> ArchiveContext<'a> {
         let store = ChipStore::from_packages(dcp, Vector3::from(input.origin));
         let priors = approximate_orientations(input, dem, &opts.navigation)?;
         let mut photo_opts = opts.photo.clone();
+        photo_opts.focal_free = self_calibrated(input, opts)
+            .iter()
+            .any(|p| matches!(p.as_str(), "f_mm" | "fx" | "fy"));
         if let Some(um) = input.scan_pixel_um {
             photo_opts.io.pixel_mm = Some(um / 1000.0);
         }
@@ -313,10 +324,7 @@ pub fn finish_epoch<R: EpochRounds>(
         origin: input.origin,
         ..Block::default()
     };
-    let free: Vec<String> = match &input.camera {
-        EpochCamera::Frame(_) => opts.self_calibration.clone(),
-        EpochCamera::Film(_) => opts.film_self_calibration.clone(),
-    };
+    let free = self_calibrated(input, opts).to_vec();
     let mut control: BTreeMap<PointKey, Vec<Observation>> = BTreeMap::new();
     for (n, (o, ph)) in outcomes.iter().zip(&input.photos).enumerate() {
         let (true, Some(cam)) = (o.report.oriented, &o.camera) else {
