@@ -392,14 +392,20 @@ pub struct MatchStats {
     pub accepted: usize,
 }
 
+/// A chip's pyramid from level `.0` on (its first levels dropped).
+type ChipLevels = (usize, Arc<Pyramid>);
+
 /// The [`PatchMatcher`] of real photos: finds the points of a [`ChipStore`] in one photo.
 pub struct ChipMatcher<'a> {
     camera: &'a Camera,
     pyramid: &'a Pyramid,
     store: &'a ChipStore<'a>,
     opts: &'a ChipMatchOptions,
-    /// Chip pyramids read so far, by (point, view); None = unreadable.
-    chips: HashMap<(usize, usize), Option<Arc<Pyramid>>>,
+    /// Chip pyramids read so far, by (point, view), from the first level kept on; None =
+    /// unreadable. A target coarser than the chips needs only their coarse levels, and a
+    /// photo holds every chip it matched: a film scan at 0.5 m over the large preset's
+    /// 16,000 points of 5 cm chips held 3 GiB of full pyramids, two scans at a time.
+    chips: HashMap<(usize, usize), Option<ChipLevels>>,
     pub stats: MatchStats,
     /// First chip error met (a damaged package is an input error, not a mismatch).
     pub chip_error: Option<DcpError>,
@@ -423,12 +429,25 @@ impl<'a> ChipMatcher<'a> {
         }
     }
 
-    fn chip(&mut self, point: usize, view: usize) -> Option<Arc<Pyramid>> {
-        if let Some(c) = self.chips.get(&(point, view)) {
-            return c.clone();
+    /// The pyramid of a view's chip from level `base` on (`base` ≤ `level`, the level
+    /// wanted), read once per photo unless a finer level is wanted later.
+    fn chip(&mut self, point: usize, view: usize, level: usize) -> Option<ChipLevels> {
+        match self.chips.get(&(point, view)) {
+            Some(None) => return None,
+            Some(Some((base, p))) if *base <= level => return Some((*base, p.clone())),
+            _ => {}
         }
         let c = match self.store.pyramid(point, view) {
-            Ok(p) => Some(p),
+            // A pyramid read for this matcher alone keeps the levels from the wanted one;
+            // one shared with the store (a chip cut in memory) costs nothing to hold.
+            Ok(p) => Some(match Arc::try_unwrap(p) {
+                Ok(mut p) => {
+                    let base = level.min(p.levels.len().saturating_sub(1));
+                    p.levels.drain(..base);
+                    (base, Arc::new(p))
+                }
+                Err(shared) => (0, shared),
+            }),
             Err(e) => {
                 self.chip_error.get_or_insert(e);
                 None
@@ -501,10 +520,11 @@ impl<'a> ChipMatcher<'a> {
             return None;
         }
         let t = 2.0 * th + 1.0;
-        let chip = self.chip(point, view)?;
-        let level = (predict::pyramid_level(&a) as usize).min(chip.levels.len() - 1);
+        let want = predict::pyramid_level(&a) as usize;
+        let (base, chip) = self.chip(point, view, want)?;
+        let level = want.min(base + chip.levels.len() - 1);
         let f = (1u64 << level) as f64;
-        let img = &chip.levels[level];
+        let img = &chip.levels[level - base];
         // Template pixel u (corner origin) ↦ offset u − t/2 from the point ↦ chip pixel
         // L·offset + s ↦ level pixel /2^level: the chip rotated and rescaled into the
         // target's geometry, centred on the control point's own chip position.
