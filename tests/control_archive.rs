@@ -589,6 +589,18 @@ fn a_photo_beyond_the_dem_is_oriented_through_tie_points_its_neighbours_intersec
     assert_accuracy(&o, "digital_2012, one photo beyond the DEM");
 }
 
+/// Turns a film epoch's camera file into a nominal one, as issue 19 states it: focal
+/// length 0.5 % long, principal point 0.1 mm off in each axis. Returns (f, principal point).
+fn make_nominal(input: &mut EpochInput) -> (f64, [f64; 2]) {
+    let EpochCamera::Film(def) = &mut input.camera else {
+        panic!("film epoch")
+    };
+    def.focal_mm *= 1.005;
+    def.principal_point_mm[0] += 0.1;
+    def.principal_point_mm[1] -= 0.1;
+    (def.focal_mm, def.principal_point_mm)
+}
+
 /// Issue 19: a film epoch whose camera file is nominal (focal length 0.5 % long, principal
 /// point 0.1 mm off in each axis) self-calibrates f and the principal point as one film
 /// camera behind all its scans. The focal length is not separable from the flying height
@@ -600,13 +612,7 @@ fn a_photo_beyond_the_dem_is_oriented_through_tie_points_its_neighbours_intersec
 fn film_self_calibration_is_one_camera_for_all_scans_and_holds_what_the_block_cannot_determine() {
     let s = rough();
     let mut input = EpochInput::from_synth_epoch(&s.dir, "film_1978").unwrap();
-    let EpochCamera::Film(def) = &mut input.camera else {
-        panic!("film epoch")
-    };
-    def.focal_mm *= 1.005;
-    def.principal_point_mm[0] += 0.1;
-    def.principal_point_mm[1] -= 0.1;
-    let nominal = (def.focal_mm, def.principal_point_mm);
+    let nominal = make_nominal(&mut input);
     let opts = ArchiveOptions {
         film_self_calibration: vec!["f_mm".into(), "x0_mm".into(), "y0_mm".into()],
         ..ArchiveOptions::default()
@@ -740,12 +746,7 @@ fn film_self_calibration_recovers_f_when_gnss_centres_fix_the_flying_height() {
         (result, eval)
     };
     let (_, known) = run(&input, &[]);
-    let EpochCamera::Film(def) = &mut input.camera else {
-        unreachable!()
-    };
-    def.focal_mm *= 1.005;
-    def.principal_point_mm[0] += 0.1;
-    def.principal_point_mm[1] -= 0.1;
+    make_nominal(&mut input);
     let (result, eval) = run(&input, &["f_mm", "x0_mm", "y0_mm"]);
     let rep = result.adjustment.as_ref().unwrap();
     for c in &rep.calibration {
