@@ -110,7 +110,14 @@ pub enum OffsetModel {
 #[derive(Debug, Clone, Copy)]
 pub struct StripOffsetOptions {
     pub model: OffsetModel,
-    /// Strip held fixed (offset 0); default: the strip with the most points.
+    /// Strip held fixed (offset 0), for a strip known to be right (surveyed against
+    /// control). None: the offsets have mean zero over the strips, so the correction
+    /// removes the strips' disagreement and keeps the cloud's height. Each strip's
+    /// offset is an independent error of its trajectory (zero on average, the same σ for
+    /// every strip), so their mean is the best common datum the overlaps leave open;
+    /// holding one strip instead passes that strip's whole error to the cloud (small and
+    /// large seed 1: the middle strip's -0.09 and -0.13 m became the LiDAR's bias at the
+    /// checkpoints, where the strips' mean is -0.01 and -0.05 m).
     pub reference: Option<u16>,
     /// Sample points per ordered strip pair (evenly strided).
     pub max_samples_per_pair: usize,
@@ -162,7 +169,8 @@ pub struct PairStats {
 #[derive(Debug, Clone, Serialize, Deserialize)]
 pub struct StripOffsetReport {
     pub model: OffsetModel,
-    pub reference: u16,
+    /// The strip held fixed; None: the offsets' mean over the strips is zero.
+    pub reference: Option<u16>,
     pub strips: Vec<StripOffset>,
     pub pairs: Vec<PairStats>,
     pub sigma0_m: f64,
@@ -185,7 +193,8 @@ struct Obs {
 }
 
 /// Estimates per-strip offsets from overlapping planar surfaces by least squares over all
-/// strip pairs, relative to a reference strip. `xyz` and `source` are parallel arrays
+/// strip pairs, relative to a reference strip or (the default) with zero mean over the
+/// strips ([`StripOffsetOptions::reference`]). `xyz` and `source` are parallel arrays
 /// (noise should be removed first).
 pub fn estimate_strip_offsets(
     xyz: &[[f64; 3]],
@@ -218,6 +227,8 @@ pub fn estimate_strip_offsets(
             ),
         ));
     }
+    // The normal equations are solved with one strip held; without a stated reference
+    // the solution is then moved to the zero-mean datum (an S-transformation).
     let reference = match opts.reference {
         Some(r) if by_strip.contains_key(&r) => r,
         Some(r) => {
@@ -362,13 +373,20 @@ pub fn estimate_strip_offsets(
         )
     })?;
     let x = chol.solve(&rhs);
-    let offset = |s: usize| -> Vector3<f64> {
+    let held = |s: usize| -> Vector3<f64> {
         match col(s) {
             None => Vector3::zeros(),
             Some(c) if dims == 1 => Vector3::new(0.0, 0.0, x[c]),
             Some(c) => Vector3::new(x[c], x[c + 1], x[c + 2]),
         }
     };
+    let n_strips = ids.len();
+    let shift = if opts.reference.is_some() {
+        Vector3::zeros()
+    } else {
+        (0..n_strips).map(held).sum::<Vector3<f64>>() / n_strips as f64
+    };
+    let offset = |s: usize| -> Vector3<f64> { held(s) - shift };
     let resid = |o: &Obs| -> f64 {
         let d = offset(o.a) - offset(o.b);
         let c = coeffs(o);
@@ -377,19 +395,45 @@ pub fn estimate_strip_offsets(
     let ssr: f64 = obs.iter().map(|o| resid(o).powi(2)).sum();
     let redundancy = (obs.len() as f64 - nu as f64).max(1.0);
     let sigma0 = (ssr / redundancy).sqrt();
-    let cov = chol.inverse() * sigma0 * sigma0;
+    // Covariance of every strip's offset (the held strip's rows zero), then carried
+    // into the zero-mean datum by the same linear map as the offsets: J = I − 11ᵀ/n
+    // per coordinate.
+    let cov_held = chol.inverse() * sigma0 * sigma0;
+    let full = n_strips * dims;
+    let mut cov = DMatrix::<f64>::zeros(full, full);
+    for s in 0..n_strips {
+        for t in 0..n_strips {
+            if let (Some(cs), Some(ct)) = (col(s), col(t)) {
+                for u in 0..dims {
+                    for v in 0..dims {
+                        cov[(s * dims + u, t * dims + v)] = cov_held[(cs + u, ct + v)];
+                    }
+                }
+            }
+        }
+    }
+    if opts.reference.is_none() {
+        let mut j = DMatrix::<f64>::identity(full, full);
+        for s in 0..n_strips {
+            for t in 0..n_strips {
+                for u in 0..dims {
+                    j[(s * dims + u, t * dims + u)] -= 1.0 / n_strips as f64;
+                }
+            }
+        }
+        cov = &j * cov * j.transpose();
+    }
     let strips = ids
         .iter()
         .enumerate()
         .map(|(s, &id)| {
             let mut sigma = [0.0; 3];
-            if let Some(c) = col(s) {
-                if dims == 1 {
-                    sigma[2] = cov[(c, c)].sqrt();
-                } else {
-                    for u in 0..3 {
-                        sigma[u] = cov[(c + u, c + u)].sqrt();
-                    }
+            let var = |u: usize| cov[(s * dims + u, s * dims + u)].max(0.0).sqrt();
+            if dims == 1 {
+                sigma[2] = var(0);
+            } else {
+                for (u, v) in sigma.iter_mut().enumerate() {
+                    *v = var(u);
                 }
             }
             let t = offset(s);
@@ -414,7 +458,7 @@ pub fn estimate_strip_offsets(
         .collect();
     Ok(StripOffsetReport {
         model: opts.model,
-        reference,
+        reference: opts.reference,
         strips,
         pairs,
         sigma0_m: sigma0,

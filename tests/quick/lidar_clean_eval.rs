@@ -111,15 +111,35 @@ fn translation_model_and_default_reference() {
         Ok(rep) => {
             // Only if the sine relief constrains x: then x/z must be right and y poorly fixed.
             let t = rep.offset_of(2).unwrap();
-            let rel = if rep.reference == 1 { 1.0 } else { -1.0 };
-            assert!((rel * t[2] - OFFSET).abs() < 0.03, "{t:?}");
+            let t1 = rep.offset_of(1).unwrap();
+            assert!((t[2] - t1[2] - OFFSET).abs() < 0.03, "{t:?} {t1:?}");
         }
     }
-    // Default reference: strip with the most points; one strip only is an error.
+    // Default datum: the two offsets split the difference (zero mean), each known to
+    // half the difference's σ·√2; the difference is the one the overlaps measure. One
+    // strip only is an error.
     let rep = estimate_strip_offsets(&xyz, &src, &StripOffsetOptions::default()).unwrap();
-    let other = if rep.reference == 1 { 2 } else { 1 };
-    let sign = if other == 2 { 1.0 } else { -1.0 };
-    assert!((sign * rep.offset_of(other).unwrap()[2] - OFFSET).abs() < 0.015);
+    assert_eq!(rep.reference, None);
+    let (d1, d2) = (rep.offset_of(1).unwrap()[2], rep.offset_of(2).unwrap()[2]);
+    assert!((d2 - d1 - OFFSET).abs() < 0.015, "{d1} {d2}");
+    assert!((d1 + d2).abs() < 1e-9, "mean {}", 0.5 * (d1 + d2));
+    let held = estimate_strip_offsets(
+        &xyz,
+        &src,
+        &StripOffsetOptions {
+            reference: Some(1),
+            ..Default::default()
+        },
+    )
+    .unwrap();
+    let s_held = held.strips[1].sigma_m[2];
+    for s in &rep.strips {
+        assert!(
+            (s.sigma_m[2] - 0.5 * s_held).abs() < 0.1 * s_held,
+            "σ {} against the held solution's difference σ {s_held}",
+            s.sigma_m[2]
+        );
+    }
     let one = vec![1u16; xyz.len()];
     assert!(estimate_strip_offsets(&xyz, &one, &StripOffsetOptions::default()).is_err());
 }

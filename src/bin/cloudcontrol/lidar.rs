@@ -122,7 +122,7 @@ pub enum LidarCommand {
         /// Strip offset model.
         #[arg(long, value_enum, default_value_t = OffsetArg::Vertical)]
         model: OffsetArg,
-        /// Reference strip (point source id); default: the strip with the most points.
+        /// Strip held fixed (point source id); default: the offsets have zero mean over the strips.
         #[arg(long)]
         reference: Option<u16>,
         /// Drop noise points instead of classifying them 7 (noise).
@@ -402,9 +402,13 @@ pub fn run_lidar(cmd: LidarCommand, json_out: bool, quiet: bool) -> Result<(), S
                 println!("{}", serde_json::to_string_pretty(&v).unwrap());
             } else if !quiet {
                 if let Some(s) = &rep.strip_offsets {
+                    let datum = match s.reference {
+                        Some(r) => format!("strip {r} held"),
+                        None => "zero mean over the strips".into(),
+                    };
                     println!(
-                        "strip offsets ({:?} model, reference strip {}, σ0 {:.3} m):",
-                        s.model, s.reference, s.sigma0_m
+                        "strip offsets ({:?} model, {datum}, σ0 {:.3} m):",
+                        s.model, s.sigma0_m
                     );
                     for st in &s.strips {
                         println!(
