@@ -373,42 +373,16 @@ pub fn estimate_strip_offsets(
         )
     })?;
     let x = chol.solve(&rhs);
-    let held = |s: usize| -> Vector3<f64> {
-        match col(s) {
-            None => Vector3::zeros(),
-            Some(c) if dims == 1 => Vector3::new(0.0, 0.0, x[c]),
-            Some(c) => Vector3::new(x[c], x[c + 1], x[c + 2]),
-        }
-    };
+    // One linear map takes the unknowns (the held strip's offset left out) to every
+    // strip's offset, and on to the zero-mean datum (J = I − 11ᵀ/n per coordinate)
+    // without a stated reference: the offsets are m·x, their covariance m·C·mᵀ.
     let n_strips = ids.len();
-    let shift = if opts.reference.is_some() {
-        Vector3::zeros()
-    } else {
-        (0..n_strips).map(held).sum::<Vector3<f64>>() / n_strips as f64
-    };
-    let offset = |s: usize| -> Vector3<f64> { held(s) - shift };
-    let resid = |o: &Obs| -> f64 {
-        let d = offset(o.a) - offset(o.b);
-        let c = coeffs(o);
-        o.r - (c[0] * d[if dims == 1 { 2 } else { 0 }] + c[1] * d[1] + c[2] * d[2])
-    };
-    let ssr: f64 = obs.iter().map(|o| resid(o).powi(2)).sum();
-    let redundancy = (obs.len() as f64 - nu as f64).max(1.0);
-    let sigma0 = (ssr / redundancy).sqrt();
-    // Covariance of every strip's offset (the held strip's rows zero), then carried
-    // into the zero-mean datum by the same linear map as the offsets: J = I − 11ᵀ/n
-    // per coordinate.
-    let cov_held = chol.inverse() * sigma0 * sigma0;
     let full = n_strips * dims;
-    let mut cov = DMatrix::<f64>::zeros(full, full);
+    let mut m = DMatrix::<f64>::zeros(full, nu);
     for s in 0..n_strips {
-        for t in 0..n_strips {
-            if let (Some(cs), Some(ct)) = (col(s), col(t)) {
-                for u in 0..dims {
-                    for v in 0..dims {
-                        cov[(s * dims + u, t * dims + v)] = cov_held[(cs + u, ct + v)];
-                    }
-                }
+        if let Some(c) = col(s) {
+            for u in 0..dims {
+                m[(s * dims + u, c + u)] = 1.0;
             }
         }
     }
@@ -421,8 +395,26 @@ pub fn estimate_strip_offsets(
                 }
             }
         }
-        cov = &j * cov * j.transpose();
+        m = j * m;
     }
+    let offsets = &m * x;
+    let offset = |s: usize| -> Vector3<f64> {
+        let k = s * dims;
+        if dims == 1 {
+            Vector3::new(0.0, 0.0, offsets[k])
+        } else {
+            Vector3::new(offsets[k], offsets[k + 1], offsets[k + 2])
+        }
+    };
+    let resid = |o: &Obs| -> f64 {
+        let d = offset(o.a) - offset(o.b);
+        let c = coeffs(o);
+        o.r - (c[0] * d[if dims == 1 { 2 } else { 0 }] + c[1] * d[1] + c[2] * d[2])
+    };
+    let ssr: f64 = obs.iter().map(|o| resid(o).powi(2)).sum();
+    let redundancy = (obs.len() as f64 - nu as f64).max(1.0);
+    let sigma0 = (ssr / redundancy).sqrt();
+    let cov = &m * (chol.inverse() * sigma0 * sigma0) * m.transpose();
     let strips = ids
         .iter()
         .enumerate()
