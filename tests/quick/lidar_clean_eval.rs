@@ -115,9 +115,9 @@ fn translation_model_and_default_reference() {
             assert!((t[2] - t1[2] - OFFSET).abs() < 0.03, "{t:?} {t1:?}");
         }
     }
-    // Default datum: the two offsets split the difference (zero mean), each known to
-    // half the difference's σ·√2; the difference is the one the overlaps measure. One
-    // strip only is an error.
+    // Default datum: the two offsets split the difference the overlaps measure (zero
+    // mean), so each is ∓ half of it and its σ half the difference's σ (the held
+    // solution's σ of strip 2). One strip only is an error.
     let rep = estimate_strip_offsets(&xyz, &src, &StripOffsetOptions::default()).unwrap();
     assert_eq!(rep.reference, None);
     let (d1, d2) = (rep.offset_of(1).unwrap()[2], rep.offset_of(2).unwrap()[2]);
