@@ -25,12 +25,14 @@ mod robust;
 mod solver;
 pub mod support;
 pub mod synthetic;
+mod tie_prior;
 
 pub use precision::intersect;
 pub use problem::adjust;
 pub use report::checkpoint_rmse;
 pub use resection::{resect, ResectionOptions, ResectionResult};
 pub use residual::Loss;
+pub use tie_prior::TiePrior;
 
 use crate::block::{Block, PhotoId, PointId};
 use nalgebra::Vector3;
@@ -302,6 +304,11 @@ pub struct AdjustReport {
     /// control group's residuals and variance component refer to the scaled σ).
     #[serde(default)]
     pub control_sigma_scale: Option<f64>,
+    /// The tie points' precision prior, when they differ in precision beyond chance
+    /// (data snooping): each tie ray was then tested against its own point's other rays
+    /// (leave-one-out, F test with the prior's d0 and s0²), not against one σ.
+    #[serde(default)]
+    pub tie_point_prior: Option<TiePrior>,
     /// σ0 per observation group.
     #[serde(default)]
     pub variance_components: Vec<VarianceComponent>,

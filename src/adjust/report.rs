@@ -279,6 +279,7 @@ pub(super) fn finish(
         sigma0: s0,
         rejection_test: test.describe(),
         control_sigma_scale: test.control_scale,
+        tie_point_prior: test.tie_prior,
         variance_components,
         removed_tie_points,
         rmse_px,

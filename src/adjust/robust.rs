@@ -1,5 +1,7 @@
 //! Gross-error elimination between solves. Baarda's data snooping (the default) tests
-//! each observation with its own dimension against the a-priori σ; the threshold rule
+//! each observation with its own dimension against the a-priori σ, and a tie point's rays
+//! against their own point's spread where the tie points differ in precision beyond
+//! chance ([`tie_prior`](super::tie_prior)); the threshold rule
 //! tests standardised residual components against k × the robust σ0 of the round. Both
 //! remove one observation per object point and round, localise a point's gross error
 //! among its rays by leaving one out, test control priors against their own rays'
@@ -10,8 +12,9 @@ use super::precision::{self, intersect, Snoop};
 use super::problem::Problem;
 use super::residual::{Kind, Loss, ResidualBlock};
 use super::solver::{self, Structure};
+use super::tie_prior::{self, PointLoo, TiePrior};
 use super::{Rejected, Rejection};
-use nalgebra::{DMatrix, DVector, Matrix3, Vector2, Vector3};
+use nalgebra::{DMatrix, DVector, Matrix3, Vector3};
 use std::collections::{BTreeMap, BTreeSet};
 
 /// The data-snooping guard takes the first solution's image σ0 instead of the a-priori σ
@@ -34,6 +37,13 @@ pub(super) struct RejectionTest {
     pub(super) swept: usize,
     /// Factor the control points' σ were scaled by on the first solution (data snooping).
     pub(super) control_scale: Option<f64>,
+    /// The tie points' precision prior fitted on the first solution (data snooping), when
+    /// they differ in precision beyond chance: their rays are then tested against their
+    /// own point's other rays.
+    pub(super) tie_prior: Option<TiePrior>,
+    /// Rounds whose tie rays were tested against their own points (the prior is fitted
+    /// again every round and gives way to one σ once no spread is left).
+    tie_rounds: usize,
 }
 
 /// The test statistics of one solution.
@@ -64,6 +74,8 @@ impl RejectionTest {
             first_round: None,
             swept: 0,
             control_scale: None,
+            tie_prior: None,
+            tie_rounds: 0,
         }
     }
 
@@ -87,6 +99,17 @@ impl RejectionTest {
                 }
             }
         };
+        match &self.tie_prior {
+            Some(p) => s.push_str(&format!(
+                ", tie points leave_one_out prior d0={:.1} s0^2={:.2}",
+                p.dof, p.factor
+            )),
+            None if self.tie_rounds > 0 => s.push_str(&format!(
+                ", tie points leave_one_out for {} round(s), then one sigma",
+                self.tie_rounds
+            )),
+            None => {}
+        }
         if let Some(f) = self.control_scale {
             s.push_str(&format!(", control sigma x{f:.2}"));
         }
@@ -112,7 +135,82 @@ impl RejectionTest {
         // One evaluation of the first solution serves both groups.
         let s = stats(st, pb);
         self.calibrate_image(pb, &s);
+        self.fit_tie_prior(st, pb);
         self.scale_control(st, pb, &s.ev)
+    }
+
+    /// The tie points' precision prior on the first solution, from every tie point's
+    /// re-intersections with the orientations held ([`tie_prior::fit`]), in units of the
+    /// tested image σ. The first solution is used, with its gross errors still in: the
+    /// fit's outlier component takes them, and the prior stays fixed for later rounds.
+    fn fit_tie_prior(&mut self, st: &Structure, pb: &Problem) {
+        let Some(alpha) = self.rule.alpha() else {
+            return;
+        };
+        let points: Vec<PointLoo> = self.tie_points(st, pb).into_values().collect();
+        self.tie_prior = tie_prior::fit(&points, alpha, None);
+        if let Some(p) = &self.tie_prior {
+            tracing::info!(
+                d0 = p.dof,
+                s02 = p.factor,
+                outlier_share = p.outlier_share,
+                points = p.points,
+                "the tie points differ in precision: their rays are tested against their own point's"
+            );
+        }
+    }
+
+    /// Re-intersections of every tie point (no control, no plane) with two active rays
+    /// or more, by object point; a point whose rays do not intersect all together is left
+    /// to data snooping.
+    fn tie_points(&self, st: &Structure, pb: &Problem) -> BTreeMap<usize, PointLoo> {
+        use rayon::prelude::*;
+        let f2 = self.image_sigma * self.image_sigma;
+        (0..st.point_res.len())
+            .into_par_iter()
+            .filter(|&p| !is_held(pb, st, p))
+            .filter_map(|p| {
+                Some((
+                    p,
+                    point_loo(
+                        pb,
+                        active_rays(pb, st, p),
+                        f2,
+                        Some((&pb.state.points[p], self.crit[3])),
+                    )?,
+                ))
+            })
+            .collect::<Vec<_>>()
+            .into_iter()
+            .collect()
+    }
+
+    /// The tie prior's test of a point of three rays or more: its worst ray, or the whole
+    /// point when its three rays cannot be told apart ([`tie_prior::LOCALISE`]).
+    fn tie_candidate(&self, prior: &TiePrior, p: &PointLoo) -> Option<Candidate> {
+        let alpha = self.rule.alpha()?;
+        let (k, tail) = prior.worst(p)?;
+        let dof = p.loo_dof();
+        let blame = if p.rays.len() == 3 && prior.blame(p, k) < tie_prior::LOCALISE {
+            Blame::Point
+        } else {
+            Blame::Ray(p.rays[k])
+        };
+        let (i, w) = (p.rays[k], prior.studentized(p.q(k), p.loo[k], dof));
+        let test = format!("F(2, {:.1}) of the other rays", prior.dof + dof);
+        (tail < alpha).then(|| Candidate {
+            i,
+            w,
+            rank: (alpha / tail.max(f64::MIN_POSITIVE)).ln() + 1.0,
+            reason: format!(
+                "image: tie ray {w:.2} σ from its point's other rays, p = {tail:.1e} < α0 = \
+                 {:.3} % ({test}, tie point prior d0 = {:.1}, s0² = {:.2})",
+                100.0 * alpha,
+                prior.dof,
+                prior.factor
+            ),
+            blame: Some(blame),
+        })
     }
 
     fn calibrate_image(&mut self, pb: &Problem, s: &Stats) {
@@ -248,7 +346,7 @@ impl RejectionTest {
     /// removed). `sweep` (the rounds ran out) takes every exceedance: data snooping per
     /// failing point by `sweep_point`, the threshold rule all at once.
     pub(super) fn select(
-        &self,
+        &mut self,
         st: &Structure,
         pb: &Problem,
         loss: Loss,
@@ -310,8 +408,9 @@ impl RejectionTest {
         }
         let (f2, crit1) = self.localisation_test();
         for (p, c) in best {
-            let blame = match pb.res[c.i].kind {
-                Kind::Image { .. } => {
+            let blame = match (c.blame, &pb.res[c.i].kind) {
+                (Some(b), _) => Some((b, active_rays(pb, st, p))),
+                (None, Kind::Image { .. }) => {
                     let rays = active_rays(pb, st, p);
                     localize(pb, &rays, is_held(pb, st, p), f2, crit1).map(|b| (b, rays))
                 }
@@ -379,6 +478,20 @@ impl RejectionTest {
         p: usize,
     ) -> Vec<(usize, f64, String, bool)> {
         let (f2, crit1) = self.localisation_test();
+        if let Some(prior) = self.tie_prior.as_ref().filter(|_| !is_held(pb, st, p)) {
+            let rays = active_rays(pb, st, p);
+            if rays.len() >= 3
+                && point_loo(
+                    pb,
+                    rays.clone(),
+                    f2,
+                    Some((&pb.state.points[p], self.crit[3])),
+                )
+                .is_some()
+            {
+                return self.sweep_tie_point(prior, pb, rays);
+            }
+        }
         let mut idx: Vec<usize> = st.point_res[p]
             .iter()
             .copied()
@@ -442,6 +555,36 @@ impl RejectionTest {
         out
     }
 
+    /// [`sweep_point`](Self::sweep_point) of a tie point tested by the tie prior.
+    fn sweep_tie_point(
+        &self,
+        prior: &TiePrior,
+        pb: &Problem,
+        mut rays: Vec<usize>,
+    ) -> Vec<(usize, f64, String, bool)> {
+        let f2 = self.image_sigma * self.image_sigma;
+        let mut out = Vec::new();
+        // Down to two rays, the point is left to the next sweep's data snooping.
+        while let Some(c) = (rays.len() >= 3)
+            .then(|| point_loo(pb, rays.clone(), f2, None))
+            .flatten()
+            .and_then(|l| self.tie_candidate(prior, &l))
+        {
+            match c.blame {
+                Some(Blame::Point) => {
+                    let reason = point_reason(&c.reason, rays.len());
+                    out.extend(rays.iter().map(|&k| (k, c.w, reason.clone(), true)));
+                    break;
+                }
+                _ => {
+                    rays.retain(|&k| k != c.i);
+                    out.push((c.i, c.w, c.reason, false));
+                }
+            }
+        }
+        out
+    }
+
     fn reason(&self, r: &ResidualBlock, t: f64, dof: usize) -> String {
         let sigma = if self.image_sigma == 1.0 {
             "a-priori σ".to_string()
@@ -456,11 +599,45 @@ impl RejectionTest {
         )
     }
 
-    fn snooping_candidates(&self, st: &Structure, pb: &Problem) -> Vec<Candidate> {
+    fn snooping_candidates(&mut self, st: &Structure, pb: &Problem) -> Vec<Candidate> {
         let s = stats(st, pb);
         let f2 = self.image_sigma * self.image_sigma;
         let mut out = Vec::new();
+        // The prior is fitted again on every round's solution of the observations kept:
+        // the first solution's gross errors, several in one point among them, read as
+        // spread there (a block of normal noise with 5 % of its rays displaced fitted d0 = 5
+        // and kept 8 % of them), and are gone once their rounds have removed them.
+        let mut ties = BTreeMap::new();
+        if self.tie_prior.is_some() {
+            ties = self.tie_points(st, pb);
+            let points: Vec<PointLoo> = ties.values().cloned().collect();
+            self.tie_prior = self
+                .rule
+                .alpha()
+                .and_then(|a| tie_prior::fit(&points, a, self.tie_prior.as_ref()));
+        }
+        // A two-ray point has no ray to leave out: its one redundant component cannot
+        // tell an imprecise point from a gross error, and the prior alone would decide
+        // (with d0 = 2, F(1, 2) at 0.1 % passes a pair 30 σ apart). Its rays keep one σ
+        // in the adjustment, so keeping an imprecise pair at full weight costs more than
+        // losing the weakest kind of tie point: two-ray points stay with data snooping.
+        // (Tested by the prior too, the small bench's digital epochs' heights went
+        // 0.79 -> 0.97, 0.70 -> 0.89 and 0.47 -> 0.89 GSD on seeds 1, 2 and 9, their
+        // reference epochs' tie sets being mostly pairs.)
+        ties.retain(|_, p| p.rays.len() >= 3);
+        match &self.tie_prior {
+            Some(prior) => {
+                self.tie_rounds += 1;
+                out.extend(ties.values().filter_map(|p| self.tie_candidate(prior, p)));
+            }
+            None => ties.clear(),
+        }
         for (i, r) in pb.res.iter().enumerate() {
+            if matches!(r.kind, Kind::Image { .. })
+                && r.point.is_some_and(|p| ties.contains_key(&p))
+            {
+                continue;
+            }
             let (t, dof) = match (&r.kind, r.point, r.active) {
                 (Kind::PointPrior { .. }, Some(p), true) => {
                     match prior_vs_rays(st, pb, &s.ev, p, i) {
@@ -486,6 +663,7 @@ impl RejectionTest {
                 w: t.sqrt(),
                 rank: t / self.crit[dof],
                 reason: self.reason(r, t, dof),
+                blame: None,
             });
         }
         out
@@ -548,6 +726,30 @@ impl RejectionTest {
                 return true;
             }
             let known = blk.kind.known();
+            // A tie ray against its point's other rays, as the rounds tested it.
+            if let (Some(prior), Kind::Image { .. }, Some(p)) =
+                (&self.tie_prior, &blk.kind, blk.point)
+            {
+                let others = active_rays(pb, &st, p);
+                if !is_held(pb, &st, p) && others.len() >= 2 {
+                    let mut all = others.clone();
+                    all.push(i);
+                    let ok = match (
+                        intersection_ssr(pb, &all, f2),
+                        intersection_ssr(pb, &others, f2),
+                    ) {
+                        (Some(a), Some(o)) => {
+                            let dof = (2 * others.len()) as f64 - 3.0;
+                            prior.tail(a - o, o, dof) >= self.rule.alpha().unwrap_or(0.0)
+                        }
+                        _ => false,
+                    };
+                    if ok {
+                        readmit.push(i);
+                    }
+                    return !ok;
+                }
+            }
             let ok = match self.rule {
                 Rejection::Threshold(k) => (0..e.dim)
                     .filter(|&c| known[c])
@@ -589,6 +791,9 @@ struct Candidate {
     w: f64,
     rank: f64,
     reason: String,
+    /// Where the test itself put the gross error (the tie prior's leave-one-out test);
+    /// None: to be localised.
+    blame: Option<Blame>,
 }
 
 /// The significance level, for the whole block, of a rejection once the exceedances of
@@ -675,6 +880,7 @@ fn threshold_candidates(
                 w,
                 rank: w,
                 reason: reason(w, r.kind.label()),
+                blame: None,
             });
         }
     }
@@ -739,6 +945,7 @@ fn active_rays(pb: &Problem, st: &Structure, p: usize) -> Vec<usize> {
 }
 
 /// Where the gross error of an object point that failed its test lies.
+#[derive(Debug, Clone, Copy)]
 enum Blame {
     /// This ray: leaving it out leaves the others consistent.
     Ray(usize),
@@ -761,10 +968,49 @@ fn localize(pb: &Problem, rays: &[usize], held: bool, f2: f64, crit1: f64) -> Op
     if rays.len() < 3 {
         return (!held && rays.len() == 2).then_some(Blame::Point);
     }
+    let mut ssr: Vec<(f64, usize)> = Vec::new();
+    for &skip in rays {
+        let others: Vec<usize> = rays.iter().copied().filter(|&j| j != skip).collect();
+        if let Some(s) = intersection_ssr(pb, &others, f2) {
+            ssr.push((s, skip));
+        }
+    }
+    ssr.sort_by(|a, b| a.0.total_cmp(&b.0));
+    let &(_, best) = ssr.first()?;
+    if rays.len() == 3 && !held && ssr.get(1).is_none_or(|s| s.0 <= crit1) {
+        return Some(Blame::Point);
+    }
+    Some(Blame::Ray(best))
+}
+
+/// The sum of squared residuals of image observations `rays` at object point `x` with
+/// the current orientations, in units of each ray's σ and the variance factor `f2`.
+fn ssr_at(pb: &Problem, rays: &[usize], x: &Vector3<f64>, f2: f64) -> f64 {
+    let s: f64 = rays
+        .iter()
+        .map(|&j| {
+            let r: &ResidualBlock = &pb.res[j];
+            let Kind::Image { pixel, sigma } = r.kind else {
+                unreachable!("an image observation")
+            };
+            let (c, pose) = (
+                &pb.state.cameras[r.camera.expect("camera")],
+                &pb.state.poses[r.photo.expect("photo")],
+            );
+            crate::geometry::project(c, pose, x)
+                .map(|q| ((q.pixel - pixel) / sigma).norm_squared())
+                .unwrap_or(f64::INFINITY)
+        })
+        .sum();
+    s / f2
+}
+
+/// [`ssr_at`] the re-intersection of `rays`; None when they do not intersect.
+fn intersection_ssr(pb: &Problem, rays: &[usize], f2: f64) -> Option<f64> {
     let ray = |j: usize| {
         let r: &ResidualBlock = &pb.res[j];
         let Kind::Image { pixel, sigma } = r.kind else {
-            unreachable!()
+            unreachable!("an image observation")
         };
         (
             &pb.state.cameras[r.camera.expect("camera")],
@@ -773,32 +1019,42 @@ fn localize(pb: &Problem, rays: &[usize], held: bool, f2: f64, crit1: f64) -> Op
             sigma,
         )
     };
-    let mut ssr: Vec<(f64, usize)> = Vec::new();
-    for &skip in rays {
-        let others: Vec<_> = rays
-            .iter()
-            .filter(|&&j| j != skip)
-            .map(|&j| ray(j))
-            .collect();
-        let Some(x) = intersect(&others) else {
-            continue;
-        };
-        let s: f64 = others
-            .iter()
-            .map(|(c, pose, px, s)| {
-                crate::geometry::project(c, pose, &x)
-                    .map(|q| ((q.pixel - Vector2::new(px[0], px[1])) / *s).norm_squared())
-                    .unwrap_or(f64::INFINITY)
-            })
-            .sum();
-        ssr.push((s / f2, skip));
+    let x = intersect(&rays.iter().map(|&j| ray(j)).collect::<Vec<_>>())?;
+    Some(ssr_at(pb, rays, &x, f2))
+}
+
+/// A tie point's re-intersections from all its `rays` and leaving each out (three rays
+/// or more); None with fewer than two rays or when all of them do not intersect. Rays
+/// left after one is left out that do not intersect count as inconsistent (an infinite
+/// sum): leaving that one out explains nothing.
+///
+/// `held_at`: the point's position in the adjustment, with the critical value of χ²(3).
+/// A point the adjustment holds that much farther from its rays than their own
+/// intersection (a redescending robust loss gives a point far from its rays no gradient
+/// back) is None too: it is left to data snooping, whose test of its rays it fails.
+fn point_loo(
+    pb: &Problem,
+    rays: Vec<usize>,
+    f2: f64,
+    held_at: Option<(&Vector3<f64>, f64)>,
+) -> Option<PointLoo> {
+    if rays.len() < 2 {
+        return None;
     }
-    ssr.sort_by(|a, b| a.0.total_cmp(&b.0));
-    let &(_, best) = ssr.first()?;
-    if rays.len() == 3 && !held && ssr.get(1).is_none_or(|s| s.0 <= crit1) {
-        return Some(Blame::Point);
+    let ss = intersection_ssr(pb, &rays, f2).filter(|s| s.is_finite())?;
+    if let Some((x, crit)) = held_at {
+        if ssr_at(pb, &rays, x, f2) - ss > crit {
+            return None;
+        }
     }
-    Some(Blame::Ray(best))
+    let mut loo = Vec::new();
+    if rays.len() >= 3 {
+        for &skip in &rays {
+            let others: Vec<usize> = rays.iter().copied().filter(|&j| j != skip).collect();
+            loo.push(intersection_ssr(pb, &others, f2).unwrap_or(f64::INFINITY));
+        }
+    }
+    Some(PointLoo::new(rays, ss, loo))
 }
 
 /// Whether object point `p` has an active control prior (with a known axis) or a LiDAR

@@ -16,16 +16,16 @@ fn data() -> PathBuf {
     }
 }
 
-#[test]
-fn kite_block_adjusts_with_its_odm_gcp_file_as_given() {
-    let d = data();
+/// `cloudcontrol adjust` of COLMAP model `model` with the block's ODM GCP file as given
+/// and 0.5 px: the JSON report.
+fn adjust(model: &Path) -> serde_json::Value {
     let dir = tempfile::tempdir().unwrap();
     let report = dir.path().join("report.json");
     let out = Command::new(BIN)
         .args(["-q", "adjust", "--model"])
-        .arg(d.join("colmap_sparse/txt"))
+        .arg(model)
         .arg("--gcp")
-        .arg(d.join("gcp_list_subset.txt"))
+        .arg(data().join("gcp_list_subset.txt"))
         .args(["--sigma-px", "0.5", "--no-residuals", "--out"])
         .arg(dir.path().join("out"))
         .arg("--report")
@@ -37,7 +37,12 @@ fn kite_block_adjusts_with_its_odm_gcp_file_as_given() {
         "{}",
         String::from_utf8_lossy(&out.stderr)
     );
-    let r: serde_json::Value = serde_json::from_slice(&std::fs::read(&report).unwrap()).unwrap();
+    serde_json::from_slice(&std::fs::read(&report).unwrap()).unwrap()
+}
+
+#[test]
+fn kite_block_adjusts_with_its_odm_gcp_file_as_given() {
+    let r = adjust(&data().join("colmap_sparse/txt"));
     let g = &r["georeference"];
     // Six GCPs: five fix the similarity, gcp00 (one photo) constrains its photo alone;
     // none is rejected as a whole.
@@ -88,13 +93,14 @@ fn kite_block_adjusts_with_its_odm_gcp_file_as_given() {
         r["rejection_test"].as_str().unwrap().split(',').next(),
         Some("baarda_data_snooping alpha=0.001 sigma=a_priori")
     );
-    // Rejected tie observations: the issue asks for fewer than 1 %; data snooping at
-    // α0 = 0.1 % against 0.5 px rejects 3.0 % (1.6 % as themselves, 1.4 % with the
-    // three-ray points whose wrong ray cannot be told). The tail is the data's:
-    // COLMAP's own solution of this model has 3.4 % of its residuals above 1.4 px where a
-    // normal distribution of its median would have 2·10⁻⁵, and the rejections grow from
-    // 1.5 % of the observations at the image centre to 8 % in the corners. Held here at
-    // what it is, so that a change of the test shows.
+    // Rejected tie observations: the issue asks for fewer than 1 %. The block's tie points
+    // differ in precision (a ray's squared residual correlates at 0.49 with its point's
+    // other rays'), so each ray is tested against its own point's other rays with the
+    // fitted prior (d0 ≈ 3, s0² ≈ 0.5); data snooping against one 0.5 px σ rejected
+    // 3.0 % here (1.4 % with three-ray points removed whole).
+    let prior = &r["tie_point_prior"];
+    let d0 = prior["dof"].as_f64().expect("a tie point prior");
+    assert!((2.0..=5.0).contains(&d0), "{prior}");
     let ties = 35_172.0;
     let n = rejected.len() as f64;
     let alone = rejected.iter().filter(|x| x["with_point"] == false).count() as f64;
@@ -104,5 +110,82 @@ fn kite_block_adjusts_with_its_odm_gcp_file_as_given() {
         100.0 * alone / ties,
         r["rejection_test"]
     );
-    assert!(alone / ties < 0.02 && n / ties < 0.035, "{n} rejected");
+    assert!(n / ties < 0.006, "{n} rejected"); // measured 0.37 %
+}
+
+/// The same block with 2 % of its tie observations displaced 3–30 px (seeded): the test
+/// against each point's own rays must still find the displaced rays, not take them for an
+/// imprecise point (a factor estimated from all of a point's rays, the ray under test
+/// among them, found 11.7 % of such displacements).
+#[test]
+fn kite_block_finds_displaced_tie_observations() {
+    use rand::{Rng, SeedableRng};
+    use std::collections::BTreeSet;
+    let d = data();
+    let dir = tempfile::tempdir().unwrap();
+    let model = dir.path().join("model");
+    std::fs::create_dir(&model).unwrap();
+    for f in ["cameras.txt", "points3D.txt"] {
+        std::fs::copy(d.join("colmap_sparse/txt").join(f), model.join(f)).unwrap();
+    }
+    let text = std::fs::read_to_string(d.join("colmap_sparse/txt/images.txt")).unwrap();
+    let mut rng = rand_chacha::ChaCha8Rng::seed_from_u64(16);
+    let mut displaced = BTreeSet::new();
+    let mut out = Vec::new();
+    let mut lines = text.lines();
+    let mut observations = 0usize;
+    while let Some(l) = lines.next() {
+        out.push(l.to_string());
+        if l.starts_with('#') || l.trim().is_empty() {
+            continue;
+        }
+        let image: i64 = l.split_whitespace().next().unwrap().parse().unwrap();
+        let obs: Vec<&str> = lines.next().unwrap().split_whitespace().collect();
+        let mut row = Vec::new();
+        for o in obs.chunks(3) {
+            let (mut x, mut y): (f64, f64) = (o[0].parse().unwrap(), o[1].parse().unwrap());
+            let point: i64 = o[2].parse().unwrap();
+            if point >= 0 {
+                observations += 1;
+                if rng.gen::<f64>() < 0.02 {
+                    let (a, m) = (
+                        rng.gen_range(0.0..std::f64::consts::TAU),
+                        rng.gen_range(3.0..30.0),
+                    );
+                    x += m * a.cos();
+                    y += m * a.sin();
+                    displaced.insert((point, image));
+                }
+            }
+            row.push(format!("{x:.4} {y:.4} {point}"));
+        }
+        out.push(row.join(" "));
+    }
+    std::fs::write(model.join("images.txt"), out.join("\n") + "\n").unwrap();
+    let r = adjust(&model);
+    let rejected: BTreeSet<(i64, i64)> = r["rejected"]["list"]
+        .as_array()
+        .unwrap()
+        .iter()
+        .filter(|x| x["observation"]["type"] == "image")
+        .map(|x| {
+            let o = &x["observation"];
+            (o["point"].as_i64().unwrap(), o["photo"].as_i64().unwrap())
+        })
+        .collect();
+    let found = rejected.intersection(&displaced).count() as f64;
+    let false_ = rejected.difference(&displaced).count() as f64;
+    let good = (observations - displaced.len()) as f64;
+    eprintln!(
+        "kite displaced: {} displaced, {found} found ({:.1} %), {false_} good rejected ({:.2} %)",
+        displaced.len(),
+        100.0 * found / displaced.len() as f64,
+        100.0 * false_ / good
+    );
+    // Measured: 94.9 % found, 0.63 % of the others rejected (against one σ: 98.6 % and
+    // 3.2 % on another draw). Most misses are displacements below 8 px in three-ray
+    // points, where the prior's spread makes an imprecise point as likely; the issue's
+    // bound for false rejections is 1 %.
+    assert!(found / displaced.len() as f64 > 0.9);
+    assert!(false_ / good < 0.01);
 }

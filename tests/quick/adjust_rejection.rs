@@ -237,13 +237,23 @@ fn gross_errors_are_found_and_good_data_kept() {
     assert_eq!(one_ray, 0);
     assert!(worst <= W_LIMIT, "output residual {worst} σ");
     assert!((0.95..=1.05).contains(&image_sigma0(&rep)));
-    // The gross errors do not pass for a wrong a-priori σ.
-    assert_eq!(
-        rep.rejection_test,
-        "baarda_data_snooping alpha=0.001 sigma=a_priori"
+    // The gross errors do not pass for a wrong a-priori σ. On the first solution, points
+    // with several displaced rays read as tie points of differing precision; once the
+    // rounds have removed them, the fit finds one σ again and the block ends with data
+    // snooping against it.
+    assert!(
+        rep.rejection_test
+            .starts_with("baarda_data_snooping alpha=0.001 sigma=a_priori"),
+        "{}",
+        rep.rejection_test
     );
+    assert_eq!(rep.tie_point_prior, None);
     for r in &rep.rejected.list {
-        assert!(r.reason.contains("χ²("), "{}", r.reason);
+        assert!(
+            r.reason.contains("χ²(") || r.reason.contains("(F("),
+            "{}",
+            r.reason
+        );
     }
     accounted(&input, &b, &rep);
 
