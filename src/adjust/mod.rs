@@ -25,7 +25,8 @@ mod robust;
 mod solver;
 pub mod support;
 pub mod synthetic;
-mod tie_prior;
+#[doc(hidden)]
+pub mod tie_prior;
 
 pub use precision::intersect;
 pub use problem::adjust;

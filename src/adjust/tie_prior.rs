@@ -46,7 +46,7 @@ use std::f64::consts::PI;
 /// Radius, in tested σ, of the disc over which a gross error's displacement is taken as
 /// uniform (50 px at the kite block's 0.5 px). The fit of d0 and s0² barely depends on
 /// it; it sets how far out a ray must lie to count as an outlier in the fit.
-pub(super) const OUTLIER_RADIUS: f64 = 100.0;
+pub const OUTLIER_RADIUS: f64 = 100.0;
 
 /// Fewer tie points give no distribution to fit: the block keeps one σ.
 const MIN_POINTS: usize = 50;
@@ -55,11 +55,11 @@ const MIN_POINTS: usize = 50;
 /// point's gross error (against either other ray) to be rejected alone; below it the
 /// point goes. Its other two rays have one redundancy between them, which with a
 /// heavy-tailed prior often cannot tell the three apart.
-pub(super) const LOCALISE: f64 = 0.9;
+pub const LOCALISE: f64 = 0.9;
 
 /// One tie point's re-intersections: from all its rays and leaving each out.
 #[derive(Debug, Clone)]
-pub(super) struct PointLoo {
+pub struct PointLoo {
     /// Residual indices of the rays.
     pub rays: Vec<usize>,
     /// Sum of squared residuals of all rays (tested σ²) and its degrees of freedom 2n − 3.
@@ -264,11 +264,7 @@ fn best_factor(points: &[PointLoo], d0: f64, range: (f64, f64)) -> (f64, f64, f6
 /// `previous`: the last round's fit, which brackets this one (its neighbours on the d0
 /// grid, s0² within a factor of 3): a round removes few observations, and the fit is
 /// repeated every round.
-pub(super) fn fit(
-    points: &[PointLoo],
-    alpha: f64,
-    previous: Option<&TiePrior>,
-) -> Option<TiePrior> {
+pub fn fit(points: &[PointLoo], alpha: f64, previous: Option<&TiePrior>) -> Option<TiePrior> {
     use rayon::prelude::*;
     let points: Vec<PointLoo> = points
         .iter()
@@ -325,7 +321,7 @@ pub(super) fn fit(
 
 impl TiePrior {
     /// P-value of ray k of a point of three rays or more: P(F(2, d0 + d₋) > q/(2 s²)).
-    pub(super) fn ray_tail(&self, p: &PointLoo, k: usize) -> f64 {
+    pub fn ray_tail(&self, p: &PointLoo, k: usize) -> f64 {
         self.tail(p.q(k), p.loo[k], p.loo_dof())
     }
 
@@ -337,7 +333,7 @@ impl TiePrior {
 
     /// P(F(2, d0 + d₋) > q/(2 s²)) for a ray whose deviation from the prediction of its
     /// point's other rays is `q`.
-    pub(super) fn tail(&self, q: f64, others: f64, dof: f64) -> f64 {
+    pub fn tail(&self, q: f64, others: f64, dof: f64) -> f64 {
         let nu = self.dof + dof;
         // F(2, ν) has the closed tail (1 + 2x/ν)^(−ν/2).
         (1.0 + q.max(0.0) / (nu * self.posterior(others, dof))).powf(-0.5 * nu)
@@ -345,12 +341,12 @@ impl TiePrior {
 
     /// The deviation in units of its posterior σ, √(q/s²) (the report's standardised
     /// residual of a tie ray).
-    pub(super) fn studentized(&self, q: f64, others: f64, dof: f64) -> f64 {
+    pub fn studentized(&self, q: f64, others: f64, dof: f64) -> f64 {
         (q.max(0.0) / self.posterior(others, dof)).sqrt()
     }
 
     /// The worst ray (index into `p.rays`) and its p-value; None for two rays.
-    pub(super) fn worst(&self, p: &PointLoo) -> Option<(usize, f64)> {
+    pub fn worst(&self, p: &PointLoo) -> Option<(usize, f64)> {
         (0..p.loo.len())
             .map(|k| (k, self.ray_tail(p, k)))
             .min_by(|a, b| a.1.total_cmp(&b.1))
@@ -358,7 +354,7 @@ impl TiePrior {
 
     /// Posterior probability that ray k, not another single ray, is the point's gross
     /// error: each hypothesis weighted by how well the remaining rays fit together.
-    pub(super) fn blame(&self, p: &PointLoo, k: usize) -> f64 {
+    pub fn blame(&self, p: &PointLoo, k: usize) -> f64 {
         let m = Marginal::new(self.dof, self.factor, p.loo_dof() as usize);
         let l: Vec<f64> = p.loo.iter().map(|&s| m.ln(s, p.loo_dof())).collect();
         let all = log_sum_exp(l.iter().copied());
@@ -366,109 +362,5 @@ impl TiePrior {
             return 0.0;
         }
         (l[k] - all).exp()
-    }
-}
-
-#[cfg(test)]
-mod tests {
-    use super::*;
-    use rand::SeedableRng;
-    use rand_distr::{ChiSquared, Distribution};
-
-    /// Points of 2–6 rays with λ·s0² ~ d0 s0²/χ²(d0) (λ = s0² for d0 infinite), their
-    /// sums of squares drawn as the model has them; `bad`: share of points with one ray
-    /// displaced by `shift` σ (its q grows by shift²).
-    fn sample(d0: f64, s02: f64, n: usize, bad: f64, shift: f64, seed: u64) -> Vec<PointLoo> {
-        let mut rng = rand_chacha::ChaCha8Rng::seed_from_u64(seed);
-        let mut u = move || rand::Rng::gen::<f64>(&mut rng);
-        let mut rng2 = rand_chacha::ChaCha8Rng::seed_from_u64(seed + 1000);
-        let mut chi = move |d: f64| ChiSquared::new(d).unwrap().sample(&mut rng2);
-        (0..n)
-            .map(|i| {
-                let rays = 2 + i % 5;
-                let lambda = if d0.is_finite() {
-                    s02 * d0 / chi(d0)
-                } else {
-                    s02
-                };
-                let dm = (2 * rays) as f64 - 5.0;
-                let base = if rays >= 3 { lambda * chi(dm) } else { 0.0 };
-                let loo: Vec<f64> = if rays >= 3 {
-                    // One ray's q on top of the others' (the others share `base` here:
-                    // enough for the fit's statistics).
-                    (0..rays).map(|_| base).collect()
-                } else {
-                    Vec::new()
-                };
-                let mut q = lambda * chi(2.0);
-                if u() < bad {
-                    q += shift * shift;
-                }
-                let ss = if rays >= 3 {
-                    base + q
-                } else {
-                    lambda * chi(1.0)
-                };
-                PointLoo::new((0..rays).collect(), ss, loo)
-            })
-            .collect()
-    }
-
-    #[test]
-    fn one_variance_gives_no_prior() {
-        for seed in 0..3 {
-            assert_eq!(
-                fit(
-                    &sample(f64::INFINITY, 1.0, 5000, 0.0, 0.0, seed),
-                    0.001,
-                    None
-                ),
-                None
-            );
-        }
-    }
-
-    #[test]
-    fn gross_errors_are_not_read_as_spread() {
-        // A tenth of the points with a ray displaced 20 σ: still one variance.
-        let p = fit(&sample(f64::INFINITY, 1.0, 5000, 0.1, 20.0, 4), 0.001, None);
-        assert_eq!(p, None, "{p:?}");
-    }
-
-    #[test]
-    fn a_scale_mixture_is_recovered_and_tested() {
-        let pts = sample(3.0, 0.5, 20_000, 0.0, 0.0, 7);
-        let p = fit(&pts, 0.001, None).expect("spread");
-        assert!((2.0..=4.0).contains(&p.dof), "{p:?}");
-        assert!((p.factor / 0.5 - 1.0).abs() < 0.15, "{p:?}");
-        // Under the model a ray fails at the test's level: one in a thousand.
-        let fails = pts
-            .iter()
-            .filter(|q| q.rays.len() >= 3)
-            .filter(|q| p.ray_tail(q, 0) < 0.001)
-            .count() as f64;
-        let tested = pts.iter().filter(|q| q.rays.len() >= 3).count() as f64;
-        assert!(fails / tested < 0.002, "{fails} of {tested}");
-    }
-
-    #[test]
-    fn tails_and_blame() {
-        let p = TiePrior {
-            dof: 4.0,
-            factor: 1.0,
-            outlier_share: 0.01,
-            points: 100,
-        };
-        // Three rays, ray 0 displaced: leaving it out fits, leaving out another does not.
-        let pt = PointLoo::new(vec![0, 1, 2], 400.0, vec![1.0, 390.0, 395.0]);
-        let (k, tail) = p.worst(&pt).unwrap();
-        assert_eq!(k, 0);
-        assert!(tail < 1e-4, "{tail}");
-        assert!(p.blame(&pt, 0) > LOCALISE);
-        // The F(2, ν) tail against its closed form.
-        let nu: f64 = 4.0 + 1.0;
-        let s2 = (4.0 + 1.0) / nu;
-        let want = (1.0 + 399.0 / (nu * s2)).powf(-nu / 2.0);
-        assert!((tail - want).abs() < 1e-15);
     }
 }

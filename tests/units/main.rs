@@ -7,6 +7,7 @@ mod adjust_datum;
 mod adjust_rays;
 mod adjust_resection;
 mod adjust_support;
+mod adjust_tie_prior;
 mod cache;
 mod control_checkpoints;
 mod control_epoch;
