@@ -243,6 +243,12 @@ enum CcpStatus ccp_block_add_planes(struct CcpBlock *block,
                                     const double *d,
                                     const double *weights);
 
+// Makes the planes' common shift (the LiDAR's datum error) an unknown of the next
+// adjustments, with a zero prior of `sigma_m` per axis (metres, positive and finite);
+// 0 makes the planes the datum as they stand again (the default). The report's
+// `lidar_datum` gives the shift (`ccp_block_report_json`).
+enum CcpStatus ccp_block_set_lidar_datum_sigma(struct CcpBlock *block, double sigma_m);
+
 // Adjusts the block in place (`options` NULL = defaults) and fills `out_summary`.
 enum CcpStatus ccp_block_adjust(struct CcpBlock *block,
                                 const struct CcpAdjustOptions *options,

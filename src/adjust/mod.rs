@@ -129,6 +129,13 @@ pub struct AdjustOptions {
     pub max_correlation: f64,
     /// Compute per-photo EO standard deviations (one multi-right-hand-side solve).
     pub covariance: bool,
+    /// σ (m, per axis) of the LiDAR's datum. With LiDAR planes and a σ the adjustment
+    /// estimates one shift b common to every plane (the LiDAR surface is the true one
+    /// displaced by b), with a zero prior of that σ: the planes then fix the block's
+    /// shape, scale and orientation as before, and its position only as far as the LiDAR's
+    /// datum is known against the POS. None: the planes are the datum as they stand.
+    #[serde(default)]
+    pub lidar_datum_sigma_m: Option<[f64; 3]>,
 }
 
 impl Default for AdjustOptions {
@@ -142,6 +149,7 @@ impl Default for AdjustOptions {
             parameter_tolerance: 1e-10,
             max_correlation: 0.98,
             covariance: true,
+            lidar_datum_sigma_m: None,
         }
     }
 }
@@ -150,11 +158,24 @@ impl Default for AdjustOptions {
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 #[serde(tag = "type", rename_all = "snake_case")]
 pub enum ObservationRef {
-    Image { point: PointId, photo: PhotoId },
-    ControlPrior { point: PointId },
-    PosCenter { photo: PhotoId },
-    PosAttitude { photo: PhotoId },
-    Plane { point: PointId },
+    Image {
+        point: PointId,
+        photo: PhotoId,
+    },
+    ControlPrior {
+        point: PointId,
+    },
+    PosCenter {
+        photo: PhotoId,
+    },
+    PosAttitude {
+        photo: PhotoId,
+    },
+    Plane {
+        point: PointId,
+    },
+    /// The zero prior of the LiDAR datum shift.
+    LidarDatum,
 }
 
 /// A rejected observation and why.
@@ -259,6 +280,18 @@ pub struct CheckSummary {
     pub points: Vec<CheckPointReport>,
 }
 
+/// The adjusted shift of the LiDAR's datum from the block's.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub struct LidarDatumReport {
+    /// LiDAR minus block (m, block CRS axes): the LiDAR surface lies this far from the
+    /// adjusted block's surface.
+    pub shift_m: [f64; 3],
+    /// Its a-posteriori σ (m).
+    pub sigma_m: [f64; 3],
+    /// The a-priori σ it was given (m).
+    pub prior_sigma_m: [f64; 3],
+}
+
 /// Variance component of one observation group: σ0_g = √(Σ_g vᵀPv / Σ_g r) over the
 /// group's active observations. Redundancy numbers of image points and LiDAR planes are
 /// local (their point's own normal block, orientations held; see `precision`), slightly
@@ -266,7 +299,7 @@ pub struct CheckSummary {
 /// camera system), those of POS priors exact when EO covariances are computed, else 1.
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 pub struct VarianceComponent {
-    /// "image", "control", "pos_center", "pos_attitude" or "plane".
+    /// "image", "control", "pos_center", "pos_attitude", "plane" or "lidar_datum".
     pub group: String,
     /// Active observations of the group (an image point counts once).
     pub observations: usize,
@@ -335,6 +368,9 @@ pub struct AdjustReport {
     pub time_s: f64,
     pub photo_precision: Vec<PhotoPrecision>,
     pub calibration: Vec<CalibrationReport>,
+    /// The LiDAR datum shift, when adjusted (`lidar_datum_sigma_m`).
+    #[serde(default)]
+    pub lidar_datum: Option<LidarDatumReport>,
     pub check: Option<CheckSummary>,
     /// Residuals of every observation (image residuals can be many; omit from JSON by
     /// clearing when not wanted).

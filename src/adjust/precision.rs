@@ -400,7 +400,14 @@ pub(crate) fn variance_components(
     snoop: &[Option<Snoop>],
     exact: &[(usize, f64)],
 ) -> Vec<super::VarianceComponent> {
-    let groups = ["image", "control", "pos_center", "pos_attitude", "plane"];
+    let groups = [
+        "image",
+        "control",
+        "pos_center",
+        "pos_attitude",
+        "plane",
+        "lidar_datum",
+    ];
     let mut acc = vec![(0usize, 0usize, 0.0f64, 0.0f64); groups.len()];
     let exact: std::collections::BTreeMap<usize, f64> = exact.iter().copied().collect();
     for (i, r) in res.iter().enumerate() {

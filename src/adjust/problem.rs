@@ -32,6 +32,9 @@ pub(super) struct Problem {
     pub(super) camera_leader: Vec<usize>,
     pub(super) state: State,
     pub(super) datum: String,
+    /// The camera slot (after the cameras) holding the LiDAR datum shift, and its prior σ,
+    /// when the adjustment estimates it.
+    pub(super) lidar_datum: Option<(usize, Vector3<f64>)>,
 }
 
 impl Problem {
@@ -99,6 +102,7 @@ fn check_options(o: &AdjustOptions) -> Result<(), AdjustError> {
 fn plane_block(
     pl: &PlaneConstraint,
     point_index: &BTreeMap<PointId, usize>,
+    lidar_datum: Option<(usize, Vector3<f64>)>,
 ) -> Result<ResidualBlock, AdjustError> {
     let &p = point_index
         .get(&pl.point)
@@ -127,13 +131,17 @@ fn plane_block(
             sqrt_weight: pl.weight.sqrt(),
         },
         photo: None,
-        camera: None,
+        camera: lidar_datum.map(|(slot, _)| slot),
         point: Some(p),
         active: true,
     })
 }
 
-fn build(block: &Block, planes: &[PlaneConstraint]) -> Result<Problem, AdjustError> {
+fn build(
+    block: &Block,
+    planes: &[PlaneConstraint],
+    lidar_datum_sigma: Option<[f64; 3]>,
+) -> Result<Problem, AdjustError> {
     block
         .validate()
         .map_err(|e| AdjustError::InvalidBlock(e.to_string()))?;
@@ -175,7 +183,7 @@ fn build(block: &Block, planes: &[PlaneConstraint]) -> Result<Problem, AdjustErr
         camera_free.push(free);
     }
     let cameras: Vec<&BlockCamera> = block.cameras.values().collect();
-    let camera_leader: Vec<usize> = cameras
+    let mut camera_leader: Vec<usize> = cameras
         .iter()
         .enumerate()
         .map(|(i, c)| {
@@ -291,9 +299,33 @@ fn build(block: &Block, planes: &[PlaneConstraint]) -> Result<Problem, AdjustErr
     }
     let point_index: BTreeMap<PointId, usize> =
         point_ids.iter().enumerate().map(|(i, &p)| (p, i)).collect();
+    // The LiDAR datum shift is the camera slot after the cameras; it exists only with
+    // planes to shift.
+    let lidar_datum = match lidar_datum_sigma.filter(|_| !planes.is_empty()) {
+        Some(s) if s.iter().all(|v| v.is_finite() && *v > 0.0) => {
+            Some((camera_ids.len(), Vector3::from(s)))
+        }
+        Some(s) => {
+            return Err(AdjustError::InvalidOption {
+                name: "lidar_datum_sigma_m".into(),
+                message: format!("σ {s:?} must be finite and positive on every axis"),
+            })
+        }
+        None => None,
+    };
     for pl in planes {
-        res.push(plane_block(pl, &point_index)?);
+        res.push(plane_block(pl, &point_index, lidar_datum)?);
         refs.push(ObservationRef::Plane { point: pl.point });
+    }
+    if let Some((slot, sigma)) = lidar_datum {
+        res.push(ResidualBlock {
+            kind: Kind::LidarDatum { sigma },
+            photo: None,
+            camera: Some(slot),
+            point: None,
+            active: true,
+        });
+        refs.push(ObservationRef::LidarDatum);
     }
     let mut n_pos = 0;
     for (i, ph) in block.photos.values().enumerate() {
@@ -400,6 +432,7 @@ fn build(block: &Block, planes: &[PlaneConstraint]) -> Result<Problem, AdjustErr
         poses: block.photos.values().map(|p| p.pose).collect(),
         cameras: block.cameras.values().map(|c| c.model.clone()).collect(),
         points,
+        lidar_shift: Vector3::zeros(),
     };
     // One value per group: a member's free parameters start at its group's first camera's.
     let mut state = state;
@@ -416,7 +449,12 @@ fn build(block: &Block, planes: &[PlaneConstraint]) -> Result<Problem, AdjustErr
             .set_params(&p)
             .map_err(|e| AdjustError::InvalidBlock(format!("camera {}: {e}", cameras[i].id)))?;
     }
+    if let Some((slot, _)) = lidar_datum {
+        camera_free.push(vec![0, 1, 2]);
+        camera_leader.push(slot);
+    }
     Ok(Problem {
+        lidar_datum,
         photo_ids,
         camera_ids,
         point_ids,
@@ -480,7 +518,7 @@ pub fn adjust(
 ) -> Result<AdjustReport, AdjustError> {
     let t0 = Instant::now();
     check_options(opts)?;
-    let mut pb = build(block, planes)?;
+    let mut pb = build(block, planes, opts.lidar_datum_sigma_m)?;
     let n_points = pb.point_ids.len();
     let lm = LmOptions {
         max_iterations: opts.max_iterations,
@@ -618,7 +656,8 @@ fn refit_planes(pb: &mut Problem, rf: &mut dyn PlaneRefitter) -> Result<(), Adju
     pb.res = keep_res;
     pb.refs = keep_refs;
     for pl in &new_planes {
-        pb.res.push(plane_block(pl, &pb.point_index)?);
+        pb.res
+            .push(plane_block(pl, &pb.point_index, pb.lidar_datum)?);
         pb.refs.push(ObservationRef::Plane { point: pl.point });
     }
     Ok(())

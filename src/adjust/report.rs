@@ -9,7 +9,8 @@ use super::robust::RejectionTest;
 use super::solver::{self, Structure};
 use super::{
     AdjustError, AdjustOptions, AdjustReport, CalibrationReport, CheckPointReport, CheckSummary,
-    Loss, ObservationRef, PhotoPrecision, Rejected, RejectedSummary, ResidualReport,
+    LidarDatumReport, Loss, ObservationRef, PhotoPrecision, Rejected, RejectedSummary,
+    ResidualReport,
 };
 use crate::block::{Block, PointKind};
 use nalgebra::Vector3;
@@ -49,9 +50,9 @@ pub(super) fn finish(
                 ph_sum[ph].1 += 1;
                 vec![*sigma; 2]
             }
-            Kind::PointPrior { sigma, .. } | Kind::PosCenter { sigma, .. } => {
-                sigma.iter().copied().collect()
-            }
+            Kind::PointPrior { sigma, .. }
+            | Kind::PosCenter { sigma, .. }
+            | Kind::LidarDatum { sigma } => sigma.iter().copied().collect(),
             Kind::PosAttitude { sigma, .. } => vec![*sigma; 3],
             Kind::Plane { sqrt_weight, .. } => vec![1.0 / sqrt_weight],
         };
@@ -148,6 +149,9 @@ pub(super) fn finish(
                     .iter()
                     .position(|x| *x == Some(b))
                     .expect("camera");
+                if ci >= pb.state.cameras.len() {
+                    return format!("LiDAR datum d{}", ["x", "y", "z"][k]);
+                }
                 format!(
                     "camera {} {}",
                     pb.camera_ids[ci],
@@ -155,7 +159,13 @@ pub(super) fn finish(
                 )
             }
         };
-        for (ci, cb) in st.camera_block.iter().enumerate() {
+        // The slots after the cameras are not cameras (the LiDAR datum).
+        for (ci, cb) in st
+            .camera_block
+            .iter()
+            .enumerate()
+            .take(pb.state.cameras.len())
+        {
             let Some(b) = cb else { continue };
             // A calibration group is reported once, under its first camera.
             if pb.camera_leader[ci] != ci {
@@ -216,6 +226,14 @@ pub(super) fn finish(
 
     let variance_components =
         group_variances(pb, st, opts, &ev, &pts, factor.as_ref(), cof.as_ref());
+    let lidar_datum = pb.lidar_datum.map(|(slot, prior)| {
+        let q = lidar_datum_cofactor(st, cof.as_ref(), slot);
+        LidarDatumReport {
+            shift_m: pb.state.lidar_shift.into(),
+            sigma_m: [0, 1, 2].map(|k| q.map_or(f64::NAN, |q| (q[(k, k)] * var0).max(0.0).sqrt())),
+            prior_sigma_m: prior.into(),
+        }
+    });
 
     // Write back.
     for (i, &pid) in pb.photo_ids.iter().enumerate() {
@@ -298,6 +316,7 @@ pub(super) fn finish(
         time_s: t0.elapsed().as_secs_f64(),
         photo_precision,
         calibration,
+        lidar_datum,
         check,
         residuals,
     })
@@ -395,6 +414,12 @@ fn group_variances(
                     None => continue,
                 }
             }
+            (Kind::LidarDatum { sigma }, _, _) => {
+                match r.camera.and_then(|c| lidar_datum_cofactor(st, cof, c)) {
+                    Some(q) => (q, *sigma),
+                    None => continue,
+                }
+            }
             _ => continue,
         };
         let red: f64 = (0..3)
@@ -404,6 +429,18 @@ fn group_variances(
         exact.push((i, red));
     }
     precision::variance_components(&pb.res, &ev_ls, &snoop, &exact)
+}
+
+/// 3×3 cofactor of the LiDAR datum shift in camera slot `slot` (its block is always
+/// among the cofactors computed: they cover every block after the photos).
+fn lidar_datum_cofactor(
+    st: &Structure,
+    cof: Option<&precision::Cofactors>,
+    slot: usize,
+) -> Option<nalgebra::Matrix3<f64>> {
+    let b = (*st.camera_block.get(slot)?)?;
+    let q = &cof?.diag_blocks[b];
+    (q.nrows() == 3).then(|| nalgebra::Matrix3::from_fn(|i, j| q[(i, j)]))
 }
 
 /// 3×3 cofactor of a photo's rotation (`first` 0) or centre (3); a parameter held fixed

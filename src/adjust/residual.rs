@@ -14,6 +14,9 @@ pub(crate) struct State {
     pub poses: Vec<Pose>,
     pub cameras: Vec<Camera>,
     pub points: Vec<Vector3<f64>>,
+    /// Shift of the LiDAR's datum from the block's (LiDAR minus block, m), when the
+    /// adjustment estimates it; zero otherwise.
+    pub lidar_shift: Vector3<f64>,
 }
 
 /// What a residual block measures.
@@ -34,12 +37,16 @@ pub(crate) enum Kind {
     },
     /// POS attitude (world→camera rotation), σ per angle in radians.
     PosAttitude { rotation: Matrix3<f64>, sigma: f64 },
-    /// Distance of an object point to a LiDAR plane n·X = d, times √weight.
+    /// Distance of an object point to a LiDAR plane n·X = d, times √weight. With a
+    /// `camera` slot the block holds the LiDAR datum shift b there and the point X + b
+    /// is on the plane: the LiDAR is X's surface displaced by its own datum error.
     Plane {
         normal: Vector3<f64>,
         d: f64,
         sqrt_weight: f64,
     },
+    /// The LiDAR datum shift's prior: zero, σ per axis (m).
+    LidarDatum { sigma: Vector3<f64> },
 }
 
 impl Kind {
@@ -50,6 +57,7 @@ impl Kind {
             Kind::PosCenter { .. } => "POS centre",
             Kind::PosAttitude { .. } => "POS attitude",
             Kind::Plane { .. } => "LiDAR plane",
+            Kind::LidarDatum { .. } => "LiDAR datum prior",
         }
     }
 
@@ -61,6 +69,7 @@ impl Kind {
             Kind::PosCenter { .. } => "pos_center",
             Kind::PosAttitude { .. } => "pos_attitude",
             Kind::Plane { .. } => "plane",
+            Kind::LidarDatum { .. } => "lidar_datum",
         }
     }
 
@@ -72,7 +81,7 @@ impl Kind {
             Kind::PointPrior { sigma, .. } | Kind::PosCenter { sigma, .. } => {
                 [0, 1, 2].map(|k| sigma[k].is_finite())
             }
-            Kind::PosAttitude { .. } => [true; 3],
+            Kind::PosAttitude { .. } | Kind::LidarDatum { .. } => [true; 3],
         }
     }
 
@@ -180,12 +189,23 @@ impl ResidualBlock {
                 d,
                 sqrt_weight,
             } => {
-                let x = s.points[self.point?];
+                let mut x = s.points[self.point?];
                 let mut e = Eval::new(1);
+                let j = normal.transpose() * *sqrt_weight;
+                if self.camera.is_some() {
+                    x += s.lidar_shift;
+                    e.j_camera.fixed_view_mut::<1, 3>(0, 0).copy_from(&j);
+                }
                 e.r.x = (normal.dot(&x) - d) * sqrt_weight;
-                e.j_point
-                    .fixed_view_mut::<1, 3>(0, 0)
-                    .copy_from(&(normal.transpose() * *sqrt_weight));
+                e.j_point.fixed_view_mut::<1, 3>(0, 0).copy_from(&j);
+                Some(e)
+            }
+            Kind::LidarDatum { sigma } => {
+                let mut e = Eval::new(3);
+                e.r = s.lidar_shift.component_div(sigma);
+                e.j_camera
+                    .fixed_view_mut::<3, 3>(0, 0)
+                    .copy_from(&Matrix3::from_diagonal(&sigma.map(|v| 1.0 / v)));
                 Some(e)
             }
         }

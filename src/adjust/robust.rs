@@ -863,9 +863,13 @@ fn threshold_candidates(
                     .map(|c| d[c].abs() / (s0 * (q[(c, c)] + sigma[c] * sigma[c]).sqrt()))
                     .fold(0.0, f64::max)
             }
-            (Kind::PointPrior { .. } | Kind::PosCenter { .. } | Kind::PosAttitude { .. }, ..) => {
-                continue
-            }
+            (
+                Kind::PointPrior { .. }
+                | Kind::PosCenter { .. }
+                | Kind::PosAttitude { .. }
+                | Kind::LidarDatum { .. },
+                ..,
+            ) => continue,
             _ => match unit[i] {
                 Some((_, w)) => {
                     tested += r.kind.known().iter().filter(|&&b| b).count();

@@ -123,14 +123,11 @@ impl Structure {
     }
 }
 
-/// The camera-side blocks a residual touches: its photo, and its camera when the
-/// residual is an image observation of a self-calibrated camera.
+/// The camera-side blocks a residual touches: its photo, and its camera slot when that
+/// has free parameters (a self-calibrated camera of an image observation, the LiDAR
+/// datum of a plane and of its prior).
 fn blocks_of(r: &ResidualBlock, camera_block: &[Option<usize>]) -> [Option<usize>; 2] {
-    let cam = match r.kind {
-        super::residual::Kind::Image { .. } => r.camera.and_then(|c| camera_block[c]),
-        _ => None,
-    };
-    [r.photo, cam]
+    [r.photo, r.camera.and_then(|c| camera_block[c])]
 }
 
 /// Per-point part of the normal equations after damping: V⁻¹, gradient and the
@@ -430,6 +427,12 @@ pub(crate) fn apply(
             if cam.set_params(&p).is_err() {
                 continue;
             }
+        }
+    }
+    // The camera slot after the cameras is the LiDAR datum's, when it is adjusted.
+    if let Some(Some(b)) = st.camera_block.get(s.cameras.len()) {
+        for &k in &st.free[*b] {
+            s.lidar_shift[k] += dblocks[*b][k];
         }
     }
     for (x, d) in s.points.iter_mut().zip(dpoints) {

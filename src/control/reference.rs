@@ -32,6 +32,11 @@ use serde::Serialize;
 use std::collections::{BTreeMap, BTreeSet};
 use std::time::Instant;
 
+/// σ of a LiDAR survey's datum (m, per axis) when its report states none: the absolute
+/// accuracy airborne LiDAR is commonly delivered with after strip adjustment (USGS 3DEP
+/// QL1/QL2 ask RMSE_z ≤ 10 cm; 5 cm is the usual figure).
+pub const DEFAULT_LIDAR_DATUM_SIGMA_M: f64 = 0.05;
+
 /// Options of [`orient_reference`].
 #[derive(Debug, Clone)]
 pub struct ReferenceOptions {
@@ -74,6 +79,7 @@ impl Default for ReferenceOptions {
             plane_gate_m: 0.5,
             adjust: AdjustOptions {
                 rejection: Rejection::DataSnooping(3.29),
+                lidar_datum_sigma_m: Some([DEFAULT_LIDAR_DATUM_SIGMA_M; 3]),
                 ..AdjustOptions::default()
             },
             self_calibration: Vec::new(),

@@ -39,6 +39,8 @@ impl From<AdjustError> for FfiError {
 pub struct CcpBlock {
     block: Block,
     planes: Vec<PlaneConstraint>,
+    /// σ of the LiDAR's datum (m): `ccp_block_set_lidar_datum_sigma`.
+    lidar_datum_sigma_m: Option<f64>,
     report: Option<AdjustReport>,
 }
 
@@ -105,6 +107,7 @@ pub unsafe extern "C" fn ccp_block_new(
         *out_block = new_handle(CcpBlock {
             block,
             planes: Vec::new(),
+            lidar_datum_sigma_m: None,
             report: None,
         });
         Ok(())
@@ -376,6 +379,28 @@ pub unsafe extern "C" fn ccp_block_add_planes(
     })
 }
 
+/// Makes the planes' common shift (the LiDAR's datum error) an unknown of the next
+/// adjustments, with a zero prior of `sigma_m` per axis (metres, positive and finite);
+/// 0 makes the planes the datum as they stand again (the default). The report's
+/// `lidar_datum` gives the shift (`ccp_block_report_json`).
+#[no_mangle]
+pub unsafe extern "C" fn ccp_block_set_lidar_datum_sigma(
+    block: *mut CcpBlock,
+    sigma_m: f64,
+) -> CcpStatus {
+    guard(|| {
+        let held = get(block, "block")?;
+        let mut b = write(&held, "block")?;
+        if !(sigma_m.is_finite() && sigma_m >= 0.0) {
+            return Err(FfiError::invalid(format!(
+                "sigma_m = {sigma_m}: expected a finite σ in metres, or 0 for none"
+            )));
+        }
+        b.lidar_datum_sigma_m = (sigma_m > 0.0).then_some(sigma_m);
+        Ok(())
+    })
+}
+
 /// Adjusts the block in place (`options` NULL = defaults) and fills `out_summary`.
 #[no_mangle]
 pub unsafe extern "C" fn ccp_block_adjust(
@@ -412,6 +437,7 @@ pub unsafe extern "C" fn ccp_block_adjust(
             o.max_iterations = c.max_iterations as usize;
             o.max_rounds = c.max_rounds as usize;
         }
+        o.lidar_datum_sigma_m = b.lidar_datum_sigma_m.map(|s| [s; 3]);
         let out = output(out_summary, 1, 1, "out_summary")?;
         let planes = b.planes.clone();
         let rep = adjust::adjust(&mut b.block, &planes, None, &o)?;

@@ -30,6 +30,11 @@ pub struct ControlSources {
     /// LAS/LAZ files or folders holding them (none: the orthophoto and DEM control).
     #[serde(default)]
     pub lidar: Vec<PathBuf>,
+    /// 1σ accuracy of the LiDAR's datum per axis (m), as its survey report states it: the
+    /// reference adjustment estimates the LiDAR's shift from the block with this prior, so
+    /// the POS and the LiDAR each place the block as far as their accuracy goes.
+    #[serde(default = "default_lidar_datum_sigma")]
+    pub lidar_datum_sigma_m: f64,
     /// A georeferenced orthophoto (GeoTIFF, or an image with a world file), given with
     /// `dem`: control points of the archive epochs where it is textured and the DEM planar.
     #[serde(default)]
@@ -126,6 +131,10 @@ pub struct ExistingBlock {
 
 fn default_true() -> bool {
     true
+}
+
+fn default_lidar_datum_sigma() -> f64 {
+    crate::control::reference::DEFAULT_LIDAR_DATUM_SIGMA_M
 }
 
 fn default_dem_sigma() -> f64 {
@@ -411,6 +420,12 @@ impl Project {
                     format!("{d:?} is not an ISO 8601 date (YYYY, YYYY-MM or YYYY-MM-DD)"),
                 ));
             }
+        }
+        if !(c.lidar_datum_sigma_m > 0.0 && c.lidar_datum_sigma_m.is_finite()) {
+            return Err(key_err(
+                "control.lidar_datum_sigma_m",
+                "must be positive and finite".into(),
+            ));
         }
         if !(c.dem_sigma_m > 0.0 && c.dem_sigma_m.is_finite()) {
             return Err(key_err("control.dem_sigma_m", "must be positive".into()));

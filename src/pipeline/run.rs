@@ -355,8 +355,9 @@ fn icp_rows(iterations: &[lidar::IcpIteration]) -> Vec<IcpIteration> {
 
 /// The reference adjustment tests its gross errors by Baarda's data snooping (its tie
 /// points are many and precise; `reject_k` is the archive adjustments' k·σ0).
-pub(crate) fn reference_options(epoch: &Epoch) -> ReferenceOptions {
+pub(crate) fn reference_options(project: &Project, epoch: &Epoch) -> ReferenceOptions {
     let mut o = ReferenceOptions::default();
+    o.adjust.lidar_datum_sigma_m = Some([project.control.lidar_datum_sigma_m; 3]);
     if let Some(sc) = &epoch.self_calibration {
         o.self_calibration = sc.clone();
     }
@@ -624,6 +625,9 @@ fn run_stages(
         if let Some(b) = &e.block {
             inputs = inputs.file(&b.path).param("block", b);
         }
+        if k == 0 && has_reference {
+            inputs = inputs.param("lidar_datum_sigma_m", &project.control.lidar_datum_sigma_m);
+        }
         if let Some(p) = &e.pos {
             inputs = inputs.file(p);
         }
@@ -675,7 +679,7 @@ fn run_stages(
             } else if is_reference {
                 let input = EpochInput::build(&e.spec(), &project.crs, origin)?;
                 let (planes, ground) = (lidar.planes()?, &lidar.surface()?.ground);
-                let opts = reference_options(e);
+                let opts = reference_options(project, e);
                 // The tie matching of its photo pairs: on this process's threads, or as
                 // tasks of the stage for a planning run.
                 let (r, rep) = match task_mode {

@@ -44,6 +44,7 @@ _sig = {
     "ccp_block_add_points": [_BlockP, ctypes.c_size_t, _u64p, _u32p, _dp, _dp],
     "ccp_block_add_observations": [_BlockP, ctypes.c_size_t, _u64p, _u32p, _dp, _dp],
     "ccp_block_add_planes": [_BlockP, ctypes.c_size_t, _u64p, _dp, _dp, _dp],
+    "ccp_block_set_lidar_datum_sigma": [_BlockP, ctypes.c_double],
     "ccp_block_adjust": [_BlockP, ctypes.POINTER(AdjustOptions), ctypes.POINTER(AdjustSummary)],
     "ccp_block_get_photo": [_BlockP, ctypes.c_uint32, ctypes.POINTER(CcpPose), _dp],
     "ccp_block_get_point": [_BlockP, ctypes.c_uint64, _dp],
@@ -111,6 +112,11 @@ class Block:
         p = _ids(point_ids, np.uint64)
         n, dd, w = as_f64(normals, 3, "normals"), as_f64(d), as_f64(weights)
         check(lib.ccp_block_add_planes(self._h, len(p), p.ctypes.data_as(_u64p), ptr(n), ptr(dd), ptr(w)))
+
+    def set_lidar_datum_sigma(self, sigma_m: float):
+        """Adjust the planes' common shift (the LiDAR's datum error) with a zero prior of
+        sigma_m per axis (m); 0 makes the planes the datum as they stand (the default)."""
+        check(lib.ccp_block_set_lidar_datum_sigma(self._h, float(sigma_m)))
 
     def adjust(self, loss: str = "huber", loss_scale: float = 2.0, rejection: str = "snooping", k: float = 3.2905,
                max_iterations: int = 50, max_rounds: int = 10) -> dict:

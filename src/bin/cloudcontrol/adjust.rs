@@ -43,6 +43,10 @@ pub struct AdjustArgs {
     /// LiDAR planes CSV: point_id,nx,ny,nz,d,weight (world coordinates, weight in 1/m²).
     #[arg(long, num_args = 1..)]
     pub lidar_planes: Vec<PathBuf>,
+    /// σ of the LiDAR's datum per axis (m): the planes' common shift is adjusted with this
+    /// prior (report: `lidar_datum`). Without it the planes are the datum as they stand.
+    #[arg(long)]
+    pub lidar_datum_sigma: Option<f64>,
     /// Interior parameters to self-calibrate: any of f,pp,k1,k2,k3,p1,p2.
     #[arg(long, value_delimiter = ',')]
     pub self_calibrate: Vec<String>,
@@ -322,6 +326,7 @@ pub fn run_adjust(a: &AdjustArgs) -> Result<serde_json::Value, String> {
         rejection,
         max_iterations: a.max_iterations,
         covariance: !a.no_covariance,
+        lidar_datum_sigma_m: a.lidar_datum_sigma.map(|v| [v; 3]),
         ..Default::default()
     };
     // The model is in its own frame: the adjustment runs in a local frame at the

@@ -161,7 +161,7 @@ impl ReferenceContext {
         let surface = ControlGround::new(&plan.project, &plan.sources, plan.origin)
             .surface_arc()?
             .clone();
-        let opts = crate::pipeline::run::reference_options(e);
+        let opts = crate::pipeline::run::reference_options(&plan.project, e);
         let (block, images) = reference::tie_photos(&input)?;
         let tp =
             TiePhotos::of(&block, &images, &opts.ties).map_err(|e| tie_error(&input.name, e))?;
