@@ -273,7 +273,8 @@ fn best_factor(points: &[PointLoo], d0: f64, tolerance: f64) -> (f64, f64, f64) 
 const SCREEN_POINTS: usize = 2000;
 
 /// ln s0² tolerance of the fits the test is made from: a 10⁻² error in ln s0² would move
-/// the likelihood of 10⁵ residual dimensions by about 1, half the test's margin at 5 %.
+/// the log-likelihood of 10⁵ residual dimensions by about 1, the size of the test's own
+/// critical difference (1.9 at 5 %).
 const FINE: f64 = 1e-3;
 
 /// The d0 grid's values next to `d0` (two each side) and one variance.

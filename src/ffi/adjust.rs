@@ -33,7 +33,7 @@ impl From<AdjustError> for FfiError {
 
 /// Opaque block handle: `ccp_block_new`, `ccp_block_free`.
 /// Thread safety: a block may be used from several threads at once. Calls that change it
-/// (`ccp_block_add_*`, `ccp_block_set_pos_prior`, `ccp_block_adjust`) take it exclusively
+/// (`ccp_block_add_*`, `ccp_block_set_*`, `ccp_block_adjust`) take it exclusively
 /// and run one after the other; reading calls (`ccp_block_get_*`, `ccp_block_report_json`)
 /// run together.
 pub struct CcpBlock {
