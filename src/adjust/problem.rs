@@ -32,9 +32,9 @@ pub(super) struct Problem {
     pub(super) camera_leader: Vec<usize>,
     pub(super) state: State,
     pub(super) datum: String,
-    /// The camera slot (after the cameras) holding the LiDAR datum shift, and its prior σ,
-    /// when the adjustment estimates it.
-    pub(super) lidar_datum: Option<(usize, Vector3<f64>)>,
+    /// The camera slot (after the cameras) holding the LiDAR datum shift, when the
+    /// adjustment estimates it (its prior is the slot's `Kind::LidarDatum` residual).
+    pub(super) lidar_datum: Option<usize>,
 }
 
 impl Problem {
@@ -102,7 +102,7 @@ fn check_options(o: &AdjustOptions) -> Result<(), AdjustError> {
 fn plane_block(
     pl: &PlaneConstraint,
     point_index: &BTreeMap<PointId, usize>,
-    lidar_datum: Option<(usize, Vector3<f64>)>,
+    lidar_datum: Option<usize>,
 ) -> Result<ResidualBlock, AdjustError> {
     let &p = point_index
         .get(&pl.point)
@@ -131,7 +131,7 @@ fn plane_block(
             sqrt_weight: pl.weight.sqrt(),
         },
         photo: None,
-        camera: lidar_datum.map(|(slot, _)| slot),
+        camera: lidar_datum,
         point: Some(p),
         active: true,
     })
@@ -314,7 +314,11 @@ fn build(
         None => None,
     };
     for pl in planes {
-        res.push(plane_block(pl, &point_index, lidar_datum)?);
+        res.push(plane_block(
+            pl,
+            &point_index,
+            lidar_datum.map(|(slot, _)| slot),
+        )?);
         refs.push(ObservationRef::Plane { point: pl.point });
     }
     if let Some((slot, sigma)) = lidar_datum {
@@ -454,7 +458,7 @@ fn build(
         camera_leader.push(slot);
     }
     Ok(Problem {
-        lidar_datum,
+        lidar_datum: lidar_datum.map(|(slot, _)| slot),
         photo_ids,
         camera_ids,
         point_ids,

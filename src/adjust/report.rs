@@ -226,8 +226,16 @@ pub(super) fn finish(
 
     let variance_components =
         group_variances(pb, st, opts, &ev, &pts, factor.as_ref(), cof.as_ref());
-    let lidar_datum = pb.lidar_datum.map(|(slot, prior)| {
+    let lidar_datum = pb.lidar_datum.map(|slot| {
         let q = lidar_datum_cofactor(st, cof.as_ref(), slot);
+        let prior = pb
+            .res
+            .iter()
+            .find_map(|r| match r.kind {
+                Kind::LidarDatum { sigma } => Some(sigma),
+                _ => None,
+            })
+            .expect("the LiDAR datum slot has its prior");
         LidarDatumReport {
             shift_m: pb.state.lidar_shift.into(),
             sigma_m: [0, 1, 2].map(|k| q.map_or(f64::NAN, |q| (q[(k, k)] * var0).max(0.0).sqrt())),
