@@ -269,7 +269,20 @@ pub fn intersect(rays: &[(&Camera, &Pose, [f64; 2], f64)]) -> Option<Vector3<f64
         a += p;
         b += p * pose.center;
     }
-    let mut x = a.try_inverse()? * b;
+    refine_intersection(rays, a.try_inverse()? * b)
+}
+
+/// Gauss–Newton on the reprojection error of `rays` from `x` (the last step under 1 nm,
+/// at most ten); `None` when the normal matrix is singular or the point leaves a camera.
+/// A leave-one-out re-intersection starts from all rays' point: it is within the one
+/// ray's pull of it, and skips the midpoint start.
+pub(crate) fn refine_intersection(
+    rays: &[(&Camera, &Pose, [f64; 2], f64)],
+    mut x: Vector3<f64>,
+) -> Option<Vector3<f64>> {
+    if rays.len() < 2 {
+        return None;
+    }
     for _ in 0..10 {
         let mut n = Matrix3::zeros();
         let mut g = Vector3::zeros();

@@ -147,8 +147,15 @@ impl RejectionTest {
         let Some(alpha) = self.rule.alpha() else {
             return;
         };
+        let t = std::time::Instant::now();
         let points: Vec<PointLoo> = self.tie_points(st, pb).into_values().collect();
+        let t_loo = t.elapsed().as_secs_f64();
         self.tie_prior = tie_prior::fit(&points, alpha, None);
+        tracing::debug!(
+            t_loo,
+            t_fit = t.elapsed().as_secs_f64() - t_loo,
+            "tie point re-intersections and prior"
+        );
         if let Some(p) = &self.tie_prior {
             tracing::info!(
                 d0 = p.dof,
@@ -1011,6 +1018,17 @@ fn ssr_at(pb: &Problem, rays: &[usize], x: &Vector3<f64>, f2: f64) -> f64 {
 
 /// [`ssr_at`] the re-intersection of `rays`; None when they do not intersect.
 fn intersection_ssr(pb: &Problem, rays: &[usize], f2: f64) -> Option<f64> {
+    reintersect(pb, rays, f2, None).map(|(s, _)| s)
+}
+
+/// The re-intersection of `rays` (from `start` when given, else from their midpoint) and
+/// its [`ssr_at`].
+fn reintersect(
+    pb: &Problem,
+    rays: &[usize],
+    f2: f64,
+    start: Option<&Vector3<f64>>,
+) -> Option<(f64, Vector3<f64>)> {
     let ray = |j: usize| {
         let r: &ResidualBlock = &pb.res[j];
         let Kind::Image { pixel, sigma } = r.kind else {
@@ -1023,8 +1041,12 @@ fn intersection_ssr(pb: &Problem, rays: &[usize], f2: f64) -> Option<f64> {
             sigma,
         )
     };
-    let x = intersect(&rays.iter().map(|&j| ray(j)).collect::<Vec<_>>())?;
-    Some(ssr_at(pb, rays, &x, f2))
+    let rays_of: Vec<_> = rays.iter().map(|&j| ray(j)).collect();
+    let x = match start {
+        Some(x0) => precision::refine_intersection(&rays_of, *x0)?,
+        None => intersect(&rays_of)?,
+    };
+    Some((ssr_at(pb, rays, &x, f2), x))
 }
 
 /// A tie point's re-intersections from all its `rays` and leaving each out (three rays
@@ -1045,7 +1067,7 @@ fn point_loo(
     if rays.len() < 2 {
         return None;
     }
-    let ss = intersection_ssr(pb, &rays, f2).filter(|s| s.is_finite())?;
+    let (ss, all) = reintersect(pb, &rays, f2, None).filter(|(s, _)| s.is_finite())?;
     if let Some((x, crit)) = held_at {
         if ssr_at(pb, &rays, x, f2) - ss > crit {
             return None;
@@ -1055,7 +1077,7 @@ fn point_loo(
     if rays.len() >= 3 {
         for &skip in &rays {
             let others: Vec<usize> = rays.iter().copied().filter(|&j| j != skip).collect();
-            loo.push(intersection_ssr(pb, &others, f2).unwrap_or(f64::INFINITY));
+            loo.push(reintersect(pb, &others, f2, Some(&all)).map_or(f64::INFINITY, |(s, _)| s));
         }
     }
     Some(PointLoo::new(rays, ss, loo))
