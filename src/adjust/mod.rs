@@ -22,6 +22,8 @@ mod report;
 pub mod resection;
 mod residual;
 mod robust;
+#[doc(hidden)]
+pub mod selinv;
 mod solver;
 pub mod support;
 pub mod synthetic;

@@ -16,7 +16,8 @@
 //! along-base component is absorbed by the point's height).
 
 use super::residual::{Eval, Kind, ResidualBlock, State};
-use super::solver::{Evaluated, Factor, PointSys, Structure};
+use super::selinv::SelectedInverse;
+use super::solver::{self, Evaluated, Factor, PointSys, Row, Structure};
 use crate::geometry::{Camera, Pose};
 use nalgebra::{DMatrix, Matrix3, Vector3};
 use rayon::prelude::*;
@@ -196,14 +197,38 @@ pub(crate) struct Cofactors {
     pub diag: Vec<f64>,
 }
 
-pub(crate) fn cofactors(st: &Structure, factor: &Factor, want_photos: bool) -> Cofactors {
+///
+/// A sparse system's photo blocks and diagonal come from its selected inverse; the
+/// camera-side blocks' whole columns (a few) and a dense system's blocks from solves.
+pub(crate) fn cofactors(
+    st: &Structure,
+    rows: &[Row],
+    factor: &Factor,
+    want_photos: bool,
+) -> Cofactors {
     let n = st.n;
     let nb = st.free.len();
     let mut diag_blocks = vec![DMatrix::zeros(0, 0); nb];
     let mut columns = Vec::new();
     let mut diag = vec![f64::NAN; n];
+    let selected = match factor {
+        Factor::Sparse(_) if want_photos => {
+            solver::reduced_upper(st, rows).and_then(|s| SelectedInverse::new(s.as_ref()))
+        }
+        _ => None,
+    };
+    if let Some(z) = &selected {
+        let at = |i: usize, j: usize| z.get(i, j).unwrap_or(f64::NAN);
+        for (b, q) in diag_blocks.iter_mut().enumerate() {
+            let (o, m) = (st.offset[b], st.free[b].len());
+            *q = DMatrix::from_fn(m, m, |i, j| at(o + i, o + j));
+        }
+        for (g, d) in diag.iter_mut().enumerate() {
+            *d = at(g, g);
+        }
+    }
     let blocks: Vec<usize> = (0..nb)
-        .filter(|&b| want_photos || b >= st.n_photos)
+        .filter(|&b| b >= st.n_photos || (want_photos && selected.is_none()))
         .collect();
     let mut k = 0;
     // Multi-right-hand-side solves in batches bound the memory to n × 192 values.

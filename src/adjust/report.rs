@@ -31,6 +31,7 @@ pub(super) fn finish(
     t0: Instant,
 ) -> Result<AdjustReport, AdjustError> {
     let n_points = pb.point_ids.len();
+    let t = Instant::now();
     let ev = solver::evaluate(&pb.res, &pb.state, loss);
     let n_unk = n_unknowns(st, &pb.res, n_points);
     let (s0, n_obs, redundancy) = precision::sigma0(&pb.res, &ev, n_unk);
@@ -78,6 +79,7 @@ pub(super) fn finish(
         });
     }
 
+    let t_residuals = t.elapsed().as_secs_f64();
     // Precision from the undamped reduced camera system.
     let mut photo_precision = Vec::new();
     let mut calibration = Vec::new();
@@ -85,10 +87,17 @@ pub(super) fn finish(
     let mut cache = solver::SymbolicCache::default();
     let factor = solver::factorize(st, &rows, &mut cache);
     let var0 = if s0.is_finite() { s0 * s0 } else { 1.0 };
-    let cof = factor.as_ref().map(|f| cofactors(st, f, opts.covariance));
+    let cof = factor
+        .as_ref()
+        .map(|f| cofactors(st, &rows, f, opts.covariance));
     if factor.is_none() {
         tracing::warn!("the reduced camera system is singular at the solution: no precision");
     }
+    tracing::debug!(
+        t_residuals,
+        t_cofactors = t.elapsed().as_secs_f64() - t_residuals,
+        "report: residuals and cofactors"
+    );
     for (i, &pid) in pb.photo_ids.iter().enumerate() {
         let mut sr = [f64::NAN; 3];
         let mut sc = [f64::NAN; 3];

@@ -6,6 +6,7 @@ mod adjust_chi2;
 mod adjust_datum;
 mod adjust_rays;
 mod adjust_resection;
+mod adjust_selinv;
 mod adjust_support;
 mod adjust_tie_prior;
 mod cache;
