@@ -548,6 +548,9 @@ pub(crate) struct LmOutcome {
     pub initial_cost: f64,
     pub final_cost: f64,
     pub converged: bool,
+    /// The loss weighs every evaluated residual fully at the solution (its cost is the
+    /// least-squares cost about it).
+    pub fully_weighted: bool,
 }
 
 #[derive(Debug, Clone)]
@@ -640,5 +643,10 @@ pub(crate) fn levenberg_marquardt(
         initial_cost,
         final_cost: ev.cost,
         converged,
+        fully_weighted: ev
+            .evals
+            .iter()
+            .zip(&ev.weights)
+            .all(|(e, &w)| e.is_none() || w == 1.0),
     }
 }
