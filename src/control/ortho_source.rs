@@ -96,8 +96,8 @@ pub struct OrthoControlReport {
     pub points: usize,
 }
 
-fn srs_of(ds: &gdal::Dataset) -> Option<String> {
-    let wkt = ds.spatial_ref().ok()?.to_wkt().ok()?;
+fn srs_of(ds: &crate::formats::gdal::Dataset) -> Option<String> {
+    let wkt = ds.spatial_ref()?.to_wkt().ok()?;
     (!wkt.is_empty()).then_some(wkt)
 }
 

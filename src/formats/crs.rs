@@ -1,13 +1,13 @@
 //! Coordinate reference systems and transformations.
 //!
 //! We use GDAL's OSR (`OGRCoordinateTransformation`), which is PROJ underneath: GDAL is
-//! linked anyway for rasters, so this is one binding to one PROJ instead of two, and it
+//! loaded anyway for rasters ([`super::gdal`]), so this is one binding to one PROJ instead of two, and it
 //! avoids pinning the `proj` crate to the old release that builds against Debian's PROJ.
 //! Axis order is always the traditional GIS one (easting/longitude first).
 
 use super::crs_input::{self, CrsSyntax};
+use super::gdal::{CoordTransform, SpatialRef};
 use super::{FormatError, Result};
-use gdal::spatial_ref::{AxisMappingStrategy, CoordTransform, SpatialRef};
 
 /// A parsed CRS: from `EPSG:n`, WKT, PROJJSON or a PROJ string (never from a URL or a
 /// file, see [`crs_input`]).
@@ -28,26 +28,6 @@ impl Clone for Crs {
     }
 }
 
-/// Runs a GDAL importer on a spatial reference owned from the start, so one the importer
-/// refuses is freed: gdal 0.19's `from_proj4` and `from_definition` leak it (found by
-/// fuzzing, fuzz/README.md).
-fn import(
-    definition: &str,
-    method_name: &'static str,
-    importer: impl FnOnce(
-        gdal_sys::OGRSpatialReferenceH,
-        *const std::ffi::c_char,
-    ) -> gdal_sys::OGRErr::Type,
-) -> gdal::errors::Result<SpatialRef> {
-    let srs = SpatialRef::new()?;
-    let text = std::ffi::CString::new(definition)?;
-    let err = importer(srs.to_c_hsrs(), text.as_ptr());
-    if err != gdal_sys::OGRErr::OGRERR_NONE {
-        return Err(gdal::errors::GdalError::OgrError { err, method_name });
-    }
-    Ok(srs)
-}
-
 impl Crs {
     pub fn parse(definition: &str) -> Result<Self> {
         let trimmed = definition.trim();
@@ -57,27 +37,20 @@ impl Crs {
                 message: "empty CRS definition".into(),
             });
         }
-        super::gdal_env::init();
         // Each syntax goes to its own importer: GDAL's catch-all `SetFromUserInput` would
         // also fetch URLs and read files named by the string.
         let srs = match crs_input::classify(trimmed)? {
             CrsSyntax::Wkt => SpatialRef::from_wkt(trimmed),
-            CrsSyntax::ProjString => import(trimmed, "OSRImportFromProj4", |h, c| unsafe {
-                gdal_sys::OSRImportFromProj4(h, c)
-            }),
+            CrsSyntax::ProjString => SpatialRef::from_proj4(trimmed),
             // Vetted: `EPSG:n[+m]` and a PROJJSON CRS type take SetFromUserInput's
             // database and PROJJSON branches, which open nothing.
-            CrsSyntax::Epsg | CrsSyntax::ProjJson => {
-                import(trimmed, "OSRSetFromUserInput", |h, c| unsafe {
-                    gdal_sys::OSRSetFromUserInput(h, c)
-                })
-            }
+            CrsSyntax::Epsg | CrsSyntax::ProjJson => SpatialRef::from_user_input(trimmed),
         };
         let mut srs = srs.map_err(|e| FormatError::Crs {
             crs: crs_input::excerpt(trimmed),
             message: format!("not a CRS GDAL/PROJ knows ({e})"),
         })?;
-        srs.set_axis_mapping_strategy(AxisMappingStrategy::TraditionalGisOrder);
+        srs.set_traditional_gis_order();
         Ok(Self {
             definition: trimmed.to_string(),
             srs,
@@ -99,7 +72,7 @@ impl Crs {
     /// `EPSG:n` when the CRS has an EPSG code, else its name.
     pub fn label(&self) -> String {
         match (self.srs.auth_name(), self.srs.auth_code()) {
-            (Some(a), Ok(c)) => format!("{a}:{c}"),
+            (Some(a), Some(c)) => format!("{a}:{c}"),
             _ => self
                 .srs
                 .name()
@@ -109,7 +82,7 @@ impl Crs {
 
     pub fn epsg(&self) -> Option<u32> {
         match (self.srs.auth_name().as_deref(), self.srs.auth_code()) {
-            (Some("EPSG"), Ok(c)) if c > 0 => Some(c as u32),
+            (Some("EPSG"), Some(c)) if c > 0 => Some(c as u32),
             _ => None,
         }
     }
@@ -270,13 +243,13 @@ impl Crs {
         let srs = h.spatial_ref();
         Ok(if srs.is_geographic() {
             LinearUnit {
-                name: srs.angular_units_name().unwrap_or_else(|| "degree".into()),
-                metres: srs.angular_units(),
+                name: srs.angular_units().1.unwrap_or_else(|| "degree".into()),
+                metres: srs.angular_units().0,
             }
         } else {
             LinearUnit {
-                name: srs.linear_units_name().unwrap_or_else(|| "metre".into()),
-                metres: srs.linear_units(),
+                name: srs.linear_units().1.unwrap_or_else(|| "metre".into()),
+                metres: srs.linear_units().0,
             }
         })
     }

@@ -4,8 +4,8 @@
 //! raster drivers we mean ([`RASTER_DRIVERS`]) on local paths — never VRT (which reads
 //! other files) nor `/vsicurl/` and URLs (which fetch from the network).
 
+use super::gdal::Dataset;
 use super::{FormatError, Result};
-use gdal::{Dataset, DatasetOptions, GdalOpenFlags};
 use std::path::Path;
 
 /// Largest image or raster window read whole: 2³⁰ pixels (a 230 mm film frame scanned
@@ -48,16 +48,7 @@ pub fn open_raster(path: &Path) -> Result<Dataset> {
     if !path.is_file() {
         return Err(FormatError::invalid(path, "is not a file"));
     }
-    super::gdal_env::init();
-    Dataset::open_ex(
-        path,
-        DatasetOptions {
-            open_flags: GdalOpenFlags::GDAL_OF_RASTER | GdalOpenFlags::GDAL_OF_READONLY,
-            allowed_drivers: Some(RASTER_DRIVERS),
-            ..Default::default()
-        },
-    )
-    .map_err(|e| {
+    Dataset::open_raster(path, RASTER_DRIVERS).map_err(|e| {
         FormatError::invalid(
             path,
             format!(
@@ -162,8 +153,7 @@ pub fn read_band_strips(
         let parts = handles
             .iter()
             .map(|band| {
-                band.read_as::<f32>((c as isize, row as isize), (w, rows), (w, rows), None)
-                    .map(|b| b.into_shape_and_vec().1)
+                band.read::<f32>((c, row), (w, rows), (w, rows))
                     .map_err(|e| FormatError::gdal(path, e))
             })
             .collect::<Result<Vec<_>>>()?;

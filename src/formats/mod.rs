@@ -8,7 +8,7 @@ pub mod convert;
 pub mod crs;
 pub mod crs_input;
 pub mod csv;
-pub mod gdal_env;
+pub mod gdal;
 pub mod image_open;
 pub mod odm_gcp;
 pub mod ortho;
@@ -107,7 +107,7 @@ impl FormatError {
             source,
         }
     }
-    pub fn gdal(path: impl AsRef<Path>, e: gdal::errors::GdalError) -> Self {
+    pub fn gdal(path: impl AsRef<Path>, e: gdal::GdalError) -> Self {
         FormatError::Gdal {
             path: path.as_ref().to_path_buf(),
             message: e.to_string(),

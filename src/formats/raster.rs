@@ -3,10 +3,9 @@
 //! half-written GeoTIFF behind.
 
 use super::crs::Crs;
+use super::gdal::{self, DataType, Dataset, Driver};
 use super::{image_open, write_atomically, FormatError, Result};
 use crate::geometry::{Dem, GeoTransform};
-use gdal::raster::{Buffer, RasterCreationOptions};
-use gdal::{Dataset, DriverManager};
 use std::path::Path;
 
 /// No-data value written for DEM holes (NaN inside [`Dem`]).
@@ -32,11 +31,7 @@ impl Default for GeoTiffOptions {
     }
 }
 
-fn creation_options(
-    opts: &GeoTiffOptions,
-    width: usize,
-    height: usize,
-) -> Result<RasterCreationOptions> {
+fn creation_options(opts: &GeoTiffOptions, width: usize, height: usize) -> Vec<String> {
     let mut list = vec![
         format!("COMPRESS={}", opts.compress),
         "BIGTIFF=IF_SAFER".to_string(),
@@ -47,19 +42,16 @@ fn creation_options(
         list.push(format!("BLOCKXSIZE={}", opts.tile));
         list.push(format!("BLOCKYSIZE={}", opts.tile));
     }
-    Ok(RasterCreationOptions::from_iter(
-        list.iter().map(|s| s.as_str()),
-    ))
+    list
 }
 
 /// Writes a DEM as a float32 GeoTIFF with CRS, geotransform and nodata.
 pub fn write_dem(path: &Path, dem: &Dem, crs: &Crs, opts: &GeoTiffOptions) -> Result<()> {
     write_atomically(path, |tmp| {
-        let driver =
-            DriverManager::get_driver_by_name("GTiff").map_err(|e| FormatError::gdal(path, e))?;
-        let co = creation_options(opts, dem.width, dem.height)?;
+        let driver = Driver::by_name("GTiff").map_err(|e| FormatError::gdal(path, e))?;
+        let co = creation_options(opts, dem.width, dem.height);
         let mut ds = driver
-            .create_with_band_type_with_options::<f32, _>(tmp, dem.width, dem.height, 1, &co)
+            .create::<f32>(tmp, (dem.width, dem.height), 1, &co)
             .map_err(|e| FormatError::gdal(path, e))?;
         ds.set_geo_transform(&dem.transform.0)
             .map_err(|e| FormatError::gdal(path, e))?;
@@ -67,19 +59,18 @@ pub fn write_dem(path: &Path, dem: &Dem, crs: &Crs, opts: &GeoTiffOptions) -> Re
             .map_err(|e| FormatError::gdal(path, e))?;
         {
             let mut band = ds.rasterband(1).map_err(|e| FormatError::gdal(path, e))?;
-            band.set_no_data_value(Some(DEM_NODATA as f64))
+            band.set_no_data_value(DEM_NODATA as f64)
                 .map_err(|e| FormatError::gdal(path, e))?;
             let data: Vec<f32> = dem
                 .data
                 .iter()
                 .map(|&v| if v.is_finite() { v } else { DEM_NODATA })
                 .collect();
-            let mut buf = Buffer::new((dem.width, dem.height), data);
-            band.write((0, 0), (dem.width, dem.height), &mut buf)
+            band.write((0, 0), (dem.width, dem.height), &data)
                 .map_err(|e| FormatError::gdal(path, e))?;
         }
         if !opts.overviews.is_empty() {
-            ds.build_overviews("AVERAGE", &opts.overviews, &[])
+            ds.build_overviews("AVERAGE", &opts.overviews)
                 .map_err(|e| FormatError::gdal(path, e))?;
         }
         ds.flush_cache().map_err(|e| FormatError::gdal(path, e))?;
@@ -105,11 +96,10 @@ pub fn write_grey(
         ));
     }
     write_atomically(path, |tmp| {
-        let driver =
-            DriverManager::get_driver_by_name("GTiff").map_err(|e| FormatError::gdal(path, e))?;
-        let co = creation_options(opts, width, height)?;
+        let driver = Driver::by_name("GTiff").map_err(|e| FormatError::gdal(path, e))?;
+        let co = creation_options(opts, width, height);
         let mut ds = driver
-            .create_with_band_type_with_options::<u8, _>(tmp, width, height, 1, &co)
+            .create::<u8>(tmp, (width, height), 1, &co)
             .map_err(|e| FormatError::gdal(path, e))?;
         ds.set_geo_transform(&transform.0)
             .map_err(|e| FormatError::gdal(path, e))?;
@@ -117,8 +107,7 @@ pub fn write_grey(
             .map_err(|e| FormatError::gdal(path, e))?;
         {
             let mut band = ds.rasterband(1).map_err(|e| FormatError::gdal(path, e))?;
-            let mut buf = Buffer::new((width, height), data);
-            band.write((0, 0), (width, height), &mut buf)
+            band.write((0, 0), (width, height), &data)
                 .map_err(|e| FormatError::gdal(path, e))?;
         }
         ds.flush_cache().map_err(|e| FormatError::gdal(path, e))?;
@@ -134,7 +123,6 @@ pub fn write_grey(
 /// (0 for bands without one).
 pub fn warp_to(path: &Path, source: &Crs, target: &Crs, pixel: f64, out: &Path) -> Result<()> {
     use super::crs::Transformer;
-    use gdal::raster::GdalDataType;
     let src = image_open::open_raster(path)?;
     let (w, h) = src.raster_size();
     image_open::check_pixels(path, w as u64, h as u64)?;
@@ -148,9 +136,9 @@ pub fn warp_to(path: &Path, source: &Crs, target: &Crs, pixel: f64, out: &Path) 
         .band_type();
     let nodata = src.rasterband(1).ok().and_then(|b| b.no_data_value());
     // An in-memory copy carries the CRS the file may not state.
-    let mem = DriverManager::get_driver_by_name("MEM").map_err(|e| FormatError::gdal(path, e))?;
+    let mem = Driver::by_name("MEM").map_err(|e| FormatError::gdal(path, e))?;
     let mut copy = src
-        .create_copy(&mem, "", &RasterCreationOptions::default())
+        .create_copy(&mem, Path::new(""), &[] as &[&str])
         .map_err(|e| FormatError::gdal(path, e))?;
     drop(src);
     copy.set_spatial_ref(source.spatial_ref())
@@ -186,17 +174,12 @@ pub fn warp_to(path: &Path, source: &Crs, target: &Crs, pixel: f64, out: &Path) 
     );
     image_open::check_pixels(path, tw as u64, th as u64)?;
     write_atomically(out, |tmp| {
-        let driver =
-            DriverManager::get_driver_by_name("GTiff").map_err(|e| FormatError::gdal(path, e))?;
-        let co = creation_options(&GeoTiffOptions::default(), tw, th)?;
+        let driver = Driver::by_name("GTiff").map_err(|e| FormatError::gdal(path, e))?;
+        let co = creation_options(&GeoTiffOptions::default(), tw, th);
         let mut dst = match band_type {
-            GdalDataType::UInt8 => {
-                driver.create_with_band_type_with_options::<u8, _>(tmp, tw, th, bands, &co)
-            }
-            GdalDataType::UInt16 => {
-                driver.create_with_band_type_with_options::<u16, _>(tmp, tw, th, bands, &co)
-            }
-            _ => driver.create_with_band_type_with_options::<f32, _>(tmp, tw, th, bands, &co),
+            DataType::UInt8 => driver.create::<u8>(tmp, (tw, th), bands, &co),
+            DataType::UInt16 => driver.create::<u16>(tmp, (tw, th), bands, &co),
+            _ => driver.create::<f32>(tmp, (tw, th), bands, &co),
         }
         .map_err(|e| FormatError::gdal(path, e))?;
         dst.set_geo_transform(&[x0, pixel, 0.0, y1, 0.0, -pixel])
@@ -205,12 +188,12 @@ pub fn warp_to(path: &Path, source: &Crs, target: &Crs, pixel: f64, out: &Path) 
             .map_err(|e| FormatError::gdal(path, e))?;
         for b in 1..=bands {
             let mut band = dst.rasterband(b).map_err(|e| FormatError::gdal(path, e))?;
-            band.set_no_data_value(Some(nodata.unwrap_or(0.0)))
+            band.set_no_data_value(nodata.unwrap_or(0.0))
                 .map_err(|e| FormatError::gdal(path, e))?;
-            band.fill(nodata.unwrap_or(0.0), None)
+            band.fill(nodata.unwrap_or(0.0))
                 .map_err(|e| FormatError::gdal(path, e))?;
         }
-        gdal::raster::reproject(&copy, &dst).map_err(|e| FormatError::gdal(path, e))?;
+        gdal::reproject(&copy, &mut dst).map_err(|e| FormatError::gdal(path, e))?;
         dst.flush_cache().map_err(|e| FormatError::gdal(path, e))?;
         Ok(())
     })
@@ -242,7 +225,7 @@ pub fn read_dem(path: &Path) -> Result<(Dem, Option<Crs>)> {
     let ds = open_dem(path)?;
     let gt = ds.geo_transform().map_err(|e| FormatError::gdal(path, e))?;
     let band = ds.rasterband(1).map_err(|e| FormatError::gdal(path, e))?;
-    let (w, h) = band.size();
+    let (w, h) = ds.raster_size();
     let nodata = band.no_data_value();
     let mut data = Vec::new();
     image_open::read_band_strips(path, &ds, &[1], (0, 0, w, h), |s| {
@@ -254,12 +237,9 @@ pub fn read_dem(path: &Path) -> Result<(Dem, Option<Crs>)> {
             *v = f32::NAN;
         }
     }
-    let crs = match ds.spatial_ref() {
-        Ok(srs) => match srs.to_wkt() {
-            Ok(wkt) if !wkt.is_empty() => Some(Crs::parse(&wkt)?),
-            _ => None,
-        },
-        Err(_) => None,
+    let crs = match ds.spatial_ref().map(|srs| srs.to_wkt()) {
+        Some(Ok(wkt)) if !wkt.is_empty() => Some(Crs::parse(&wkt)?),
+        _ => None,
     };
     let dem = Dem::new(w, h, GeoTransform(gt), data)
         .map_err(|e| FormatError::invalid(path, e.to_string()))?;

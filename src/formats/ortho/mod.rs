@@ -25,9 +25,8 @@ pub use images::{PhotoImages, RgbImage};
 use super::crs::Crs;
 use super::{write_atomically, FormatError, Result};
 use crate::block::{Block, PhotoId};
+use crate::formats::gdal::{Driver, GdalError};
 use crate::geometry::{Camera, Dem, GeoTransform};
-use gdal::raster::{Buffer, ColorInterpretation, RasterCreationOptions};
-use gdal::DriverManager;
 use nalgebra::{Vector2, Vector3};
 use rayon::prelude::*;
 use std::collections::{BTreeMap, BTreeSet};
@@ -482,8 +481,8 @@ pub fn write_tiles(
     let (width, height, gsd, gt) = (grid.width, grid.height, grid.gsd, grid.gt);
     let order = grid.tiles();
     let report = write_atomically(path, |tmp| {
-        let err = |e: gdal::errors::GdalError| FormatError::gdal(path, e);
-        let driver = DriverManager::get_driver_by_name("GTiff").map_err(err)?;
+        let err = |e: GdalError| FormatError::gdal(path, e);
+        let driver = Driver::by_name("GTiff").map_err(err)?;
         // A COG is made by copying a plain tiled GeoTIFF; write that to a scratch file.
         let scratch = tmp.with_extension("scratch.tif");
         let target = if opts.cog { scratch.as_path() } else { tmp };
@@ -500,23 +499,19 @@ pub fn write_tiles(
         if opts.cog {
             co.retain(|s| !s.starts_with("COMPRESS"));
         }
-        let co = RasterCreationOptions::from_iter(co.iter().map(|s| s.as_str()));
         let result = (|| -> Result<OrthoReport> {
             let mut ds = driver
-                .create_with_band_type_with_options::<u8, _>(target, width, height, 4, &co)
+                .create::<u8>(target, (width, height), 4, &co)
                 .map_err(err)?;
             ds.set_geo_transform(&gt.0).map_err(err)?;
             ds.set_spatial_ref(crs.spatial_ref()).map_err(err)?;
             for b in 1..=3 {
                 ds.rasterband(b)
                     .map_err(err)?
-                    .set_no_data_value(Some(ORTHO_NODATA as f64))
+                    .set_no_data_value(ORTHO_NODATA as f64)
                     .map_err(err)?;
             }
-            ds.rasterband(4)
-                .map_err(err)?
-                .set_color_interpretation(ColorInterpretation::AlphaBand)
-                .map_err(err)?;
+            ds.rasterband(4).map_err(err)?.set_alpha().map_err(err)?;
             let mut filled = 0usize;
             let mut occluded = 0usize;
             let mut per_photo: BTreeMap<PhotoId, usize> = BTreeMap::new();
@@ -541,10 +536,9 @@ pub fn write_tiles(
                     *per_photo.entry(*id).or_default() += c;
                 }
                 for (b, data) in r.bands.chunks_exact(n).enumerate() {
-                    let mut buf = Buffer::new((cols, rows), data.to_vec());
                     ds.rasterband(b + 1)
                         .map_err(err)?
-                        .write((c0 as isize, r0 as isize), (cols, rows), &mut buf)
+                        .write((c0, r0), (cols, rows), data)
                         .map_err(err)?;
                 }
                 tracing::debug!(tile = k + 1, of = order.len(), "orthophoto tile written");
@@ -556,16 +550,16 @@ pub fn write_tiles(
             // Overviews smaller than a tile are useless; keep those that still have detail.
             levels.retain(|&l| l > 1 && width.max(height) / l as usize >= 16);
             if !levels.is_empty() && !opts.cog {
-                ds.build_overviews("AVERAGE", &levels, &[]).map_err(err)?;
+                ds.build_overviews("AVERAGE", &levels).map_err(err)?;
             }
             if opts.cog {
-                let cog = DriverManager::get_driver_by_name("COG").map_err(err)?;
-                let cog_co = RasterCreationOptions::from_iter([
-                    "COMPRESS=DEFLATE",
-                    "RESAMPLING=AVERAGE",
-                    "OVERVIEWS=IGNORE_EXISTING",
-                    &format!("BLOCKSIZE={block_size}"),
-                ]);
+                let cog = Driver::by_name("COG").map_err(err)?;
+                let cog_co = [
+                    "COMPRESS=DEFLATE".to_string(),
+                    "RESAMPLING=AVERAGE".into(),
+                    "OVERVIEWS=IGNORE_EXISTING".into(),
+                    format!("BLOCKSIZE={block_size}"),
+                ];
                 ds.flush_cache().map_err(err)?;
                 ds.create_copy(&cog, tmp, &cog_co).map_err(err)?;
             } else {
@@ -603,7 +597,7 @@ fn in_frame(camera: &Camera, px: Vector2<f64>) -> bool {
 /// `[x_min, y_min, x_max, y_max]`: the background of the report's control-point map.
 pub fn preview(path: &Path, max_side: usize) -> Result<(Vec<u8>, [f64; 4])> {
     use image::ImageEncoder;
-    let err = |e: gdal::errors::GdalError| FormatError::gdal(path, e);
+    let err = |e: GdalError| FormatError::gdal(path, e);
     let ds = super::image_open::open_raster(path)?;
     let (w, h) = ds.raster_size();
     let gt = ds.geo_transform().map_err(err)?;
@@ -622,10 +616,7 @@ pub fn preview(path: &Path, max_side: usize) -> Result<(Vec<u8>, [f64; 4])> {
     let mut rgba = vec![255u8; pw * ph * 4];
     for b in 1..=bands.min(4) {
         let band = ds.rasterband(b).map_err(err)?;
-        let buf = band
-            .read_as::<u8>((0, 0), (w, h), (pw, ph), None)
-            .map_err(err)?;
-        let (_, data) = buf.into_shape_and_vec();
+        let data = band.read::<u8>((0, 0), (w, h), (pw, ph)).map_err(err)?;
         // Grey orthophotos fill R, G and B from their one band.
         let targets: &[usize] = if bands == 1 { &[0, 1, 2] } else { &[b - 1] };
         for (i, v) in data.iter().enumerate() {
