@@ -7,7 +7,7 @@ use std::process::Command;
 
 const BIN: &str = env!("CARGO_BIN_EXE_cloudcontrol");
 
-fn data() -> PathBuf {
+pub(crate) fn data() -> PathBuf {
     let local = Path::new(env!("CARGO_MANIFEST_DIR")).join("../../shared/data/copr_kap_2009");
     if local.exists() {
         local

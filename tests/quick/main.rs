@@ -28,6 +28,7 @@ mod formats_cli;
 mod formats_colmap;
 mod formats_control_points;
 mod formats_crs;
+mod formats_gdal;
 mod formats_odm_gcp;
 mod formats_ortho;
 mod formats_workflow;
