@@ -124,6 +124,21 @@ impl Eval {
             j_point: Matrix3::zeros(),
         }
     }
+    /// `slot` holding a zero record of `dim` rows (reusing the one there).
+    fn reset(slot: &mut Option<Eval>, dim: usize) -> &mut Eval {
+        match slot {
+            Some(e) => {
+                e.dim = dim;
+                e.r.fill(0.0);
+                e.j_photo.fill(0.0);
+                e.j_camera.fill(0.0);
+                e.j_point.fill(0.0);
+                e
+            }
+            None => slot.insert(Self::new(dim)),
+        }
+    }
+
     pub fn norm_sq(&self) -> f64 {
         self.r.norm_squared()
     }
@@ -138,13 +153,28 @@ impl ResidualBlock {
     /// Residual and Jacobians at `state`; `None` when the block cannot be evaluated
     /// (object point behind the camera), which the solver treats as a missing observation.
     pub fn evaluate(&self, s: &State) -> Option<Eval> {
+        let mut slot = None;
+        self.evaluate_in(s, &mut slot);
+        slot
+    }
+
+    /// [`evaluate`](Self::evaluate) written into `slot` in place: the solver evaluates every
+    /// residual per iteration, and returning the 552-byte record by value cost a copy of
+    /// each (9 % of a 50-photo adjustment's time in memmove).
+    pub fn evaluate_in(&self, s: &State, slot: &mut Option<Eval>) {
+        if self.fill(s, slot).is_none() {
+            *slot = None;
+        }
+    }
+
+    fn fill(&self, s: &State, slot: &mut Option<Eval>) -> Option<()> {
         match &self.kind {
             Kind::Image { pixel, sigma } => {
                 let (ph, cam, pt) = (self.photo?, self.camera?, self.point?);
                 let (p, j) =
                     project_with_jacobians(&s.cameras[cam], &s.poses[ph], &s.points[pt]).ok()?;
                 let w = 1.0 / sigma;
-                let mut e = Eval::new(2);
+                let e = Eval::reset(slot, 2);
                 let r = (p.pixel - pixel) * w;
                 e.r = Vector3::new(r.x, r.y, 0.0);
                 e.j_photo
@@ -156,33 +186,33 @@ impl ResidualBlock {
                 e.j_point
                     .fixed_view_mut::<2, 3>(0, 0)
                     .copy_from(&(j.point * w));
-                Some(e)
+                Some(())
             }
             Kind::PointPrior { value, sigma } => {
                 let x = s.points[self.point?];
-                let mut e = Eval::new(3);
+                let e = Eval::reset(slot, 3);
                 e.r = (x - value).component_div(sigma);
                 e.j_point = Matrix3::from_diagonal(&sigma.map(|v| 1.0 / v));
-                Some(e)
+                Some(())
             }
             Kind::PosCenter { value, sigma } => {
                 let c = s.poses[self.photo?].center;
-                let mut e = Eval::new(3);
+                let e = Eval::reset(slot, 3);
                 e.r = (c - value).component_div(sigma);
                 e.j_photo
                     .fixed_view_mut::<3, 3>(0, 3)
                     .copy_from(&Matrix3::from_diagonal(&sigma.map(|v| 1.0 / v)));
-                Some(e)
+                Some(())
             }
             Kind::PosAttitude { rotation, sigma } => {
                 let r = s.poses[self.photo?].rotation;
-                let mut e = Eval::new(3);
+                let e = Eval::reset(slot, 3);
                 // exp(δθ)·R·R₀ᵀ: to first order the residual moves by δθ itself.
                 e.r = rotation_vector(&(r * rotation.transpose())) / *sigma;
                 e.j_photo
                     .fixed_view_mut::<3, 3>(0, 0)
                     .copy_from(&(Matrix3::identity() / *sigma));
-                Some(e)
+                Some(())
             }
             Kind::Plane {
                 normal,
@@ -190,7 +220,7 @@ impl ResidualBlock {
                 sqrt_weight,
             } => {
                 let mut x = s.points[self.point?];
-                let mut e = Eval::new(1);
+                let e = Eval::reset(slot, 1);
                 let j = normal.transpose() * *sqrt_weight;
                 if self.camera.is_some() {
                     x += s.lidar_shift;
@@ -198,15 +228,15 @@ impl ResidualBlock {
                 }
                 e.r.x = (normal.dot(&x) - d) * sqrt_weight;
                 e.j_point.fixed_view_mut::<1, 3>(0, 0).copy_from(&j);
-                Some(e)
+                Some(())
             }
             Kind::LidarDatum { sigma } => {
-                let mut e = Eval::new(3);
+                let e = Eval::reset(slot, 3);
                 e.r = s.lidar_shift.component_div(sigma);
                 e.j_camera
                     .fixed_view_mut::<3, 3>(0, 0)
                     .copy_from(&Matrix3::from_diagonal(&sigma.map(|v| 1.0 / v)));
-                Some(e)
+                Some(())
             }
         }
     }
