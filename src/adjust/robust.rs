@@ -772,6 +772,7 @@ impl RejectionTest {
             !ok
         });
         for &i in &readmit {
+            tracing::debug!(observation = ?pb.refs[i], "re-admitted");
             pb.res[i].active = true;
         }
         !readmit.is_empty()
