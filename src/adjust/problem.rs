@@ -571,6 +571,7 @@ pub fn adjust(
             if refits < MAX_PLANE_REFITS {
                 refits += 1;
                 refit_planes(&mut pb, rf)?;
+                test.forget();
                 changed = true;
             }
         }
