@@ -2,7 +2,7 @@
 
 use super::api::{Api, H};
 use super::srs::SpatialRef;
-use super::{api, c_string, check, last_error, CStringList, GdalError, GdalResult};
+use super::{api, c_string, check, dim, last_error, CStringList, GdalError, GdalResult};
 use std::ffi::{c_int, c_void};
 use std::marker::PhantomData;
 use std::path::Path;
@@ -119,13 +119,6 @@ fn path_string(call: &'static str, path: &Path) -> GdalResult<std::ffi::CString>
         message: format!("{} is not UTF-8", path.display()),
     })?;
     c_string(call, s)
-}
-
-fn dim(call: &'static str, v: usize) -> GdalResult<c_int> {
-    c_int::try_from(v).map_err(|_| GdalError {
-        call,
-        message: format!("{v} exceeds GDAL's int range"),
-    })
 }
 
 impl Dataset {

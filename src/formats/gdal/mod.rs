@@ -93,6 +93,14 @@ fn check(a: &api::Api, call: &'static str, err: i32) -> GdalResult<()> {
     }
 }
 
+/// `v` as GDAL's `int` (sizes, counts, indices), or the error of `call` naming it.
+fn dim(call: &'static str, v: usize) -> GdalResult<std::ffi::c_int> {
+    std::ffi::c_int::try_from(v).map_err(|_| GdalError {
+        call,
+        message: format!("{v} exceeds GDAL's int range"),
+    })
+}
+
 /// A C string of `s`, or the error of `call` naming the NUL byte inside.
 fn c_string(call: &'static str, s: &str) -> GdalResult<std::ffi::CString> {
     std::ffi::CString::new(s).map_err(|_| GdalError {

@@ -1,7 +1,7 @@
 //! Spatial references (OSR) and coordinate transformations (OCT): PROJ through GDAL.
 
 use super::api::{Api, H};
-use super::{api, c_string, last_error, string, GdalError, GdalResult};
+use super::{api, c_string, dim, last_error, string, GdalError, GdalResult};
 use std::ffi::{c_char, c_int};
 
 /// OGRERR_NONE.
@@ -207,10 +207,7 @@ impl CoordTransform {
 
     /// Transforms the arrays in place (`z` empty for 2-D); the caller checks the lengths.
     pub fn transform_coords(&self, x: &mut [f64], y: &mut [f64], z: &mut [f64]) -> GdalResult<()> {
-        let n = c_int::try_from(x.len()).map_err(|_| GdalError {
-            call: "OCTTransform",
-            message: format!("{} points exceed GDAL's int range", x.len()),
-        })?;
+        let n = dim("OCTTransform", x.len())?;
         if y.len() != x.len() || !(z.is_empty() || z.len() == x.len()) {
             return Err(GdalError {
                 call: "OCTTransform",
