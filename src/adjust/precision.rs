@@ -197,9 +197,11 @@ pub(crate) struct Cofactors {
     pub diag: Vec<f64>,
 }
 
+/// The cofactors of the reduced camera system's unknowns.
 ///
-/// A sparse system's photo blocks and diagonal come from its selected inverse; the
-/// camera-side blocks' whole columns (a few) and a dense system's blocks from solves.
+/// A dense system's blocks and columns come from its inverse; a sparse system's photo
+/// blocks and diagonal from its selected inverse, its camera-side blocks' whole columns
+/// (a few) from solves.
 pub(crate) fn cofactors(
     st: &Structure,
     rows: &[Row],
@@ -212,11 +214,29 @@ pub(crate) fn cofactors(
     let mut columns = Vec::new();
     let mut diag = vec![f64::NAN; n];
     let selected = match factor {
-        Factor::Sparse(_) if want_photos => {
+        Factor::Sparse { .. } if want_photos => {
             solver::reduced_upper(st, rows).and_then(|s| SelectedInverse::new(s.as_ref()))
         }
         _ => None,
     };
+    if let Some(inv) = want_photos.then(|| factor.dense_inverse()).flatten() {
+        // Every block is wanted: one blocked inverse instead of n solves.
+        for (b, q) in diag_blocks.iter_mut().enumerate() {
+            let (o, m) = (st.offset[b], st.free[b].len());
+            *q = DMatrix::from_fn(m, m, |i, j| inv[(o + i, o + j)]);
+            if b >= st.n_photos {
+                columns.extend((o..o + m).map(|g| (g, inv.col(g).iter().copied().collect())));
+            }
+        }
+        for (g, d) in diag.iter_mut().enumerate() {
+            *d = inv[(g, g)];
+        }
+        return Cofactors {
+            diag_blocks,
+            columns,
+            diag,
+        };
+    }
     if let Some(z) = &selected {
         let at = |i: usize, j: usize| z.get(i, j).unwrap_or(f64::NAN);
         for (b, q) in diag_blocks.iter_mut().enumerate() {
