@@ -269,47 +269,114 @@ pub(super) fn write_cameras(w: &mut impl Write, cams: &Cameras) -> std::io::Resu
     Ok(())
 }
 
+/// A float in its shortest round-trip form (ryu: `1.0`, `1e-7`; COLMAP's and our
+/// readers take either notation).
+fn push_f64(out: &mut Vec<u8>, x: f64) {
+    out.extend_from_slice(ryu::Buffer::new().format(x).as_bytes());
+}
+
+fn push_int(out: &mut Vec<u8>, i: impl itoa::Integer) {
+    out.extend_from_slice(itoa::Buffer::new().format(i).as_bytes());
+}
+
+/// Items per window whose lines are formatted in parallel and then written in order: the
+/// text held at once stays a few MB whatever the model's size.
+const WINDOW: usize = 8192;
+
+/// Writes one text record per item, formatted in parallel (rayon) and written in item
+/// order; `line` gets the item's index. Formatting the 60,000 numbers of a 50-photo
+/// model with `write!` took 8 ms of a 0.11 s `cloudcontrol adjust` (perf), as much as
+/// two solver iterations.
+fn write_lines<T: Sync>(
+    w: &mut impl Write,
+    items: &[T],
+    line: impl Fn(usize, &T, &mut Vec<u8>) + Sync,
+) -> std::io::Result<()> {
+    use rayon::prelude::*;
+    let task = (items.len().min(WINDOW) / (4 * rayon::current_num_threads())).max(1);
+    for (wi, window) in items.chunks(WINDOW).enumerate() {
+        let parts: Vec<Vec<u8>> = window
+            .par_chunks(task)
+            .enumerate()
+            .map(|(ti, chunk)| {
+                let mut buf = Vec::new();
+                for (k, it) in chunk.iter().enumerate() {
+                    line(wi * WINDOW + ti * task + k, it, &mut buf);
+                }
+                buf
+            })
+            .collect();
+        for p in &parts {
+            w.write_all(p)?;
+        }
+    }
+    Ok(())
+}
+
 /// Names were checked to hold no whitespace.
 pub(super) fn write_images(w: &mut impl Write, images: &[ImageRow]) -> std::io::Result<()> {
     write!(w, "# Image list with two lines of data per image:\n#   IMAGE_ID, QW, QX, QY, QZ, TX, TY, TZ, CAMERA_ID, NAME\n#   POINTS2D[] as (X, Y, POINT3D_ID)\n# Number of images: {}\n", images.len())?;
-    for r in images {
-        let (q, t) = (r.q, r.t);
-        writeln!(
-            w,
-            "{} {} {} {} {} {} {} {} {} {}",
-            r.id, q[0], q[1], q[2], q[3], t[0], t[1], t[2], r.camera, r.name
-        )?;
+    write_lines(w, images, |_, r, out| {
+        push_int(out, r.id);
+        for x in r.q.iter().chain(&r.t) {
+            out.push(b' ');
+            push_f64(out, *x);
+        }
+        out.push(b' ');
+        push_int(out, r.camera);
+        out.push(b' ');
+        out.extend_from_slice(r.name.as_bytes());
+        out.push(b'\n');
         for (k, (xy, pid)) in r.points2d.iter().enumerate() {
-            let sep = if k == 0 { "" } else { " " };
+            if k > 0 {
+                out.push(b' ');
+            }
+            push_f64(out, xy[0]);
+            out.push(b' ');
+            push_f64(out, xy[1]);
+            out.push(b' ');
             if *pid == INVALID_POINT3D {
-                write!(w, "{sep}{} {} -1", xy[0], xy[1])?;
+                out.extend_from_slice(b"-1");
             } else {
-                write!(w, "{sep}{} {} {pid}", xy[0], xy[1])?;
+                push_int(out, *pid);
             }
         }
-        writeln!(w)?;
-    }
-    Ok(())
+        out.push(b'\n');
+    })
 }
 
 pub(super) fn write_points(w: &mut impl Write, table: &PointsTable) -> std::io::Result<()> {
     let (points, idx) = (&table.points, table.idx);
     write!(w, "# 3D point list with one line of data per point:\n#   POINT3D_ID, X, Y, Z, R, G, B, ERROR, TRACK[] as (IMAGE_ID, POINT2D_IDX)\n# Number of points: {}\n", points.len())?;
-    let mut k = 0usize;
-    for (p, err) in points.iter().zip(&table.errors) {
-        let (id, x) = (p.id, &p.position);
-        write!(
-            w,
-            "{id} {} {} {} {} {} {} {err}",
-            x.x, x.y, x.z, p.color[0], p.color[1], p.color[2]
-        )?;
-        for o in &p.observations {
-            write!(w, " {} {}", o.photo, idx[k])?;
-            k += 1;
+    // Where each point's observations start in the flat POINT2D_IDX list.
+    let starts: Vec<usize> = points
+        .iter()
+        .scan(0, |k, p| {
+            let s = *k;
+            *k += p.observations.len();
+            Some(s)
+        })
+        .collect();
+    write_lines(w, points, |i, p, out| {
+        push_int(out, p.id);
+        for x in [p.position.x, p.position.y, p.position.z] {
+            out.push(b' ');
+            push_f64(out, x);
         }
-        writeln!(w)?;
-    }
-    Ok(())
+        for c in p.color {
+            out.push(b' ');
+            push_int(out, c);
+        }
+        out.push(b' ');
+        push_f64(out, table.errors[i]);
+        for (o, k) in p.observations.iter().zip(&idx[starts[i]..]) {
+            out.push(b' ');
+            push_int(out, o.photo);
+            out.push(b' ');
+            push_int(out, *k);
+        }
+        out.push(b'\n');
+    })
 }
 
 pub(super) fn write_rigs(w: &mut impl Write, cams: &Cameras) -> std::io::Result<()> {
