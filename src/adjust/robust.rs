@@ -162,9 +162,8 @@ impl RejectionTest {
         };
         let t = std::time::Instant::now();
         let ties = self.tie_points(st, pb);
-        let points: Vec<PointLoo> = ties.values().cloned().collect();
         let t_loo = t.elapsed().as_secs_f64();
-        self.tie_prior = tie_prior::fit(&points, alpha, None);
+        self.tie_prior = tie_prior::fit(ties.values(), alpha, None);
         tracing::debug!(
             t_loo,
             t_fit = t.elapsed().as_secs_f64() - t_loo,
@@ -635,11 +634,10 @@ impl RejectionTest {
         let mut ties = BTreeMap::new();
         if self.tie_prior.is_some() {
             ties = first_ties.unwrap_or_else(|| self.tie_points(st, pb));
-            let points: Vec<PointLoo> = ties.values().cloned().collect();
             self.tie_prior = self
                 .rule
                 .alpha()
-                .and_then(|a| tie_prior::fit(&points, a, self.tie_prior.as_ref()));
+                .and_then(|a| tie_prior::fit(ties.values(), a, self.tie_prior.as_ref()));
         }
         // A two-ray point has no ray to leave out: its one redundant component cannot
         // tell an imprecise point from a gross error, and the prior alone would decide
