@@ -33,8 +33,6 @@ pub(crate) struct Snoop {
     pub t: f64,
     /// Testable components (the test's degrees of freedom), 0 when none.
     pub dof: usize,
-    /// Redundancy of the observation: trace of its local Q_vv over its known components.
-    pub redundancy: f64,
     /// Decorrelated standardised components uᵀv/√λ (first `dof`), N(0, 1) under H0.
     pub z: [f64; 3],
 }
@@ -85,13 +83,11 @@ pub(crate) fn point_snooping(
         .collect()
 }
 
-/// The statistic of one block whose point (if any) has normal-block inverse `vinv` and
-/// least-squares update `dx`.
-fn snoop_block(r: &ResidualBlock, e: &Eval, point: Option<(Matrix3<f64>, Vector3<f64>)>) -> Snoop {
-    let mut e = *e;
+/// The local Q_vv = I − J V⁻¹ Jᵀ of a block whose point (if any) has normal-block inverse
+/// `vinv` (the orientations held), its unknown components' rows and columns zeroed.
+fn local_qvv(r: &ResidualBlock, e: &Eval, vinv: Option<&Matrix3<f64>>) -> Matrix3<f64> {
     let mut q = Matrix3::identity();
-    if let Some((vinv, dx)) = point {
-        e.r += e.j_point * dx;
+    if let Some(vinv) = vinv {
         q -= e.j_point * vinv * e.j_point.transpose();
     }
     let known = r.kind.known();
@@ -103,11 +99,37 @@ fn snoop_block(r: &ResidualBlock, e: &Eval, point: Option<(Matrix3<f64>, Vector3
             }
         }
     }
+    q
+}
+
+/// The local redundancy of every active block, the trace of its [`local_qvv`] (the sum
+/// of its eigenvalues: Q_vv is positive semi-definite); `ev` and `pts` from unit weights.
+pub(crate) fn redundancies(
+    res: &[ResidualBlock],
+    ev: &Evaluated,
+    pts: &[PointSys],
+) -> Vec<Option<f64>> {
+    res.par_iter()
+        .enumerate()
+        .map(|(i, r)| {
+            let e = ev.evals[i].as_ref()?;
+            Some(local_qvv(r, e, r.point.map(|p| &pts[p].vinv)).trace())
+        })
+        .collect()
+}
+
+/// The statistic of one block whose point (if any) has normal-block inverse `vinv` and
+/// least-squares update `dx`.
+fn snoop_block(r: &ResidualBlock, e: &Eval, point: Option<(Matrix3<f64>, Vector3<f64>)>) -> Snoop {
+    let mut e = *e;
+    if let Some((_, dx)) = point {
+        e.r += e.j_point * dx;
+    }
+    let q = local_qvv(r, &e, point.as_ref().map(|(vinv, _)| vinv));
     let eig = nalgebra::SymmetricEigen::new(q);
     let mut s = Snoop {
         t: 0.0,
         dof: 0,
-        redundancy: eig.eigenvalues.iter().map(|l| l.max(0.0)).sum(),
         z: [0.0; 3],
     };
     for k in 0..3 {
@@ -450,12 +472,13 @@ pub(crate) fn point_cofactor(st: &Structure, factor: &Factor, ps: &PointSys) -> 
     q
 }
 
-/// Variance components per observation group. `snoop` supplies the local redundancy
-/// numbers; `exact` overrides them for single blocks (control and POS priors).
+/// Variance components per observation group. `redundancy` holds the local redundancy
+/// numbers ([`redundancies`]); `exact` overrides them for single blocks (control and POS
+/// priors).
 pub(crate) fn variance_components(
     res: &[ResidualBlock],
     ev: &Evaluated,
-    snoop: &[Option<Snoop>],
+    redundancy: &[Option<f64>],
     exact: &[(usize, f64)],
 ) -> Vec<super::VarianceComponent> {
     let groups = [
@@ -469,7 +492,7 @@ pub(crate) fn variance_components(
     let mut acc = vec![(0usize, 0usize, 0.0f64, 0.0f64); groups.len()];
     let exact: std::collections::BTreeMap<usize, f64> = exact.iter().copied().collect();
     for (i, r) in res.iter().enumerate() {
-        let (true, Some(e), Some(s)) = (r.active, &ev.evals[i], &snoop[i]) else {
+        let (true, Some(e), Some(red)) = (r.active, &ev.evals[i], redundancy[i]) else {
             continue;
         };
         let g = groups
@@ -479,7 +502,7 @@ pub(crate) fn variance_components(
         acc[g].0 += 1;
         acc[g].1 += r.kind.dof();
         acc[g].2 += e.norm_sq();
-        acc[g].3 += exact.get(&i).copied().unwrap_or(s.redundancy);
+        acc[g].3 += exact.get(&i).copied().unwrap_or(red);
     }
     groups
         .iter()

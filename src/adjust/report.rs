@@ -234,7 +234,7 @@ pub(super) fn finish(
     }
 
     let variance_components =
-        group_variances(pb, st, opts, &ev, &pts, factor.as_ref(), cof.as_ref());
+        group_variances(pb, st, opts, loss, &ev, &pts, factor.as_ref(), cof.as_ref());
     let lidar_datum = pb.lidar_datum.map(|slot| {
         let q = lidar_datum_cofactor(st, cof.as_ref(), slot);
         let prior = pb
@@ -397,18 +397,25 @@ pub fn checkpoint_rmse(errors: impl IntoIterator<Item = [f64; 3]>) -> [f64; 3] {
 /// Variance components per observation group, with exact redundancy numbers for control
 /// priors (the point's full cofactor) and POS priors (the photo's EO cofactor, when the
 /// EO covariances were computed).
+#[allow(clippy::too_many_arguments)]
 fn group_variances(
     pb: &Problem,
     st: &Structure,
     opts: &AdjustOptions,
+    loss: Loss,
     ev: &solver::Evaluated,
     pts: &[solver::PointSys],
     factor: Option<&solver::Factor>,
     cof: Option<&precision::Cofactors>,
 ) -> Vec<super::VarianceComponent> {
-    let ev_ls = solver::evaluate(&pb.res, &pb.state, Loss::None);
-    let pts_ls = solver::point_systems(st, &pb.res, &ev_ls, 0.0);
-    let snoop = precision::snooping(&pb.res, &ev_ls, &pts_ls);
+    // The redundancy numbers are least squares'; the solution's own when it is.
+    let ls = (loss != Loss::None).then(|| {
+        let ev_ls = solver::evaluate(&pb.res, &pb.state, Loss::None);
+        let pts_ls = solver::point_systems(st, &pb.res, &ev_ls, 0.0);
+        (ev_ls, pts_ls)
+    });
+    let (ev_ls, pts_ls) = ls.as_ref().map_or((ev, pts), |(e, p)| (e, p.as_slice()));
+    let red = precision::redundancies(&pb.res, ev_ls, pts_ls);
     let mut exact = Vec::new();
     for (i, r) in pb.res.iter().enumerate() {
         if !r.active || ev.evals[i].is_none() {
@@ -445,7 +452,7 @@ fn group_variances(
             .sum();
         exact.push((i, red));
     }
-    precision::variance_components(&pb.res, &ev_ls, &snoop, &exact)
+    precision::variance_components(&pb.res, ev_ls, &red, &exact)
 }
 
 /// 3×3 cofactor of the LiDAR datum shift in camera slot `slot` (its block is always
