@@ -558,9 +558,7 @@ fn cut_chip(
     pixel: [f64; 2],
     size: u32,
 ) -> Option<(String, DynamicImage, DcpMeasurement)> {
-    let half = size / 2;
-    let (cx, cy) = (pixel[0].floor() as i64, pixel[1].floor() as i64);
-    let (x0, y0) = (cx - half as i64, cy - half as i64);
+    let (x0, y0) = super::chips::chip_origin(pixel, size as usize / 2);
     if x0 < 0
         || y0 < 0
         || x0 + size as i64 > img.width() as i64

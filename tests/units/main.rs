@@ -11,6 +11,7 @@ mod adjust_support;
 mod adjust_tie_prior;
 mod cache;
 mod control_checkpoints;
+mod control_chips;
 mod control_epoch;
 mod control_photo;
 mod control_predict;
