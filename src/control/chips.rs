@@ -126,15 +126,19 @@ pub struct ChipView {
     pixels: ChipPixels,
 }
 
-/// Top-left photo pixel of a chip of side 2·half + 1 centred on the pixel nearest to
-/// `pixel`. Nearest, not below: control points are chosen on the pixel grid and come back
-/// from their object coordinates at 886.0 or 885.9999999999998 as the orientation's last
-/// bits fall, and `floor` cut 14 of small seed 1's 203 DCP chips one pixel apart between
-/// two builds whose reference solutions differed by 1e-10.
+/// A pixel coordinate within this of an integer is that integer when a chip is placed.
+const GRID_SNAP: f64 = 1e-6;
+
+/// Top-left photo pixel of a chip of side 2·half + 1 whose centre pixel holds `pixel`.
+/// Control points are chosen on the pixel grid and come back from their object
+/// coordinates at 886.0 or 885.9999999999998 as the orientation's last bits fall: a plain
+/// `floor` cut 14 of small seed 1's 203 DCP chips one pixel apart between two builds whose
+/// reference solutions differed by 1e-10 (the digital epoch's height then 0.79 or 0.91
+/// GSD). Snapped to the grid, both give one chip.
 pub fn chip_origin(pixel: [f64; 2], half: usize) -> (i64, i64) {
     (
-        pixel[0].round() as i64 - half as i64,
-        pixel[1].round() as i64 - half as i64,
+        (pixel[0] + GRID_SNAP).floor() as i64 - half as i64,
+        (pixel[1] + GRID_SNAP).floor() as i64 - half as i64,
     )
 }
 
