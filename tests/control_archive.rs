@@ -437,13 +437,7 @@ fn without_control_in(
     cloudcontrol::block::Photo,
     DcpPackage,
 ) {
-    let truth = synth_truth_block(&s.dir, epoch).unwrap();
-    let target = truth
-        .photos
-        .values()
-        .find(|p| p.name.ends_with("_s01_001"))
-        .unwrap()
-        .clone();
+    let (truth, target) = strip_start(s, epoch);
     let origin = nalgebra::Vector3::from(truth.origin);
     let mut reference = s.reference.clone();
     let before = reference.manifest.points.len();
@@ -458,6 +452,18 @@ fn without_control_in(
     );
     assert!(reference.manifest.points.len() < before);
     (truth, target, reference)
+}
+
+/// The truth of `epoch` and its strip-end photo `_s01_001`.
+fn strip_start(s: &Setup, epoch: &str) -> (cloudcontrol::block::Block, cloudcontrol::block::Photo) {
+    let truth = synth_truth_block(&s.dir, epoch).unwrap();
+    let target = truth
+        .photos
+        .values()
+        .find(|p| p.name.ends_with("_s01_001"))
+        .unwrap()
+        .clone();
+    (truth, target)
 }
 
 /// Whether block-local `x` falls in `photo`'s frame widened by 50 px.
@@ -503,13 +509,11 @@ fn a_photo_without_control_in_its_footprint_is_oriented_through_tie_points() {
     assert_accuracy(&o, "digital_2012, one photo through tie points");
 }
 
-/// The photo beyond the control is oriented by the tie pass and held by tie points:
-/// its centre within a ground pixel's worth of metres of the truth (the navigation alone
-/// is 10 m off); returns its tie points.
-fn assert_through_ties(
-    o: &Outcome,
+/// The report of `target`, which the tie pass oriented.
+fn tie_pass_report<'o>(
+    o: &'o Outcome,
     target: &cloudcontrol::block::Photo,
-) -> Vec<cloudcontrol::block::ObjectPoint> {
+) -> &'o cloudcontrol::control::photo::PhotoReport {
     let rep = o
         .result
         .photos
@@ -517,6 +521,17 @@ fn assert_through_ties(
         .find(|p| p.name == target.name)
         .unwrap();
     assert!(rep.oriented && rep.tie_pass, "{rep:?}");
+    rep
+}
+
+/// The photo beyond the control is oriented by the tie pass and held by tie points:
+/// its centre within a ground pixel's worth of metres of the truth (the navigation alone
+/// is 10 m off); returns its tie points.
+fn assert_through_ties(
+    o: &Outcome,
+    target: &cloudcontrol::block::Photo,
+) -> Vec<cloudcontrol::block::ObjectPoint> {
+    let rep = tie_pass_report(o, target);
     assert_eq!(rep.control_matches, 0);
     // Held by tie points with its neighbours in the adjustment: its centre within a
     // ground pixel's worth of metres of the truth (the navigation alone is 10 m off).
@@ -534,6 +549,74 @@ fn assert_through_ties(
         .collect::<Vec<_>>();
     assert!(ties.len() >= 6, "{} tie points in the photo", ties.len());
     ties
+}
+
+/// A photo whose footprint holds too few control points for a resection of its own (five
+/// of those it matches with the whole package, where six are needed) is oriented by the
+/// tie pass; the control patches are then searched from the pose the ties gave it, found,
+/// and hold the photo in the adjustment beside its tie points.
+#[test]
+fn a_photo_with_too_few_control_points_for_a_resection_gets_them_after_the_tie_pass() {
+    let s = rough();
+    let epoch = "digital_2012";
+    let (truth, target) = strip_start(s, epoch);
+    let opts = ArchiveOptions::default();
+    let whole = orient(s, epoch, std::slice::from_ref(&s.reference), &opts);
+    let control_in = |o: &Outcome| -> Vec<String> {
+        let b = &o.result.block;
+        let id = b
+            .photos
+            .values()
+            .find(|p| p.name == target.name)
+            .unwrap()
+            .id;
+        b.points
+            .values()
+            .filter(|p| {
+                p.kind == PointKind::Control && p.observations.iter().any(|o| o.photo == id)
+            })
+            .map(|p| p.name.clone())
+            .collect()
+    };
+    let matched = control_in(&whole);
+    assert!(
+        matched.len() >= 10,
+        "{} control points in {}",
+        matched.len(),
+        target.name
+    );
+    let keep: Vec<&String> = matched.iter().step_by(matched.len() / 5).take(5).collect();
+    let origin = nalgebra::Vector3::from(truth.origin);
+    let mut reference = s.reference.clone();
+    reference.manifest.points.retain(|p| {
+        let label = format!("{}:{}", s.reference.manifest.epoch.name, p.name);
+        keep.contains(&&label) || !sees(&truth, &target, &(nalgebra::Vector3::from(p.xyz) - origin))
+    });
+    let o = orient(s, epoch, std::slice::from_ref(&reference), &opts);
+    let rep = tie_pass_report(&o, &target);
+    let found = control_in(&o);
+    println!(
+        "{}: {} control points after the tie pass: {found:?}",
+        target.name,
+        found.len()
+    );
+    assert!((4..=5).contains(&rep.control_matches), "{rep:?}");
+    assert_eq!(found.len(), rep.control_matches);
+    assert!(found.iter().all(|n| keep.contains(&n)));
+    let got = o
+        .result
+        .block
+        .photos
+        .values()
+        .find(|p| p.name == target.name)
+        .unwrap();
+    assert!(
+        got.provenance
+            .contains("control patches found from that pose"),
+        "{}",
+        got.provenance
+    );
+    assert_accuracy(&o, "digital_2012, one photo with five control points");
 }
 
 #[test]

@@ -15,7 +15,9 @@ use super::epoch::{
 };
 use super::epoch_ties::CutRound;
 use super::epoch_ties::{epoch_ties, tie_pass};
-use super::photo::{orient_photo, PhotoOptions, PhotoOrientation, PhotoReport};
+use super::photo::{
+    orient_photo, search_area, KnownPose, PhotoOptions, PhotoOrientation, PhotoReport,
+};
 use super::rounds::{EpochEnv, EpochRounds, InMemory, OrientRound, Round};
 use super::scan_cameras::ScanCameras;
 use crate::adjust::support::{take_unsupported, MIN_POINTS_PER_PHOTO};
@@ -300,20 +302,15 @@ pub fn finish_epoch<R: EpochRounds>(
         return Err(ep(e).into());
     }
     // Matches refer to DCP points from here on.
-    let mut keyed: Vec<Vec<(PointKey, Vector2<f64>, f64)>> = outcomes
-        .iter()
-        .map(|o| {
-            o.matches
-                .iter()
-                .filter_map(|(i, px, s)| Some((store.points[*i].key?, *px, *s)))
-                .collect()
-        })
-        .collect();
+    let mut keyed: Vec<Vec<(PointKey, Vector2<f64>, f64)>> =
+        outcomes.iter().map(|o| store.keyed(&o.matches)).collect();
     if opts.epoch_second_pass {
         second_pass(rounds, &env, store, &mut outcomes, &mut keyed)?;
     }
     let pass_ties = if opts.tie_pass {
-        tie_pass(rounds, &env, &mut outcomes, &mut keyed)?
+        let ties = tie_pass(rounds, &env, &mut outcomes, &mut keyed)?;
+        control_after_ties(rounds, &env, store, &mut outcomes, &mut keyed)?;
+        ties
     } else {
         Vec::new()
     };
@@ -525,8 +522,12 @@ fn add_photo(
     photo.prior = prior.copied();
     photo.provenance = if o.report.tie_pass {
         format!(
-            "resection from {} tie points with the epoch's oriented photos (tie pass)",
-            o.matches.len()
+            "resection from {} tie points with the epoch's oriented photos (tie pass){}",
+            o.matches.len(),
+            match o.report.control_matches {
+                0 => String::new(),
+                n => format!(", then {n} control patches found from that pose"),
+            }
         )
     } else {
         format!(
@@ -596,16 +597,13 @@ fn second_pass<R: EpochRounds>(
     let round = OrientRound {
         store: ChipStore::from_points(store.origin, points),
         photos: unoriented,
+        known: Vec::new(),
     };
     let retried = rounds.run(&round, env)?;
     let own = &round.store;
     for (&i, mut o) in round.photos.iter().zip(retried) {
         if o.report.oriented {
-            keyed[i] = o
-                .matches
-                .iter()
-                .filter_map(|(j, px, s)| Some((own.points[*j].key?, *px, *s)))
-                .collect();
+            keyed[i] = own.keyed(&o.matches);
             o.report.second_pass = true;
             outcomes[i] = o;
         } else if let (Some(first), Some(second)) =
@@ -616,6 +614,69 @@ fn second_pass<R: EpochRounds>(
                 second: Box::new(second),
             });
         }
+    }
+    Ok(())
+}
+
+/// Photos the tie pass oriented found no control of their own from their navigation (too
+/// few matches for a resection, or a resection the navigation refuted). From the pose the
+/// ties gave them, in windows of that pose's σ, the control patches of their ground are
+/// searched again; those found join the adjustment as the photo's control. Held by tie
+/// points alone, a photo hangs on its neighbours' relative orientation, and nothing holds
+/// the heights of what it sees against a tilt: the small preset's digital epochs with such
+/// a photo went from 0.65 to 0.43 GSD of checkpoint height RMSE (seed 9, 8 patches found)
+/// and from 0.55 to 0.47 (seed 5, 5 patches).
+fn control_after_ties<R: EpochRounds>(
+    rounds: &R,
+    env: &EpochEnv,
+    store: &ChipStore,
+    outcomes: &mut [PhotoOrientation],
+    keyed: &mut [Vec<(PointKey, Vector2<f64>, f64)>],
+) -> Result<(), R::Error> {
+    let mut photos = Vec::new();
+    let mut known = Vec::new();
+    let mut wanted = std::collections::BTreeSet::new();
+    for (i, o) in outcomes.iter().enumerate() {
+        let (true, true, Some(camera)) = (o.report.oriented, o.report.tie_pass, &o.camera) else {
+            continue;
+        };
+        // A footprint the DEM cannot give leaves the photo as the tie pass made it.
+        let Ok(area) = search_area(camera, &o.pose, &o.covariance, env.dem) else {
+            continue;
+        };
+        wanted.extend(store.query_polygon(&area));
+        photos.push(i);
+        known.push(KnownPose {
+            camera: camera.clone(),
+            io: o.report.io.clone(),
+            pose: o.pose,
+            covariance: o.covariance,
+        });
+    }
+    if wanted.is_empty() {
+        return Ok(());
+    }
+    let indices: Vec<usize> = wanted.into_iter().collect();
+    // A damaged package is an input error of the epoch, as in the first pass.
+    let own = store.owned(&indices).map_err(|e| EpochError::Epoch {
+        epoch: env.input.name.clone(),
+        message: e.to_string(),
+    })?;
+    let round = OrientRound {
+        store: own,
+        photos,
+        known,
+    };
+    let results = rounds.run(&round, env)?;
+    for (&i, o) in round.photos.iter().zip(results) {
+        let name = &env.input.photos[i].name;
+        if !o.report.oriented {
+            tracing::debug!(epoch = %env.input.name, photo = %name, reason = ?o.report.reason, "no control from the tie pass's pose");
+            continue;
+        }
+        keyed[i] = round.store.keyed(&o.matches);
+        outcomes[i].report.control_matches = keyed[i].len();
+        tracing::info!(epoch = %env.input.name, photo = %name, control = keyed[i].len(), "control patches found from the tie pass's pose");
     }
     Ok(())
 }

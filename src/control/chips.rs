@@ -270,6 +270,37 @@ impl<'a> ChipStore<'a> {
         self.points
     }
 
+    /// Matches of a photo (store point index, pixel, σ) as DCP points: the points without
+    /// a key (tie points of the epoch) are left out.
+    pub fn keyed(
+        &self,
+        matches: &[(usize, Vector2<f64>, f64)],
+    ) -> Vec<(PointKey, Vector2<f64>, f64)> {
+        matches
+            .iter()
+            .filter_map(|(i, px, s)| Some((self.points[*i].key?, *px, *s)))
+            .collect()
+    }
+
+    /// The points `indices` with their chips read into memory: a store that a round of
+    /// the epoch's passes can carry to a process without the packages.
+    pub fn owned(&self, indices: &[usize]) -> Result<ChipStore<'static>, DcpError> {
+        let mut points = Vec::with_capacity(indices.len());
+        for &i in indices {
+            let p = &self.points[i];
+            let views = (0..p.views.len())
+                .map(|v| {
+                    Ok(ChipView {
+                        pixels: ChipPixels::Memory(self.pyramid(i, v)?),
+                        ..p.views[v].clone()
+                    })
+                })
+                .collect::<Result<Vec<_>, DcpError>>()?;
+            points.push(ControlPoint { views, ..p.clone() });
+        }
+        Ok(ChipStore::from_points(self.origin, points))
+    }
+
     /// Indices of the points inside a block-local plan polygon, in a fixed order.
     pub fn query_polygon(&self, polygon: &[[f64; 2]]) -> Vec<usize> {
         self.index.query_polygon(polygon)

@@ -812,6 +812,7 @@ pub(super) fn tie_pass<R: EpochRounds>(
         let round = OrientRound {
             store: ChipStore::from_points(Vector3::from(input.origin), points),
             photos: waiting.iter().map(|(i, _, _)| *i).collect(),
+            known: Vec::new(),
         };
         let results = rounds.run(&round, env)?;
         let store = round.store;

@@ -270,20 +270,7 @@ pub fn orient_photo(
     let (pose0, cov0) = (prior.pose(), prior.covariance());
     let img = match GreyImage::load(&photo.image) {
         Ok(i) => i,
-        Err(e) => {
-            return PhotoOrientation::failed(
-                name,
-                pose0,
-                PhotoFailure::Image {
-                    path: photo.image.display().to_string(),
-                    // The reason names the path once, itself.
-                    message: match e {
-                        crate::matching::MatchingError::Read { message, .. } => message,
-                        other => other.to_string(),
-                    },
-                },
-            );
-        }
+        Err(e) => return PhotoOrientation::failed(name, pose0, image_failure(photo, e)),
     };
     // Candidate cameras: one for a frame photo; for a film scan the fiducial interior
     // orientation, plus the other scan orientations that fit the marks equally well when
@@ -475,6 +462,71 @@ pub fn orient_photo(
     best
 }
 
+/// Why a photo's image could not be read; the reason names the path once, itself.
+fn image_failure(photo: &PhotoInput, e: crate::matching::MatchingError) -> PhotoFailure {
+    PhotoFailure::Image {
+        path: photo.image.display().to_string(),
+        message: match e {
+            crate::matching::MatchingError::Read { message, .. } => message,
+            other => other.to_string(),
+        },
+    }
+}
+
+/// Where a photo already oriented by other means (tie points) starts a search of the
+/// control patches: its camera (a scan's with its interior orientation) and pose, with
+/// the pose's covariance (rotation vector, centre) as the search's σ.
+#[derive(Debug, Clone, Serialize, Deserialize)]
+pub struct KnownPose {
+    pub camera: Camera,
+    pub io: Option<ScanIo>,
+    pub pose: Pose,
+    pub covariance: SMatrix<f64, 6, 6>,
+}
+
+/// The control patches of `store` searched in a photo from a pose it already has, the
+/// windows following that pose's σ. The resection is tested against that pose as against
+/// a navigation prior (both covariances): control that disagrees with how the photo was
+/// oriented is not taken.
+pub fn orient_from_pose(
+    photo: &PhotoInput,
+    start: &KnownPose,
+    store: &ChipStore,
+    dem: &Dem,
+    opts: &PhotoOptions,
+) -> PhotoOrientation {
+    let img = match GreyImage::load(&photo.image) {
+        Ok(i) => i,
+        Err(e) => {
+            return PhotoOrientation::failed(&photo.name, start.pose, image_failure(photo, e))
+        }
+    };
+    let pyramid = Pyramid::from_image(img, 6, 16);
+    // The known pose is six more observations of the resection (its test against that
+    // pose), so four matches are not a resection left with two redundant observations:
+    // each is checked against the pose its photo already has, and again in the
+    // adjustment beside that photo's tie points (small seed 5: 5 patches found, where a
+    // photo of its own needs 6).
+    let opts = PhotoOptions {
+        prior_test_with_resection_sigma: true,
+        min_inliers: 4,
+        ..opts.clone()
+    };
+    orient_with_camera(
+        &photo.name,
+        start.camera.clone(),
+        start.io.clone(),
+        &start.pose,
+        &start.covariance,
+        &start.pose,
+        store,
+        dem,
+        &pyramid,
+        &opts,
+        None,
+    )
+}
+
 /// A 2-D similarity from predicted to matched positions that at least
 /// [`ALIGNMENT_MIN_INLIERS`] candidates agree with within `tolerance` (px), as a guide
 /// for a strict second search; None when no such consensus exists or it implies an
@@ -632,6 +684,18 @@ const ALIGNMENT_MIN_INLIERS: usize = 4;
 /// Matching error and relief displacement differences left after the alignment (px).
 pub const ALIGNMENT_MATCH_PX: f64 = 3.0;
 
+/// The ground a photo's control patches are looked for on (block-local plan polygon):
+/// its footprint on the DEM from `pose`, grown by 3σ of the centre's plan position.
+pub fn search_area(
+    camera: &Camera,
+    pose: &Pose,
+    cov: &SMatrix<f64, 6, 6>,
+    dem: &Dem,
+) -> crate::geometry::Result<Vec<[f64; 2]>> {
+    let fp = predict::footprint(camera, pose, dem, 8)?;
+    Ok(grow(&fp, 3.0 * cov[(3, 3)].max(cov[(4, 4)]).sqrt()))
+}
+
 #[allow(clippy::too_many_arguments)]
 fn orient_with_camera(
     name: &str,
@@ -646,8 +710,8 @@ fn orient_with_camera(
     opts: &PhotoOptions,
     guide: Option<&orient::Guide>,
 ) -> PhotoOrientation {
-    let fp = match predict::footprint(&camera, pose0, dem, 8) {
-        Ok(f) => f,
+    let area = match search_area(&camera, pose0, cov0, dem) {
+        Ok(a) => a,
         Err(e) => {
             return PhotoOrientation::failed(
                 name,
@@ -658,8 +722,7 @@ fn orient_with_camera(
             )
         }
     };
-    let margin = 3.0 * cov0[(3, 3)].max(cov0[(4, 4)]).sqrt();
-    let patches = store.patches_in(&grow(&fp, margin));
+    let patches = store.patches_in(&area);
     let mut matcher = ChipMatcher::new(&camera, pyramid, store, &opts.patch);
     let mut resector = AdjustResector::new(opts);
     let o = orient::orient_photo(

@@ -14,7 +14,7 @@ use super::archive::ArchiveOptions;
 use super::chips::ChipStore;
 use super::epoch::EpochInput;
 use super::epoch_ties::TieParams;
-use super::photo::{orient_photo, PhotoOptions, PhotoOrientation};
+use super::photo::{orient_from_pose, orient_photo, KnownPose, PhotoOptions, PhotoOrientation};
 use super::scan_cameras::ScanCameras;
 use super::EpochError;
 use crate::block::PosPrior;
@@ -114,12 +114,16 @@ impl EpochRounds for InMemory {
     }
 }
 
-/// Photos oriented from a store of chips cut from the epoch's own oriented photos (the
-/// second pass, the tie pass).
+/// Photos oriented from a store of chips: cut from the epoch's own oriented photos (the
+/// second pass, the tie pass), or the control patches near photos the tie pass oriented.
 #[derive(Serialize, Deserialize)]
 pub struct OrientRound {
     pub store: ChipStore<'static>,
     pub photos: Vec<usize>,
+    /// Per photo, the pose it already has and the search starts from
+    /// ([`orient_from_pose`]); empty: every photo starts from its navigation.
+    #[serde(default)]
+    pub known: Vec<KnownPose>,
 }
 
 impl Round for OrientRound {
@@ -132,6 +136,9 @@ impl Round for OrientRound {
 
     fn run(&self, k: usize, env: &EpochEnv) -> PhotoOrientation {
         let ph = &env.input.photos[self.photos[k]];
+        if let Some(start) = self.known.get(k) {
+            return orient_from_pose(ph, start, &self.store, env.dem, &env.opts);
+        }
         orient_photo(
             ph,
             &env.input.camera,
