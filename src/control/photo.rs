@@ -97,8 +97,9 @@ pub struct PhotoReport {
     pub relaxed: bool,
     /// Oriented in the second pass, from the epoch's own oriented photos.
     pub second_pass: bool,
-    /// Oriented through tie points with the epoch's oriented photos only (no control
-    /// patch of its own).
+    /// Oriented through tie points with the epoch's oriented photos, having found too few
+    /// control patches from its navigation (`control_matches`: those found afterwards
+    /// from the tie pose).
     pub tie_pass: bool,
 }
 
