@@ -17,6 +17,7 @@ use super::epoch_ties::CutRound;
 use super::epoch_ties::{epoch_ties, tie_pass};
 use super::photo::{
     orient_photo, search_area, KnownPose, PhotoOptions, PhotoOrientation, PhotoReport,
+    KNOWN_POSE_MIN_MATCHES,
 };
 use super::rounds::{EpochEnv, EpochRounds, InMemory, OrientRound, Round};
 use super::scan_cameras::ScanCameras;
@@ -633,53 +634,75 @@ fn control_after_ties<R: EpochRounds>(
     outcomes: &mut [PhotoOrientation],
     keyed: &mut [Vec<(PointKey, Vector2<f64>, f64)>],
 ) -> Result<(), R::Error> {
-    let mut photos = Vec::new();
-    let mut known = Vec::new();
-    let mut wanted = std::collections::BTreeSet::new();
+    let mut todo: Vec<(usize, KnownPose, Vec<usize>)> = Vec::new();
     for (i, o) in outcomes.iter().enumerate() {
         let (true, true, Some(camera)) = (o.report.oriented, o.report.tie_pass, &o.camera) else {
             continue;
         };
-        // A footprint the DEM cannot give leaves the photo as the tie pass made it.
+        // A footprint the DEM cannot give, or ground with fewer control points than could
+        // count, leaves the photo as the tie pass made it, its image not read again (the
+        // large preset's film frames beyond the LiDAR: 72 of 80 through ties, 0 patches).
         let Ok(area) = search_area(camera, &o.pose, &o.covariance, env.dem) else {
             continue;
         };
-        wanted.extend(store.query_polygon(&area));
-        photos.push(i);
-        known.push(KnownPose {
+        let near = store.query_polygon(&area);
+        if near.len() < KNOWN_POSE_MIN_MATCHES {
+            continue;
+        }
+        let known = KnownPose {
             camera: camera.clone(),
             io: o.report.io.clone(),
             pose: o.pose,
             covariance: o.covariance,
-        });
+        };
+        let cells = CONTROL_AFTER_TIES_CELLS;
+        let near = if near.len() > cells * cells {
+            store.spread(&near, cells)
+        } else {
+            near
+        };
+        todo.push((i, known, near));
     }
-    if wanted.is_empty() {
-        return Ok(());
-    }
-    let indices: Vec<usize> = wanted.into_iter().collect();
-    // A damaged package is an input error of the epoch, as in the first pass.
-    let own = store.owned(&indices).map_err(|e| EpochError::Epoch {
-        epoch: env.input.name.clone(),
-        message: e.to_string(),
-    })?;
-    let round = OrientRound {
-        store: own,
-        photos,
-        known,
-    };
-    let results = rounds.run(&round, env)?;
-    for (&i, o) in round.photos.iter().zip(results) {
-        let name = &env.input.photos[i].name;
-        if !o.report.oriented {
-            tracing::debug!(epoch = %env.input.name, photo = %name, reason = ?o.report.reason, "no control from the tie pass's pose");
-            continue;
+    // The round carries its chips in memory: a few photos at a time, each with its
+    // points spread over its ground, keep that bounded where the DCPs are dense.
+    for batch in todo.chunks(CONTROL_AFTER_TIES_BATCH) {
+        let wanted: std::collections::BTreeSet<usize> = batch
+            .iter()
+            .flat_map(|(_, _, near)| near.iter().copied())
+            .collect();
+        let indices: Vec<usize> = wanted.into_iter().collect();
+        // A damaged package is an input error of the epoch, as in the first pass.
+        let own = store.owned(&indices).map_err(|e| EpochError::Epoch {
+            epoch: env.input.name.clone(),
+            message: e.to_string(),
+        })?;
+        let round = OrientRound {
+            store: own,
+            photos: batch.iter().map(|(i, _, _)| *i).collect(),
+            known: batch.iter().map(|(_, k, _)| k.clone()).collect(),
+        };
+        let results = rounds.run(&round, env)?;
+        for (&i, o) in round.photos.iter().zip(results) {
+            let name = &env.input.photos[i].name;
+            if !o.report.oriented {
+                tracing::debug!(epoch = %env.input.name, photo = %name, reason = ?o.report.reason, "no control from the tie pass's pose");
+                continue;
+            }
+            keyed[i] = round.store.keyed(&o.matches);
+            outcomes[i].report.control_matches = keyed[i].len();
+            tracing::info!(epoch = %env.input.name, photo = %name, control = keyed[i].len(), "control patches found from the tie pass's pose");
         }
-        keyed[i] = round.store.keyed(&o.matches);
-        outcomes[i].report.control_matches = keyed[i].len();
-        tracing::info!(epoch = %env.input.name, photo = %name, control = keyed[i].len(), "control patches found from the tie pass's pose");
     }
     Ok(())
 }
+
+/// The control pass after the tie pass takes, of more than 144 points on a photo's
+/// ground, one per cell of this many a side (the 6-photo digital epochs' photos hold 8–25
+/// of their own), and runs this many photos a round: a round's chips are in memory,
+/// about 0.2 MB a view, so at most some 8 · 144 · 3 views ≈ 0.7 GB where the DCPs are
+/// dense (the large preset's reference package holds 7,063 points with 23,476 views).
+const CONTROL_AFTER_TIES_CELLS: usize = 12;
+const CONTROL_AFTER_TIES_BATCH: usize = 8;
 
 /// Ground pixel (m) of a photo: its height above the DEM under its centre (the DEM's
 /// middle height where it has none) over the focal length in pixels.

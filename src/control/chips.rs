@@ -282,6 +282,35 @@ impl<'a> ChipStore<'a> {
             .collect()
     }
 
+    /// Of the points `indices`, the first in each cell of a `cells` × `cells` grid over
+    /// their plan extent: at most `cells`² points spread over the same ground, in the
+    /// order given.
+    pub fn spread(&self, indices: &[usize], cells: usize) -> Vec<usize> {
+        let xy = |i: usize| self.points[i].position.xy();
+        let (mut lo, mut hi) = (
+            Vector2::repeat(f64::INFINITY),
+            Vector2::repeat(f64::NEG_INFINITY),
+        );
+        for &i in indices {
+            lo = lo.inf(&xy(i));
+            hi = hi.sup(&xy(i));
+        }
+        let side = (hi - lo).max() / cells.max(1) as f64;
+        if side.is_nan() || side <= 0.0 {
+            return indices.iter().copied().take(1).collect();
+        }
+        let last = cells.max(1) as i64 - 1;
+        let mut taken = std::collections::BTreeSet::new();
+        indices
+            .iter()
+            .copied()
+            .filter(|&i| {
+                let c = ((xy(i) - lo) / side).map(|v| (v as i64).min(last));
+                taken.insert((c.x, c.y))
+            })
+            .collect()
+    }
+
     /// The points `indices` with their chips read into memory: a store that a round of
     /// the epoch's passes can carry to a process without the packages.
     pub fn owned(&self, indices: &[usize]) -> Result<ChipStore<'static>, DcpError> {

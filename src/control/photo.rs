@@ -485,6 +485,14 @@ pub struct KnownPose {
     pub covariance: SMatrix<f64, 6, 6>,
 }
 
+/// Control matches that count for a photo searched from a pose it already has
+/// ([`orient_from_pose`]). The known pose is six more observations of the resection (its
+/// test against that pose), so four matches are not a resection left with two redundant
+/// observations: each is checked against the pose the photo already has, and again in
+/// the adjustment beside that photo's tie points (small seed 5: 5 patches found, where a
+/// photo of its own needs 6).
+pub const KNOWN_POSE_MIN_MATCHES: usize = 4;
+
 /// The control patches of `store` searched in a photo from a pose it already has, the
 /// windows following that pose's σ. The resection is tested against that pose as against
 /// a navigation prior (both covariances): control that disagrees with how the photo was
@@ -503,14 +511,9 @@ pub fn orient_from_pose(
         }
     };
     let pyramid = Pyramid::from_image(img, 6, 16);
-    // The known pose is six more observations of the resection (its test against that
-    // pose), so four matches are not a resection left with two redundant observations:
-    // each is checked against the pose its photo already has, and again in the
-    // adjustment beside that photo's tie points (small seed 5: 5 patches found, where a
-    // photo of its own needs 6).
     let opts = PhotoOptions {
         prior_test_with_resection_sigma: true,
-        min_inliers: 4,
+        min_inliers: KNOWN_POSE_MIN_MATCHES,
         ..opts.clone()
     };
     orient_with_camera(

@@ -23,4 +23,47 @@ mod tests {
             assert_eq!(y0 + 7, 250, "{p}");
         }
     }
+
+    #[test]
+    fn spread_keeps_one_point_a_cell_over_the_points_extent() {
+        use cloudcontrol::control::chips::{ChipStore, ControlPoint};
+        use nalgebra::Vector3;
+        // A 10 × 10 m grid of points every metre, with a second point beside each: a 5 × 5
+        // spread keeps one point a 2 m cell, the first of each in the order given.
+        let mut points = Vec::new();
+        for y in 0..10 {
+            for x in 0..10 {
+                for d in [0.0, 0.1] {
+                    points.push(ControlPoint {
+                        key: None,
+                        label: String::new(),
+                        position: Vector3::new(x as f64 + d, y as f64 + d, 0.0),
+                        sigma: [0.1; 3],
+                        normal: Vector3::z(),
+                        views: Vec::new(),
+                    });
+                }
+            }
+        }
+        let store = ChipStore::from_points(Vector3::zeros(), points);
+        let all: Vec<usize> = (0..store.points.len()).collect();
+        let kept = store.spread(&all, 5);
+        assert_eq!(kept.len(), 25);
+        let mut cells: Vec<(i64, i64)> = kept
+            .iter()
+            .map(|&i| {
+                let p = store.points[i].position;
+                (
+                    (p.x / 2.0).floor() as i64,
+                    (p.y / 2.0).floor().min(4.0) as i64,
+                )
+            })
+            .collect();
+        cells.sort();
+        cells.dedup();
+        assert_eq!(cells.len(), 25);
+        assert!(kept.windows(2).all(|w| w[0] < w[1]));
+        // Points in cells of their own: all of them.
+        assert_eq!(store.spread(&[0, 2, 4], 5), vec![0, 2, 4]);
+    }
 }
