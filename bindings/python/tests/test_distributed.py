@@ -3,6 +3,7 @@ of two worker processes, one of them killed while it orients an archive photo, g
 products of `cloudcontrol run` byte for byte; a scan that cannot be read is reported with
 its photo and reason and the epoch goes on without it."""
 import filecmp
+import json
 import os
 import pathlib
 import signal
@@ -20,7 +21,9 @@ BAD_SCAN = "film_s02_003"
 
 
 def _block(shared_block, dest):
-    d = shared_block("small", 7, "rough", dest)
+    # Seed 9: its digital epoch orients photo s01_001 only through tie points, then finds
+    # its control patches from that pose, so every kind of round runs as tasks.
+    d = shared_block("small", 9, "rough", dest)
     # The project synth writes, twice, with the outputs inside the copy: products name the
     # photos by their paths, so both runs read the same block.
     text = (d / "project.toml").read_text()
@@ -75,18 +78,20 @@ def test_dask_run_with_a_killed_worker_gives_the_products_of_a_plain_run(shared_
     # Every round of tasks ran; the bad scan is reported, photo and reason, and the
     # epoch went on.
     # The reference epoch matched each photo's pairs as tasks. The archive epochs' global
-    # passes ran their per-photo rounds as tasks too: the film epoch's
-    # second pass (chips of its oriented photos, then the bad scan tried with them; no tie
-    # pass, since ties cannot help a scan that cannot be read), and both epochs' tie points
-    # (chips, tracks on the DEM, tracks beyond it). Each DCP export cut its chips photo by
-    # photo.
+    # passes ran their per-photo rounds as tasks too: the digital epoch's second pass
+    # (chips of its oriented photos, then s01_001 tried with them), tie pass (chips, s01_001
+    # oriented from them, its tracks extended) and control patches searched from the tie
+    # pose; the film epoch's second pass (the bad scan tried with its oriented photos'
+    # chips; no tie pass, since ties cannot help a scan that cannot be read); both epochs'
+    # tie points (chips, tracks on the DEM, tracks beyond it). Each DCP export cut its
+    # chips photo by photo.
     kinds = [(r["stage"], r["kind"]) for r in res["rounds"]]
     ties = ["cut", "match", "match"]
+    digital = ["orient", "cut", "reorient", "cut", "reorient", "match", "reorient", *ties]
     assert kinds == [("sources", "screen"), ("sources", "clean"),
                      ("epoch-reference_2024", "pairs"),
                      ("dcp-reference_2024", "chips"),
-                     ("epoch-digital_2012", "orient"),
-                     *[("epoch-digital_2012", k) for k in ties],
+                     *[("epoch-digital_2012", k) for k in digital],
                      ("dcp-digital_2012", "chips"),
                      ("epoch-film_1978", "scan"), ("epoch-film_1978", "orient"),
                      ("epoch-film_1978", "cut"), ("epoch-film_1978", "reorient"),
@@ -109,3 +114,7 @@ def test_dask_run_with_a_killed_worker_gives_the_products_of_a_plain_run(shared_
     assert a == b and len(a) > 20
     differ = [f for f in a if not filecmp.cmp(plain / f, dask / f, shallow=False)]
     assert differ == []
+    # The photo the tie pass oriented holds control patches found from its tie pose.
+    photos = json.loads((dask / "epoch-digital_2012" / "result.json").read_text())["photos"]
+    s01 = {p["name"]: p for p in photos}["digital_s01_001"]
+    assert s01["tie_pass"] and s01["control_matches"] >= 4, s01
