@@ -352,6 +352,13 @@ pub fn orient_photo(
             ..opts.patch.clone()
         },
         min_inliers: opts.relaxed_min_inliers,
+        // Nearly every patch "matches" at an ambiguity of 1.01, mostly wrongly: a quota
+        // of matches would be a quota of patches, and the right ones are what RANSAC
+        // needs many of.
+        orient: OrientOptions {
+            first_round_matches: None,
+            ..opts.orient.clone()
+        },
         relaxed_retry: false,
         // Its matches are the best peaks however ambiguous: with few of them, one wrong
         // match moves the pose beyond its stated σ (small seed 10, digital_s02_001: 6

@@ -107,28 +107,46 @@ impl Resector for GnResector {
     }
 }
 
+/// Film-like geometry: 0.5 m GSD from 3000 m; the true pose.
+fn film_like() -> (Camera, Pose) {
+    (
+        Camera::Frame(FrameCamera::pinhole(4000, 4000, 6000.0)),
+        Pose::from_opk(0.01, -0.015, 0.4, Vector3::new(100.0, -50.0, 3000.0)),
+    )
+}
+
+/// `n` control points in rows of `cols` from `origin`, `step` apart, on gentle relief;
+/// patch `i` has the id `id(i)`.
+fn grid_patches(
+    n: usize,
+    cols: usize,
+    origin: [f64; 2],
+    step: [f64; 2],
+    id: impl Fn(usize) -> usize,
+) -> Vec<ControlPatch> {
+    (0..n)
+        .map(|i| ControlPatch {
+            id: id(i),
+            position: Vector3::new(
+                origin[0] + step[0] * (i % cols) as f64,
+                origin[1] + step[1] * (i / cols) as f64,
+                20.0 * ((i as f64) * 0.3).sin(),
+            ),
+            covariance: Matrix3::from_diagonal_element(0.05f64.powi(2)),
+        })
+        .collect()
+}
+
 #[test]
 fn rough_pos_converges_with_shrinking_windows_and_rejects_mismatches() {
-    // Film-like geometry: 0.5 m GSD from 3000 m.
-    let camera = Camera::Frame(FrameCamera::pinhole(4000, 4000, 6000.0));
-    let truth = Pose::from_opk(0.01, -0.015, 0.4, Vector3::new(100.0, -50.0, 3000.0));
+    let (camera, truth) = film_like();
     // POS about 10 m / 2° off; its stated quality is 10 m / 3°.
     let approx = truth.perturbed(
         &Vector3::new(0.02, -0.025, 0.03),
         &Vector3::new(8.0, -6.0, 5.0),
     );
     let cov = pos_covariance(10.0, 3f64.to_radians());
-    let patches: Vec<ControlPatch> = (0..60)
-        .map(|i| ControlPatch {
-            id: i + 1,
-            position: Vector3::new(
-                -800.0 + 220.0 * (i % 8) as f64,
-                -700.0 + 200.0 * (i / 8) as f64,
-                20.0 * ((i as f64) * 0.3).sin(),
-            ),
-            covariance: Matrix3::from_diagonal_element(0.05f64.powi(2)),
-        })
-        .collect();
+    let patches = grid_patches(60, 8, [-800.0, -700.0], [220.0, 200.0], |i| i + 1);
     let mut matcher = TruthMatcher {
         camera: camera.clone(),
         truth,
@@ -190,4 +208,68 @@ fn rough_pos_converges_with_shrinking_windows_and_rejects_mismatches() {
     }
     let before = (approx.center - truth.center).norm();
     assert!(before > 10.0);
+}
+
+#[test]
+fn first_round_searches_a_spread_share_of_dense_control_then_every_patch() {
+    let (camera, truth) = film_like();
+    let approx = truth.perturbed(
+        &Vector3::new(0.01, -0.012, 0.015),
+        &Vector3::new(8.0, -6.0, 5.0),
+    );
+    let cov = pos_covariance(10.0, 1f64.to_radians());
+    // 40 × 40 control points over the footprint: dense control, as a film frame over
+    // LiDAR-derived DCPs. No id is a multiple of 7: no gross errors, which the stand-in
+    // resection removes one a round.
+    let patches = grid_patches(1600, 40, [-900.0, -850.0], [45.0, 42.0], |i| 7 * i + 1);
+    let run = |quota: Option<usize>| {
+        let mut matcher = TruthMatcher {
+            camera: camera.clone(),
+            truth,
+        };
+        let opts = OrientOptions {
+            first_round_matches: quota,
+            ..Default::default()
+        };
+        orient_photo(
+            &camera,
+            &approx,
+            &cov,
+            &patches,
+            &mut matcher,
+            &mut GnResector,
+            &opts,
+            None,
+        )
+    };
+    let quota = run(Some(200));
+    let all = run(None);
+    assert!(quota.oriented && all.oriented);
+    let (q0, a0) = (&quota.iterations[0], &all.iterations[0]);
+    assert_eq!(q0.predicted, a0.predicted);
+    assert!(a0.matched > 1000, "{a0:?}");
+    assert_eq!(q0.matched, 200, "{q0:?}");
+    assert!(q0.searched < a0.searched / 4, "{q0:?} vs {a0:?}");
+    assert_eq!(a0.searched, a0.predicted);
+    assert_eq!(quota.first_round.len(), 200);
+    // The first round's matches cover the photo: each quarter holds a fair share.
+    let mut quarters = [0usize; 4];
+    for (_, m) in &quota.first_round {
+        quarters[usize::from(m.x > 2000.0) + 2 * usize::from(m.y > 2000.0)] += 1;
+    }
+    assert!(quarters.iter().all(|&n| n >= 30), "{quarters:?}");
+    // After the first resection every patch is searched, and the outcome is the same.
+    let q1 = &quota.iterations[1];
+    assert_eq!(q1.searched, q1.predicted);
+    // (A patch at the edge of the photo may fall either side of it.)
+    assert!(quota.matches.len().abs_diff(all.matches.len()) <= 3);
+    for p in &patches {
+        if let (Ok(a), Ok(b)) = (
+            geometry::project(&camera, &quota.pose, &p.position),
+            geometry::project(&camera, &all.pose, &p.position),
+        ) {
+            let d = (a.pixel - b.pixel).norm();
+            assert!(d < 0.02, "the poses differ by {d} px");
+        }
+    }
 }

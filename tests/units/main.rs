@@ -13,6 +13,7 @@ mod cache;
 mod control_checkpoints;
 mod control_chips;
 mod control_epoch;
+mod control_orient_order;
 mod control_photo;
 mod control_predict;
 mod control_rounds;

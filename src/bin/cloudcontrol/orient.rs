@@ -294,9 +294,9 @@ struct GroupRow {
     refinement: bool,
     photos: usize,
     oriented_pct: f64,
-    /// Mean over photos of matched / predicted patches in the first round.
+    /// Mean over photos of matched / searched patches in the first round.
     first_round_success: f64,
-    /// Mean over photos of matched / predicted patches in the last round.
+    /// Mean over photos of matched / searched patches in the last round.
     final_success: f64,
     mean_rounds: f64,
     checkpoint_plan_px: f64,
