@@ -179,3 +179,124 @@ pub fn last_error() -> String {
             .into_owned()
     }
 }
+
+/// What a confined child process did ([`run_confined`]).
+#[derive(Debug)]
+pub struct Confined {
+    /// The exit code, or `None` when a signal ended it (killed at the time limit, or
+    /// aborted).
+    pub code: Option<i32>,
+    pub signal: Option<i32>,
+    pub stdout: String,
+    pub stderr: String,
+    /// Peak resident memory of the child (`ru_maxrss`), bytes.
+    pub peak_rss: u64,
+    pub seconds: f64,
+    /// Killed because it ran past the time limit.
+    pub timed_out: bool,
+}
+
+impl Confined {
+    /// Asserts the hostile-input contract (issue 51): the child ended by itself with a
+    /// non-zero exit status (no signal, no abort), within `seconds` and 1 GiB of resident
+    /// memory, and its message holds each of `words`.
+    pub fn refused_cleanly(&self, seconds: f64, words: &[&str]) {
+        assert!(
+            !self.timed_out && self.signal.is_none(),
+            "ended by signal {:?} after {:.1} s (timed out: {}): {}",
+            self.signal,
+            self.seconds,
+            self.timed_out,
+            self.stderr
+        );
+        assert!(
+            self.code.is_some_and(|c| c != 0 && c != 101),
+            "exit {:?} (101 is a panic): {}{}",
+            self.code,
+            self.stdout,
+            self.stderr
+        );
+        assert!(
+            self.peak_rss <= 1 << 30,
+            "peak RSS {} MiB: {}",
+            self.peak_rss >> 20,
+            self.stderr
+        );
+        assert!(self.seconds <= seconds, "{:.1} s: {}", self.seconds, self.stderr);
+        let all = format!("{}{}", self.stdout, self.stderr);
+        for w in words {
+            assert!(all.contains(w), "says {w:?}: {all}");
+        }
+    }
+}
+
+/// Runs `cmd` in a child process under an address-space limit of `rlimit_as` bytes
+/// (RLIMIT_AS: an allocation beyond it fails in the child instead of taking the machine),
+/// killed after `limit_s` seconds, and reports its exit, output, peak RSS and time. The
+/// hostile-input tests run each crafted case this way so that a regression shows as a
+/// failed assertion, never as a hung or out-of-memory test run.
+pub fn run_confined(cmd: &mut std::process::Command, rlimit_as: u64, limit_s: f64) -> Confined {
+    use std::os::unix::process::CommandExt;
+    use std::process::Stdio;
+    let out = tempfile::NamedTempFile::new().unwrap();
+    let err = tempfile::NamedTempFile::new().unwrap();
+    cmd.stdin(Stdio::null())
+        .stdout(out.reopen().unwrap())
+        .stderr(err.reopen().unwrap());
+    // SAFETY: setrlimit is async-signal-safe; nothing else runs between fork and exec.
+    unsafe {
+        cmd.pre_exec(move || {
+            let lim = libc::rlimit {
+                rlim_cur: rlimit_as,
+                rlim_max: rlimit_as,
+            };
+            if libc::setrlimit(libc::RLIMIT_AS, &lim) != 0 {
+                return Err(std::io::Error::last_os_error());
+            }
+            Ok(())
+        });
+    }
+    let t = std::time::Instant::now();
+    let child = cmd.spawn().expect("child starts");
+    let pid = child.id() as libc::pid_t;
+    let mut status = 0;
+    // SAFETY: a zeroed rusage is a valid value for wait4 to fill.
+    let mut usage: libc::rusage = unsafe { std::mem::zeroed() };
+    let mut timed_out = false;
+    loop {
+        // SAFETY: waits for our own child; the pointers are to live locals.
+        let r = unsafe { libc::wait4(pid, &mut status, libc::WNOHANG, &mut usage) };
+        if r == pid {
+            break;
+        }
+        assert!(r == 0, "wait4: {}", std::io::Error::last_os_error());
+        if t.elapsed().as_secs_f64() > limit_s && !timed_out {
+            timed_out = true;
+            // SAFETY: signals our own child, which has not been reaped yet.
+            unsafe { libc::kill(pid, libc::SIGKILL) };
+        }
+        std::thread::sleep(std::time::Duration::from_millis(5));
+    }
+    let seconds = t.elapsed().as_secs_f64();
+    drop(child); // reaped above by wait4; dropping neither waits nor kills
+    let read = |f: &tempfile::NamedTempFile| std::fs::read_to_string(f.path()).unwrap_or_default();
+    Confined {
+        code: libc::WIFEXITED(status).then(|| libc::WEXITSTATUS(status)),
+        signal: libc::WIFSIGNALED(status).then(|| libc::WTERMSIG(status)),
+        stdout: read(&out),
+        stderr: read(&err),
+        peak_rss: usage.ru_maxrss as u64 * 1024,
+        seconds,
+        timed_out,
+    }
+}
+
+/// [`run_confined`] on the CLI with the acceptance's limits: 2 GiB of address space,
+/// killed after 30 s (the assertions then ask for much less).
+pub fn cli_confined(args: &[&str]) -> Confined {
+    run_confined(
+        std::process::Command::new(exe()).args(args),
+        2 << 30,
+        30.0,
+    )
+}
