@@ -76,6 +76,16 @@ fn las_whose_header_size_is_below_its_version_is_an_error() {
     las_open_fails_naming("las_header_size_zero", "header size 0 bytes");
 }
 
+/// A LAS 1.4 LAZ without a chunk table whose 64-bit point count (0xe147ae0000000000
+/// 61-byte records) overflows the end-of-points offset the `las` crate computes (a panic
+/// in `las::raw::Header::offset_to_end_of_points` where overflow checks are on, as in the
+/// fuzz build; a wrapped offset otherwise). The guard refuses the count on open, naming
+/// the file.
+#[test]
+fn las_whose_point_count_overflows_a_file_offset_is_an_error() {
+    las_open_fails_naming("laz_point_count_overflow", "point count");
+}
+
 /// A LAZ whose compressed GPS times make laz 0.12's predictor overflow an i64 (an
 /// overflow-checked add in src/las/gps.rs; the fuzz build panics there). The library
 /// ships without overflow checks: reading every point ends in wrong GPS times or in an

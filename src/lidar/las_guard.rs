@@ -142,6 +142,23 @@ pub(crate) fn guard(path: &Path, f: &mut File, file_len: u64) -> Result<Option<P
             ),
         });
     }
+    // The `las` crate adds the point data's length (count × record length) to its start
+    // unchecked: a count beyond what a 64-bit offset can address overflows (a panic where
+    // overflow checks are on). A LAZ file's count is checked against its chunks below,
+    // but only when it has a chunk table.
+    let most = (u64::MAX - h.offset_to_point_data) / h.record_len.max(1);
+    if h.point_count > most {
+        return Err(too_large(
+            path,
+            "point count".into(),
+            h.point_count,
+            most,
+            format!(
+                "the {}-byte point records a 64-bit file offset can address",
+                h.record_len
+            ),
+        ));
+    }
     for (what, at) in [
         ("header size", h.header_size),
         ("offset to point data", h.offset_to_point_data),
