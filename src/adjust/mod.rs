@@ -273,6 +273,24 @@ pub struct CheckPointReport {
     pub rays: usize,
 }
 
+/// A check point measurement left out of the check point's intersection by data snooping
+/// ([`rays::intersect_snooped`]), or a measurement of a check point whose rays disagree
+/// in a way no test can localise (the point is then not evaluated).
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub struct RejectedCheckRay {
+    pub point: PointId,
+    pub name: String,
+    pub photo: PhotoId,
+    pub pixel: [f64; 2],
+    /// Reprojection error at the intersection of the point's kept rays (px); None when
+    /// the point has no position.
+    pub residual_px: Option<f64>,
+    pub reason: String,
+}
+
+/// Check point comparison: RMSE over the check points whose rays agree (after their
+/// gross measurement errors are rejected); `not_evaluated` counts those whose rays could
+/// not be made to agree.
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 pub struct CheckSummary {
     pub count: usize,
@@ -280,6 +298,10 @@ pub struct CheckSummary {
     pub rmse_height_m: f64,
     pub max_m: f64,
     pub points: Vec<CheckPointReport>,
+    #[serde(default)]
+    pub not_evaluated: usize,
+    #[serde(default)]
+    pub rejected: Vec<RejectedCheckRay>,
 }
 
 /// The adjusted shift of the LiDAR's datum from the block's.

@@ -2,15 +2,17 @@
 //! self-calibration, variance components, check points, and a clean output model (no
 //! rejected observation, no tie point left with fewer than two rays).
 
-use super::precision::{self, cofactors, intersect};
+use super::chi2;
+use super::precision::{self, cofactors};
 use super::problem::{n_unknowns, Problem};
+use super::rays::{intersect_snooped, Ray};
 use super::residual::Kind;
 use super::robust::RejectionTest;
 use super::solver::{self, Structure};
 use super::{
     AdjustError, AdjustOptions, AdjustReport, CalibrationReport, CheckPointReport, CheckSummary,
-    LidarDatumReport, Loss, ObservationRef, PhotoPrecision, Rejected, RejectedSummary,
-    ResidualReport,
+    LidarDatumReport, Loss, ObservationRef, PhotoPrecision, Rejected, RejectedCheckRay,
+    RejectedSummary, ResidualReport,
 };
 use crate::block::{Block, PointKind};
 use nalgebra::Vector3;
@@ -308,7 +310,7 @@ pub(super) fn finish(
         );
     }
 
-    let check = check_points(block);
+    let check = check_points(block, s0);
     let n_active_points = active_point.iter().filter(|&&a| a).count();
     Ok(AdjustReport {
         sigma0: s0,
@@ -339,24 +341,72 @@ pub(super) fn finish(
     })
 }
 
-/// Intersects every check point with the adjusted orientations and compares.
-pub(crate) fn check_points(block: &Block) -> Option<CheckSummary> {
+/// Intersects every check point with the adjusted orientations, its measurements tested
+/// as the adjustment tests tie points and control (data snooping at α0 = 0.1 % against
+/// the a-priori σ, scaled by `sigma0` where the adjustment found it too optimistic), and
+/// compares with its surveyed position.
+pub(crate) fn check_points(block: &Block, sigma0: f64) -> Option<CheckSummary> {
+    let f2 = sigma0.max(1.0).powi(2);
     let mut pts = Vec::new();
+    let mut rejected = Vec::new();
+    let mut not_evaluated = 0;
     for pt in block.points.values().filter(|p| p.kind == PointKind::Check) {
-        let rays: Vec<_> = pt
+        let (obs, rays): (Vec<_>, Vec<_>) = pt
             .observations
             .iter()
             .filter_map(|o| {
                 let ph = block.photos.get(&o.photo)?;
                 let cam = &block.cameras.get(&ph.camera)?.model;
-                Some((cam, &ph.pose, o.pixel, o.sigma_px))
+                Some((
+                    o,
+                    Ray {
+                        camera: cam,
+                        pose: ph.pose,
+                        pixel: o.pixel,
+                        sigma_px: o.sigma_px,
+                    },
+                ))
             })
-            .collect();
-        let Some(x) = intersect(&rays) else {
+            .unzip();
+        if rays.len() < 2 {
             tracing::warn!(
                 point = pt.id,
                 "check point cannot be intersected (fewer than two usable rays)"
             );
+            continue;
+        }
+        let s = intersect_snooped(&rays, f2, 0.001);
+        let reject = |i: usize, residual_px: Option<f64>, reason: String| RejectedCheckRay {
+            point: pt.id,
+            name: pt.name.clone(),
+            photo: obs[i].photo,
+            pixel: obs[i].pixel,
+            residual_px,
+            reason,
+        };
+        for r in &s.rejected {
+            rejected.push(reject(
+                r.index,
+                Some(r.residual_px).filter(|v| v.is_finite()),
+                format!(
+                    "data snooping: leaving it out lowers the rays' χ² by {:.1} > χ²(2, 0.1 %) = {:.1}",
+                    r.statistic,
+                    chi2::critical(2, 0.001)
+                ),
+            ));
+        }
+        let Some(x) = s.position else {
+            not_evaluated += 1;
+            let reason = format!(
+                "the point's {} remaining rays disagree (χ² {:.1} with {} degrees of freedom) and no single ray explains it: the point is not evaluated",
+                s.kept.len(),
+                s.ssr,
+                s.dof
+            );
+            for &i in &s.kept {
+                rejected.push(reject(i, None, reason.clone()));
+            }
+            tracing::warn!(point = pt.id, "{reason}");
             continue;
         };
         let e = x - pt.position;
@@ -364,10 +414,10 @@ pub(crate) fn check_points(block: &Block) -> Option<CheckSummary> {
             point: pt.id,
             name: pt.name.clone(),
             error: [e.x, e.y, e.z],
-            rays: rays.len(),
+            rays: s.kept.len(),
         });
     }
-    if pts.is_empty() {
+    if pts.is_empty() && rejected.is_empty() {
         return None;
     }
     let [plan, height, max] = checkpoint_rmse(pts.iter().map(|p| p.error));
@@ -377,6 +427,8 @@ pub(crate) fn check_points(block: &Block) -> Option<CheckSummary> {
         rmse_height_m: height,
         max_m: max,
         points: pts,
+        not_evaluated,
+        rejected,
     })
 }
 

@@ -23,7 +23,7 @@ pub fn write_json<T: Serialize>(path: &Path, v: &T) -> Result<(), FormatError> {
 }
 
 pub fn read_json<T: for<'de> Deserialize<'de>>(path: &Path) -> Result<T, FormatError> {
-    let bytes = std::fs::read(path).map_err(|e| FormatError::io(path, e))?;
+    let bytes = crate::formats::input::read_bytes(path, crate::formats::input::Cap::document())?;
     serde_json::from_slice(&bytes).map_err(|e| FormatError::invalid(path, e.to_string()))
 }
 
@@ -116,6 +116,7 @@ pub fn epoch_report(
                         dx: p.error[0],
                         dy: p.error[1],
                         dz: p.error[2],
+                        rays: p.rays,
                     })
                 })
                 .collect()
@@ -139,6 +140,11 @@ pub fn epoch_report(
         rmse_px: result.adjustment.as_ref().map_or(f64::NAN, |a| a.rmse_px),
         time_s: result.time_s,
         checkpoints,
+        checkpoints_not_evaluated: eval.as_ref().map_or(0, |e| e.not_evaluated),
+        checkpoint_rejections: eval
+            .as_ref()
+            .map(|e| e.rejected.clone())
+            .unwrap_or_default(),
         photos,
         icp,
         control: Vec::new(),

@@ -27,6 +27,9 @@ pub struct CheckpointError {
     pub dx: f64,
     pub dy: f64,
     pub dz: f64,
+    /// The photos it was intersected from (its measurements kept).
+    #[serde(default)]
+    pub rays: usize,
 }
 
 /// Per-photo summary of the adjustment and of the patch matching.
@@ -87,6 +90,12 @@ pub struct EpochReport {
     pub time_s: f64,
     #[serde(default)]
     pub checkpoints: Vec<CheckpointError>,
+    /// Checkpoints whose rays could not be made to agree (not in the RMSE).
+    #[serde(default)]
+    pub checkpoints_not_evaluated: usize,
+    /// Checkpoint measurements left out of the evaluation, and why.
+    #[serde(default)]
+    pub checkpoint_rejections: Vec<crate::control::checkpoints::RejectedMeasurement>,
     #[serde(default)]
     pub photos: Vec<PhotoSummary>,
     #[serde(default)]

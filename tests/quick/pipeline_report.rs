@@ -37,8 +37,11 @@ fn sample_report() -> Report {
                     dx: gsd * 0.3 * ((i as f64) * 0.7).sin(),
                     dy: gsd * 0.3 * ((i as f64) * 1.3).cos(),
                     dz: gsd * 0.5 * ((i as f64) * 0.4).sin(),
+                    rays: 3,
                 })
                 .collect(),
+            checkpoints_not_evaluated: 0,
+            checkpoint_rejections: Vec::new(),
             photos: (0..12)
                 .map(|i| PhotoSummary {
                     name: format!("p{i}"),
