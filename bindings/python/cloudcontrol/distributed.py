@@ -25,18 +25,21 @@ from .pipeline import plan, run_task
 __all__ = ["run", "run_task", "plan"]
 
 
-def run(project: str | os.PathLike, client, retries: int = 3, on_round=None) -> dict:
+def run(project: str | os.PathLike, client, retries: int = 3, on_round=None,
+        partial_ok: bool = False) -> dict:
     """Runs ``project`` with its per-photo tasks on ``client``'s workers; returns what
     :func:`cloudcontrol.run` returns, plus ``"rounds"``: per round of tasks the stage,
     the number of tasks, the wall time of the round and the summed task time, and the
     items whose task reported a failure (``item``, the photo, and reason; the epoch goes
     on without them). ``on_round(stage, futures)`` is called with each round's futures as they are
-    submitted (progress bars, tests)."""
+    submitted (progress bars, tests). A run in which an epoch oriented fewer photos than
+    it has raises :class:`cloudcontrol.PartialRunError` as :func:`cloudcontrol.run` does,
+    unless ``partial_ok``."""
     rounds = []
     project = os.fspath(project)
     while True:
         t0 = time.perf_counter()
-        res = plan(project)
+        res = plan(project, partial_ok=partial_ok)
         local_s = time.perf_counter() - t0
         pending = res.get("pending")
         if pending is None:

@@ -1,11 +1,11 @@
-"""Runs a cloudcontrol project, opens each epoch's orthophoto with GDAL and plots the
-checkpoint errors (plan vectors over the orthophoto, height errors per epoch).
+"""Runs a cloudcontrol project, opens each epoch's orthophoto and plots the checkpoint
+errors (plan vectors over the orthophoto, height errors per epoch).
 
     python run_and_plot.py PROJECT.toml [OUT.png]
 
-Needs the GDAL Python bindings (Debian: python3-gdal, or pip install gdal==$(gdal-config
---version)) and matplotlib. `cloudcontrol demo` writes a project to try it on:
-cloudcontrol_demo/block/project.toml.
+Its dependencies come with the package's `examples` extra (`pip install
+"cloudcontrol[examples]"`: matplotlib, and rasterio to read the GeoTIFFs). `cloudcontrol
+demo` writes a project to try it on: cloudcontrol_demo/block/project.toml.
 """
 import sys
 from pathlib import Path
@@ -15,23 +15,23 @@ import matplotlib
 matplotlib.use("Agg")
 import matplotlib.pyplot as plt
 import numpy as np
-from osgeo import gdal
+import rasterio
 
 import cloudcontrol
 
 
 def main(project: str, out_png: str = "checkpoints.png") -> None:
-    res = cloudcontrol.run(project)
+    # A partial run (an epoch with photos not oriented) still plots what was oriented.
+    res = cloudcontrol.run(project, partial_ok=True)
     epochs = res["report"]["epochs"]
     fig, axes = plt.subplots(1, len(epochs) + 1, figsize=(5 * (len(epochs) + 1), 5))
     for ax, e in zip(axes, epochs):
         ortho = Path(res["output"]) / f"outputs-{e['name']}" / "orthophoto.tif"
         if ortho.exists():
-            ds = gdal.Open(str(ortho))
-            gt = ds.GetGeoTransform()
-            rgb = np.dstack([ds.GetRasterBand(b).ReadAsArray() for b in (1, 2, 3)])
-            extent = [gt[0], gt[0] + gt[1] * ds.RasterXSize, gt[3] + gt[5] * ds.RasterYSize, gt[3]]
-            ax.imshow(rgb, extent=extent)
+            with rasterio.open(ortho) as ds:
+                rgb = np.dstack(ds.read((1, 2, 3)))
+                b = ds.bounds
+            ax.imshow(rgb, extent=[b.left, b.right, b.bottom, b.top])
         cps = e["checkpoints"]
         if cps:
             x = np.array([c["x"] for c in cps])

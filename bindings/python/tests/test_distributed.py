@@ -47,7 +47,8 @@ def _files(root: pathlib.Path, products: dict) -> list[str]:
 
 def test_dask_run_with_a_killed_worker_gives_the_products_of_a_plain_run(shared_block, tmp_path):
     block = _block(shared_block, tmp_path / "block")
-    ours = cloudcontrol.run(block / "plain.toml")
+    # The bad scan leaves the film epoch partial: the summary is wanted, not the error.
+    ours = cloudcontrol.run(block / "plain.toml", partial_ok=True)
     killed = {}
 
     with dd.LocalCluster(n_workers=2, threads_per_worker=1, processes=True,
@@ -70,7 +71,7 @@ def test_dask_run_with_a_killed_worker_gives_the_products_of_a_plain_run(shared_
                 folder = next(tasks.iterdir())
                 threading.Thread(target=kill_when_busy, args=(folder,), daemon=True).start()
 
-        res = distributed.run(block / "dask.toml", client, on_round=on_round)
+        res = distributed.run(block / "dask.toml", client, on_round=on_round, partial_ok=True)
         assert killed, "no worker was killed"
         # The nanny restarted the killed worker process.
         assert killed["pid"] not in client.run(os.getpid).values()

@@ -53,7 +53,7 @@ def block(tmp_path_factory, shared_block):
 
 
 def test_run_meets_the_checkpoint_targets_and_pycolmap_reads_the_model(block):
-    res = cloudcontrol.run(block / "project.toml")
+    res = cloudcontrol.run(block / "project.toml", partial_ok=True)
     epochs = {e["name"]: e for e in res["report"]["epochs"]}
     ref, film = epochs["reference_2024"], epochs["film_1978"]
     assert ref["photos_oriented"] == ref["photos_total"] == 12
@@ -95,7 +95,7 @@ def test_run_meets_the_checkpoint_targets_and_pycolmap_reads_the_model(block):
     assert ref["ties"]["points"] > 100 and film["ties"]["control_points"] > 10
 
     # A second run skips every finished stage.
-    again = cloudcontrol.run(block / "project.toml")
+    again = cloudcontrol.run(block / "project.toml", partial_ok=True)
     assert again["ran"] == []
 
 
@@ -118,7 +118,7 @@ def test_film_products_are_in_fiducial_frame_images(block, tmp_path):
     within the film target, with our exterior orientations unchanged and, for the true
     orientation, within 0.01 px; the BlocksExchange converts back to COLMAP with the same
     projections; OpenCV's affine warp of a scan agrees with our frame image."""
-    res = cloudcontrol.run(block / "project.toml")
+    res = cloudcontrol.run(block / "project.toml", partial_ok=True)
     out = pathlib.Path(res["output"])
     odir = out / "outputs-film_1978"
     assert json.loads((odir / "skipped.json").read_text()) == {}
