@@ -2,7 +2,11 @@
 //! hold all at once: LiDAR tiles (bounded in points), photo images (bounded in bytes).
 //! Entries are shared (`Arc`), so an entry evicted while a caller still uses it stays alive
 //! until that caller drops it; the bound is on what the cache itself keeps.
+//!
+//! The recency order is the `lru` crate's; what it lacks, a bound by the entries' weights
+//! rather than their count, is the few lines here.
 
+use std::hash::Hash;
 use std::sync::Arc;
 
 /// Default bound of the caches of decoded photos (orthophoto tiles, tie matching): 1 GiB,
@@ -10,28 +14,29 @@ use std::sync::Arc;
 pub const DEFAULT_IMAGE_CACHE_BYTES: u64 = 1 << 30;
 
 /// An LRU cache of `V` by key `K`, bounded by the sum of the entries' weights.
-pub struct Lru<K, V> {
+pub struct Lru<K: Hash + Eq, V> {
     bound: u64,
-    /// (key, value, weight), most recently used last. A linear scan: the caches hold tens
-    /// of entries, each costing a file read of milliseconds to seconds.
-    entries: Vec<(K, Arc<V>, u64)>,
+    /// Value and weight by key, in recency order.
+    entries: lru::LruCache<K, (Arc<V>, u64)>,
+    held: u64,
     loads: usize,
 }
 
-impl<K: PartialEq + Clone, V> Lru<K, V> {
+impl<K: Hash + Eq + Clone, V> Lru<K, V> {
     /// `bound`: total weight above which least recently used entries are dropped. An entry
     /// heavier than the bound on its own is still returned (and kept until the next load).
     pub fn new(bound: u64) -> Self {
         Self {
             bound,
-            entries: Vec::new(),
+            entries: lru::LruCache::unbounded(),
+            held: 0,
             loads: 0,
         }
     }
 
     /// Total weight held.
     pub fn held(&self) -> u64 {
-        self.entries.iter().map(|e| e.2).sum()
+        self.held
     }
 
     /// How many entries were loaded (cache misses).
@@ -41,12 +46,22 @@ impl<K: PartialEq + Clone, V> Lru<K, V> {
 
     /// Whether `key` is held (does not count as a use).
     pub fn contains(&self, key: &K) -> bool {
-        self.entries.iter().any(|e| e.0 == *key)
+        self.entries.contains(key)
     }
 
     /// Drops every entry whose key `keep` refuses.
     pub fn retain(&mut self, mut keep: impl FnMut(&K) -> bool) {
-        self.entries.retain(|e| keep(&e.0));
+        let drop: Vec<K> = self
+            .entries
+            .iter()
+            .filter(|(k, _)| !keep(k))
+            .map(|(k, _)| k.clone())
+            .collect();
+        for k in drop {
+            if let Some((_, w)) = self.entries.pop(&k) {
+                self.held -= w;
+            }
+        }
     }
 
     /// The entry of `key`, from the cache or made by `load`, which returns the value and
@@ -56,20 +71,20 @@ impl<K: PartialEq + Clone, V> Lru<K, V> {
         key: &K,
         load: impl FnOnce() -> Result<(V, u64), E>,
     ) -> Result<Arc<V>, E> {
-        if let Some(pos) = self.entries.iter().position(|e| e.0 == *key) {
-            let e = self.entries.remove(pos);
-            let v = e.1.clone();
-            self.entries.push(e);
-            return Ok(v);
+        if let Some((v, _)) = self.entries.get(key) {
+            return Ok(v.clone());
         }
         let (v, weight) = load()?;
         self.loads += 1;
         let v = Arc::new(v);
-        let mut held = self.held();
-        while held + weight > self.bound && !self.entries.is_empty() {
-            held -= self.entries.remove(0).2;
+        while self.held + weight > self.bound {
+            let Some((_, (_, w))) = self.entries.pop_lru() else {
+                break;
+            };
+            self.held -= w;
         }
-        self.entries.push((key.clone(), v.clone(), weight));
+        self.entries.put(key.clone(), (v.clone(), weight));
+        self.held += weight;
         Ok(v)
     }
 }
