@@ -122,6 +122,21 @@ fn demo_runs_the_workflow_and_a_killed_run_resumes_identically() {
     assert!(photos as f64 >= 0.9 * f["photos_total"].as_f64().unwrap());
     assert!(xml.contains("<FocalLength>152.865</FocalLength>"));
     assert!(xml.contains("<CheckPoint>true</CheckPoint>"));
+    // The reference's photos are named relative to the XML's folder (no BaseImagePath, no
+    // absolute path of this machine): the block moves with the project's folders.
+    let ref_dir = run.join("outputs-reference_2024");
+    let xml = std::fs::read_to_string(ref_dir.join("blocks_exchange.xml")).unwrap();
+    assert!(!xml.contains("<BaseImagePath>"), "BaseImagePath written");
+    let paths: Vec<&str> = xml
+        .split("<ImagePath>")
+        .skip(1)
+        .filter_map(|s| s.split("</ImagePath>").next())
+        .collect();
+    assert!(!paths.is_empty());
+    for p in &paths {
+        assert!(!p.starts_with('/') && !p.contains('\\'), "{p}");
+        assert!(ref_dir.join(p).is_file(), "{p} not found from the XML's folder");
+    }
     for (tif, bands) in [("orthophoto.tif", 4), ("lidar_dem.tif", 1)] {
         let info = Command::new("gdalinfo")
             .arg("-json")

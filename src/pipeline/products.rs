@@ -239,20 +239,21 @@ pub(crate) fn write_products(
     }
     if o.blocks_exchange {
         let mut bx = named.clone();
-        // Frame images lie beside the XML (ImagePath relative to its folder, as the
-        // format defaults); scans and photos where they are (BaseImagePath).
-        let base = if film {
-            for p in bx.photos.values_mut() {
-                p.name = format!("{RESAMPLED_DIR}/{}", p.name);
-            }
-            None
-        } else {
-            named
-                .photos
-                .values()
-                .find_map(|p| p.image.as_ref()?.parent())
-                .map(|p| p.display().to_string())
-        };
+        // Every ImagePath is relative to the XML's folder, as the format defaults when no
+        // BaseImagePath is given: frame images lie beside it, photos where they are. An
+        // absolute path of this machine would tie the block to it (ContextCapture runs on
+        // Windows); a relative one moves with the project's folders.
+        for p in bx.photos.values_mut() {
+            p.name = if film {
+                format!("{RESAMPLED_DIR}/{}", p.name)
+            } else {
+                match &p.image {
+                    Some(image) => relative_image_path(image, dir),
+                    None => p.name.clone(),
+                }
+            };
+        }
+        let base = None;
         if let Err(e) = formats::blocks_exchange::write(
             &dir.join("blocks_exchange.xml"),
             &bx,
@@ -303,4 +304,29 @@ pub(crate) fn write_products(
     }
     tasks.clear();
     Ok(())
+}
+
+/// `image` relative to the folder `from`, with `/` separators (BlocksExchange readers on
+/// Windows take them), lexically: both are made absolute against the working folder and
+/// `.`/`..` resolved without touching the file system.
+fn relative_image_path(image: &Path, from: &Path) -> String {
+    fn absolute(p: &Path) -> Vec<String> {
+        let p = std::path::absolute(p).unwrap_or_else(|_| p.to_path_buf());
+        let mut out: Vec<String> = Vec::new();
+        for c in p.components() {
+            match c {
+                std::path::Component::ParentDir => {
+                    out.pop();
+                }
+                std::path::Component::Normal(n) => out.push(n.to_string_lossy().into_owned()),
+                _ => {}
+            }
+        }
+        out
+    }
+    let (to, from) = (absolute(image), absolute(from));
+    let common = to.iter().zip(&from).take_while(|(a, b)| a == b).count();
+    let mut parts: Vec<&str> = vec![".."; from.len() - common];
+    parts.extend(to[common..].iter().map(String::as_str));
+    parts.join("/")
 }
