@@ -86,6 +86,19 @@ fn las_whose_point_count_overflows_a_file_offset_is_an_error() {
     las_open_fails_naming("laz_point_count_overflow", "point count");
 }
 
+/// LAZ files whose LASzip VLR declares 60 000 extra bytes a point (the sample's 27-byte
+/// item resized, in a LASzip 2 and a LASzip 3 file of 3.5 and 8 KB): laz's decompressor
+/// keeps arithmetic models for every extra byte in each chunk it decompresses, one per
+/// thread, and reading them took 200 and 640 MB a thread. The `las` fuzz target met such
+/// files as an RSS of 2 GB (an out-of-memory stop). The guard refuses them on open,
+/// naming the file and the limit.
+#[test]
+fn laz_with_a_huge_extra_bytes_item_is_an_error() {
+    for name in ["laz_extra_bytes_60000_v2", "laz_extra_bytes_60000_v3"] {
+        las_open_fails_naming(name, "LAZ extra bytes per point 60000 exceeds 1024");
+    }
+}
+
 /// A LAZ whose compressed GPS times make laz 0.12's predictor overflow an i64 (an
 /// overflow-checked add in src/las/gps.rs; the fuzz build panics there). The library
 /// ships without overflow checks: reading every point ends in wrong GPS times or in an

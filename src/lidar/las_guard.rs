@@ -16,6 +16,13 @@ use std::path::Path;
 /// LASzip writes 50 000-point chunks (≈ 2–3 MB); COPC nodes stay well below this.
 pub const MAX_LAZ_CHUNK_BYTES: u64 = 256 << 20;
 
+/// Most extra bytes per point a LAZ file's items may declare. The decompressor keeps
+/// arithmetic models for every extra byte (≈ 2.4 KB each in LASzip 2 items, ≈ 10 KB in
+/// LASzip 3's four contexts) in each chunk it decompresses at once, one per thread: a
+/// crafted 8 KB file declaring 60 000 took 640 MB a thread. Real files carry a few to a
+/// few dozen extra bytes.
+pub const MAX_LAZ_EXTRA_BYTES: u64 = 1024;
+
 /// Bytes of a VLR header and of an EVLR header (LAS 1.4 R15 §2.5, §2.6).
 const VLR_HEADER: u64 = 54;
 const EVLR_HEADER: u64 = 60;
@@ -283,6 +290,26 @@ fn check_chunk_table(
              record length is {} bytes",
             h.record_len
         )));
+    }
+    let extra: u64 = vlr
+        .items()
+        .iter()
+        .filter(|i| {
+            matches!(
+                i.item_type(),
+                laz::LazItemType::Byte(_) | laz::LazItemType::Byte14(_)
+            )
+        })
+        .map(|i| u64::from(i.size()))
+        .sum();
+    if extra > MAX_LAZ_EXTRA_BYTES {
+        return Err(too_large(
+            path,
+            "LAZ extra bytes per point".into(),
+            extra,
+            MAX_LAZ_EXTRA_BYTES,
+            "what the decompressor keeps models for".into(),
+        ));
     }
     let point_bytes = items.max(1);
     let chunk_limit = MAX_LAZ_CHUNK_BYTES / point_bytes;
