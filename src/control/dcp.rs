@@ -370,8 +370,15 @@ impl DcpPackage {
     /// checksum and type (a regular file inside the package: `dcp_files`) of every listed
     /// file, and each chip's size from its image header. Nothing is written.
     pub fn open(dir: &Path) -> Result<Self> {
-        if !dir.is_dir() {
-            return Err(invalid(dir, "is not a folder"));
+        match std::fs::metadata(dir) {
+            Err(source) => {
+                return Err(DcpError::Io {
+                    path: dir.to_path_buf(),
+                    source,
+                })
+            }
+            Ok(m) if !m.is_dir() => return Err(invalid(dir, "is not a folder")),
+            Ok(_) => {}
         }
         let bytes = manifest_bytes(dir)?;
         let manifest: Manifest =
