@@ -99,6 +99,16 @@ fn laz_with_a_huge_extra_bytes_item_is_an_error() {
     }
 }
 
+/// A 2.8 KB LASzip 3 file (point format 6) whose first chunk's header claims a layer of
+/// 4.18 GB: laz sizes a buffer from each layer's byte count before reading it, so reading
+/// the points took 4.1 GB and 10 s (`lidar catalogue`, release build; the `las` fuzz
+/// target stopped at the malloc limit). The guard checks every chunk's layer byte counts
+/// against the chunk's bytes and refuses the file on open, naming it.
+#[test]
+fn laz_whose_chunk_claims_a_layer_beyond_the_chunk_is_an_error() {
+    las_open_fails_naming("laz_layer_size_4gb", "LAZ chunk 0 layer bytes");
+}
+
 /// A LAZ whose compressed GPS times make laz 0.12's predictor overflow an i64 (an
 /// overflow-checked add in src/las/gps.rs; the fuzz build panics there). The library
 /// ships without overflow checks: reading every point ends in wrong GPS times or in an

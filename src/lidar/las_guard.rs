@@ -402,5 +402,62 @@ fn check_chunk_table(
             format!("what the {} LAZ chunks can hold", entries.len()),
         ));
     }
+    check_layers(path, f, &vlr, h.record_len, data_start + 8, entries.as_ref())
+}
+
+/// Byte counts a LASzip 3 item keeps in each chunk's header, one per layer (laz's
+/// `read_layers_sizes`); the items of point formats 0–5 are not layered.
+fn layers(item: &laz::LazItem) -> u64 {
+    match item.item_type() {
+        laz::LazItemType::Point14 => 9,
+        laz::LazItemType::RGB14 | laz::LazItemType::WavePacket14 => 1,
+        laz::LazItemType::RGBNIR14 => 2,
+        laz::LazItemType::Byte14(_) => u64::from(item.size()),
+        _ => 0,
+    }
+}
+
+/// A LASzip 3 chunk is the first point raw, the chunk's point count, the byte count of
+/// every layer, then the layers; laz sizes a buffer from each byte count before reading
+/// the layer (a 2.8 KB file claiming a 4 GB layer took 4 GB). Every chunk's layers must
+/// fit in the chunk's bytes (the chunk table's, checked against the file above).
+fn check_layers(
+    path: &Path,
+    f: &mut File,
+    vlr: &laz::LazVlr,
+    record_len: u64,
+    first_chunk: u64,
+    entries: &[laz::laszip::ChunkTableEntry],
+) -> Result<()> {
+    let layered: u64 = vlr.items().iter().map(layers).sum();
+    if layered == 0 {
+        return Ok(());
+    }
+    let head = record_len + 4 + 4 * layered;
+    let mut start = first_chunk;
+    let mut sizes = vec![0u8; 4 * layered as usize];
+    for (i, e) in entries.iter().enumerate() {
+        // A chunk too short for its header fails in laz's reader, naming the file.
+        if e.point_count > 0 && e.byte_count >= head {
+            f.seek(SeekFrom::Start(start + record_len + 4))
+                .and_then(|_| f.read_exact(&mut sizes))
+                .map_err(|x| LidarError::io(path, x))?;
+            let claimed: u64 = sizes
+                .chunks_exact(4)
+                .map(|b| u64::from(le_u32(b, 0)))
+                .sum();
+            let room = e.byte_count - head;
+            if claimed > room {
+                return Err(too_large(
+                    path,
+                    format!("LAZ chunk {i} layer bytes"),
+                    claimed,
+                    room,
+                    "the bytes of the chunk after its header".into(),
+                ));
+            }
+        }
+        start = start.saturating_add(e.byte_count);
+    }
     Ok(())
 }
