@@ -75,11 +75,23 @@ impl From<&MatchResult> for CcpMatchResult {
     }
 }
 
+/// A copy of the caller's grey values as an image, within the photo memory budget
+/// (`formats::image_open::photo_memory`: the copy and its pyramid are counted before
+/// anything is copied; beyond it the status is `CCP_STATUS_INVALID_ARGUMENT`).
 fn image_from(ptr: *const f32, width: u32, height: u32, name: &str) -> FfiResult<GreyImage> {
     let (w, h) = (width as usize, height as usize);
     if w == 0 || h == 0 {
         return Err(FfiError::invalid(format!("{name}: size {w}×{h} is empty")));
     }
+    use crate::formats::image_open;
+    image_open::check_photo_memory(
+        std::path::Path::new(name),
+        w as u64,
+        h as u64,
+        image_open::MATCHING_BYTES_PER_PIXEL,
+        "f32 grey values",
+    )
+    .map_err(|e| FfiError::invalid(e.to_string()))?;
     let data = unsafe { input(ptr, w * h, name, false)? };
     if let Some(i) = data.iter().position(|v| !v.is_finite()) {
         return Err(FfiError::new(
@@ -162,7 +174,8 @@ pub unsafe extern "C" fn ccp_match_template(
             agreement_px,
             ..MatchOptions::default()
         };
-        let pyr = Pyramid::new(&img, 8, 16);
+        // The copy becomes level 0 of its pyramid: no second one.
+        let pyr = Pyramid::from_image(img, 8, 16);
         let m = match_template(&pyr, &tpl, win, None, &opts)?;
         out[0] = CcpMatchResult::from(&m);
         Ok(())

@@ -1,24 +1,144 @@
 //! Opening images and rasters named by data files (photos, scans, DEMs): the size is read
-//! from the header and checked against [`MAX_IMAGE_PIXELS`] before anything is decoded,
-//! the decoder's allocations are capped by [`MAX_DECODED_BYTES`], and GDAL opens only the
-//! raster drivers we mean ([`RASTER_DRIVERS`]) on local paths — never VRT (which reads
-//! other files) nor `/vsicurl/` and URLs (which fetch from the network).
+//! from the header and checked against [`MAX_IMAGE_PIXELS`] and the photo memory budget
+//! ([`photo_memory`]) before anything is decoded, the decoder's allocations are capped by
+//! the budget (and never beyond [`MAX_DECODED_BYTES`]), and GDAL opens only the raster
+//! drivers we mean ([`RASTER_DRIVERS`]) on local paths — never VRT (which reads other
+//! files) nor `/vsicurl/` and URLs (which fetch from the network).
+//!
+//! ## The photo memory budget
+//!
+//! A photo being matched (a film scan in its fiducial interior orientation, an archive
+//! photo searched for control patches, the image of `cloudcontrol match`) is held as one
+//! f32 grey copy and the coarser levels of its pyramid: [`MATCHING_BYTES_PER_PIXEL`]
+//! (16/3) bytes a pixel. Its decoder may need more while it runs (its own buffer, a JPEG's
+//! coefficients, colour channels): [`grey_decode_cost`] counts both, and a photo whose
+//! cost exceeds the budget is refused from its header, naming the file, its size and the
+//! budget. The default, [`DEFAULT_PHOTO_MEMORY`] (1 GiB), admits an 8-bit grey scan of
+//! 201 million pixels (a 230 mm frame scanned at 16.2 µm, 14 190² pixels; a 21 µm scan is
+//! 11 000², 121 million pixels, 645 MiB); set [`PHOTO_MEMORY_ENV`]
+//! (`CLOUDCONTROL_PHOTO_MEMORY=2G`) or call [`set_photo_memory`] for finer scans. Each
+//! photo worked on at once (one per thread) takes its own budget.
 
 use super::gdal::Dataset;
 use super::{FormatError, Result};
+use std::io::{Read, Seek, SeekFrom};
 use std::path::Path;
+use std::sync::RwLock;
 
-/// Largest image or raster window read whole: 2³⁰ pixels (a 230 mm film frame scanned
-/// at 7 µm is 1.08·10⁹; 4 GiB as the f32 grey the matchers work on). Larger scans are
-/// read by windows.
+/// Largest image or raster window read whole, whatever the memory budget: 2³⁰ pixels (a
+/// 230 mm film frame scanned at 7 µm is 1.08·10⁹). Photos are further bounded by the
+/// photo memory budget ([`photo_memory`]); larger scans are read by windows.
 pub const MAX_IMAGE_PIXELS: u64 = 1 << 30;
 
-/// Largest decoded image the `image` decoders may allocate (4 GiB): a small, highly
-/// compressed file cannot expand beyond this, whatever its header says.
+/// Largest decoded image the `image` decoders may allocate, whatever the memory budget
+/// (4 GiB): a small, highly compressed file cannot expand beyond this, whatever its header
+/// says. The photo memory budget ([`photo_memory`]) caps them further.
 pub const MAX_DECODED_BYTES: u64 = 4 << 30;
+
+/// Default photo memory budget (bytes): 1 GiB per photo being worked on (module
+/// documentation).
+pub const DEFAULT_PHOTO_MEMORY: u64 = 1 << 30;
+
+/// Smallest photo memory budget accepted (bytes): 64 MiB.
+pub const MIN_PHOTO_MEMORY: u64 = 64 << 20;
+
+/// The environment variable that sets the photo memory budget: bytes, or a number with a
+/// binary suffix `K`, `M`, `G` (`CLOUDCONTROL_PHOTO_MEMORY=2G`).
+pub const PHOTO_MEMORY_ENV: &str = "CLOUDCONTROL_PHOTO_MEMORY";
+
+/// Bytes a photo's pixel takes while it is matched: its f32 grey value (4) and the coarser
+/// levels of its factor-2 pyramid (4/3).
+pub const MATCHING_BYTES_PER_PIXEL: f64 = 16.0 / 3.0;
 
 /// GDAL drivers allowed to open a raster named by a data file.
 pub const RASTER_DRIVERS: &[&str] = &["GTiff", "PNG", "JPEG"];
+
+static PHOTO_MEMORY: RwLock<Option<u64>> = RwLock::new(None);
+
+/// Sets the photo memory budget for this process (bytes, at least [`MIN_PHOTO_MEMORY`]),
+/// over [`PHOTO_MEMORY_ENV`]; `None` returns to the environment's or the default.
+pub fn set_photo_memory(bytes: Option<u64>) -> std::result::Result<(), String> {
+    if let Some(b) = bytes {
+        check_budget(b)?;
+    }
+    *PHOTO_MEMORY.write().unwrap_or_else(|e| e.into_inner()) = bytes;
+    Ok(())
+}
+
+fn check_budget(b: u64) -> std::result::Result<u64, String> {
+    if b < MIN_PHOTO_MEMORY {
+        return Err(format!(
+            "a photo memory budget of {b} bytes is below the smallest, {MIN_PHOTO_MEMORY}"
+        ));
+    }
+    Ok(b)
+}
+
+/// Parses a size: bytes, or a number with a binary suffix `K`, `M`, `G`, `T`.
+fn parse_size(text: &str) -> Option<u64> {
+    let t = text.trim();
+    let (num, shift) = match t.as_bytes().last()?.to_ascii_uppercase() {
+        b'K' => (&t[..t.len() - 1], 10),
+        b'M' => (&t[..t.len() - 1], 20),
+        b'G' => (&t[..t.len() - 1], 30),
+        b'T' => (&t[..t.len() - 1], 40),
+        _ => (t, 0),
+    };
+    num.trim().parse::<u64>().ok()?.checked_mul(1 << shift)
+}
+
+/// The photo memory budget (bytes): [`set_photo_memory`]'s, else [`PHOTO_MEMORY_ENV`]'s,
+/// else [`DEFAULT_PHOTO_MEMORY`]. A malformed variable is an error saying so.
+pub fn photo_memory() -> std::result::Result<u64, String> {
+    if let Some(b) = *PHOTO_MEMORY.read().unwrap_or_else(|e| e.into_inner()) {
+        return Ok(b);
+    }
+    match std::env::var(PHOTO_MEMORY_ENV) {
+        Err(std::env::VarError::NotPresent) => Ok(DEFAULT_PHOTO_MEMORY),
+        Err(e) => Err(format!("{PHOTO_MEMORY_ENV}: {e}")),
+        Ok(v) => parse_size(&v)
+            .ok_or_else(|| {
+                format!("{PHOTO_MEMORY_ENV}={v:?} is not a size (bytes, or with K, M, G)")
+            })
+            .and_then(|b| check_budget(b).map_err(|e| format!("{PHOTO_MEMORY_ENV}={v:?}: {e}"))),
+    }
+}
+
+/// [`photo_memory`] with its error naming `path` (the photo it was asked for).
+pub fn photo_memory_for(path: &Path) -> Result<u64> {
+    photo_memory().map_err(|m| FormatError::invalid(path, m))
+}
+
+/// Refuses a photo of `width`×`height` pixels whose working copies take more than the photo
+/// memory budget: `bytes_per_pixel` while it is decoded or read (at least
+/// [`MATCHING_BYTES_PER_PIXEL`], its grey copy and pyramid); `how` says what was counted.
+pub fn check_photo_memory(
+    path: &Path,
+    width: u64,
+    height: u64,
+    bytes_per_pixel: f64,
+    how: &str,
+) -> Result<()> {
+    let budget = photo_memory_for(path)?;
+    let pixels = width.saturating_mul(height);
+    let per = bytes_per_pixel.max(MATCHING_BYTES_PER_PIXEL);
+    let need = (pixels as f64 * per).ceil() as u64;
+    if need > budget {
+        return Err(FormatError::TooLarge {
+            path: path.to_path_buf(),
+            what: format!("image of {width}×{height} pixels ({how}) held for matching, in bytes"),
+            claimed: need,
+            limit: budget,
+            basis: format!(
+                "the photo memory budget ({per:.1} bytes a pixel, so at most {} pixels of \
+                 this kind; set {PHOTO_MEMORY_ENV}, e.g. {PHOTO_MEMORY_ENV}=2G, for larger \
+                 scans)",
+                (budget as f64 / per) as u64
+            ),
+        });
+    }
+    Ok(())
+}
 
 /// Refuses an image of `width`×`height` pixels beyond [`MAX_IMAGE_PIXELS`].
 pub fn check_pixels(path: &Path, width: u64, height: u64) -> Result<()> {
@@ -84,8 +204,8 @@ pub fn image_size_bytes(name: &Path, bytes: &[u8]) -> Result<(u32, u32)> {
 }
 
 /// Decodes an image with the `image` crate after checking its header size against
-/// [`MAX_IMAGE_PIXELS`] and its decoded size against [`MAX_DECODED_BYTES`], which also caps
-/// the decoder's allocations.
+/// [`MAX_IMAGE_PIXELS`] and its decoded size against [`MAX_DECODED_BYTES`] and the photo
+/// memory budget ([`photo_memory`]), which also caps the decoder's allocations.
 pub fn decode_image(path: &Path) -> Result<image::DynamicImage> {
     decode(path, reader(path)?)
 }
@@ -98,35 +218,290 @@ pub fn decode_image_bytes(name: &Path, bytes: &[u8]) -> Result<image::DynamicIma
     decode(name, r)
 }
 
-fn decode<R: std::io::BufRead + std::io::Seek>(
+fn bad_image(path: &Path) -> impl Fn(image::ImageError) -> FormatError + '_ {
+    move |e| FormatError::invalid(path, format!("cannot decode the image: {e}"))
+}
+
+/// The decoder of `r` with its allocations capped by the photo memory budget, once the
+/// header's size passed [`MAX_IMAGE_PIXELS`] and [`MAX_DECODED_BYTES`].
+fn limited_decoder<'a, R: std::io::BufRead + Seek + 'a>(
     path: &Path,
     mut r: image::ImageReader<R>,
-) -> Result<image::DynamicImage> {
+) -> Result<impl image::ImageDecoder + 'a> {
     use image::ImageDecoder;
-    let bad =
-        |e: image::ImageError| FormatError::invalid(path, format!("cannot decode the image: {e}"));
+    let budget = photo_memory_for(path)?;
     // Our cap replaces the reader's default (512 MiB) for the header's own allocations
     // (PNG text and ICC chunks, TIFF tags) and the decoded image.
     let mut limits = image::Limits::default();
-    limits.max_alloc = Some(MAX_DECODED_BYTES);
+    limits.max_alloc = Some(MAX_DECODED_BYTES.min(budget));
     r.limits(limits);
-    let decoder = r.into_decoder().map_err(bad)?;
+    let decoder = r.into_decoder().map_err(bad_image(path))?;
     let (w, h) = decoder.dimensions();
     check_pixels(path, w.into(), h.into())?;
     let bytes = decoder.total_bytes();
-    if bytes > MAX_DECODED_BYTES {
-        return Err(FormatError::TooLarge {
-            path: path.to_path_buf(),
-            what: format!(
-                "image of {w}×{h} pixels ({:?}) decoded, in bytes",
-                decoder.color_type()
-            ),
-            claimed: bytes,
-            limit: MAX_DECODED_BYTES,
-            basis: "the bytes an image may decode to".into(),
-        });
+    for (limit, basis) in [
+        (MAX_DECODED_BYTES, "the bytes an image may decode to".to_string()),
+        (
+            budget,
+            format!("the photo memory budget (set {PHOTO_MEMORY_ENV}, e.g. {PHOTO_MEMORY_ENV}=2G, for larger images)"),
+        ),
+    ] {
+        if bytes > limit {
+            return Err(FormatError::TooLarge {
+                path: path.to_path_buf(),
+                what: format!(
+                    "image of {w}×{h} pixels ({:?}) decoded, in bytes",
+                    decoder.color_type()
+                ),
+                claimed: bytes,
+                limit,
+                basis,
+            });
+        }
     }
-    image::DynamicImage::from_decoder(decoder).map_err(bad)
+    Ok(decoder)
+}
+
+fn decode<R: std::io::BufRead + Seek>(
+    path: &Path,
+    r: image::ImageReader<R>,
+) -> Result<image::DynamicImage> {
+    image::DynamicImage::from_decoder(limited_decoder(path, r)?).map_err(bad_image(path))
+}
+
+/// A photo decoded into grey f32 values, row-major — what the matchers work on: 8/16-bit
+/// grey as it is, colour reduced to luma with the Rec. 601 weights (0.299, 0.587, 0.114)
+/// that scanners and film densitometry conventionally use, 32-bit float channels scaled to
+/// 0–65535. Refused from the header, before anything is decoded, beyond
+/// [`MAX_IMAGE_PIXELS`], [`MAX_DECODED_BYTES`] or the photo memory budget
+/// ([`grey_decode_cost`]). 8-bit and 16-bit grey, RGB and RGBA are decoded into the f32
+/// buffer itself and widened in place, so their decoded bytes take no memory of their own.
+/// Returns width, height and the values.
+pub fn decode_grey(path: &Path) -> Result<(usize, usize, Vec<f32>)> {
+    decode_grey_from(path, reader(path)?)
+}
+
+/// [`decode_grey`] of an image held in memory; `name` labels errors.
+pub fn decode_grey_bytes(name: &Path, bytes: &[u8]) -> Result<(usize, usize, Vec<f32>)> {
+    let r = image::ImageReader::new(std::io::Cursor::new(bytes))
+        .with_guessed_format()
+        .map_err(|e| FormatError::io(name, e))?;
+    decode_grey_from(name, r)
+}
+
+/// Colour types decoded into the f32 buffer and widened in place (at most 4 bytes a pixel).
+fn widened_in_place(ct: image::ColorType) -> bool {
+    use image::ColorType as C;
+    matches!(ct, C::L8 | C::La8 | C::Rgb8 | C::Rgba8 | C::L16 | C::La16)
+}
+
+/// Bytes a pixel takes while a photo of colour type `ct` is decoded to grey f32 by
+/// [`decode_grey`]: the f32 buffer (4), the decoded bytes when they cannot be widened in
+/// place, the TIFF decoder's own buffer of the whole image, and a JPEG's coefficients
+/// (`jpeg_coefficients`, bytes a pixel, from [`jpeg_coefficient_bytes`]). The photo memory
+/// budget counts the larger of this and [`MATCHING_BYTES_PER_PIXEL`].
+pub fn grey_decode_cost(
+    format: Option<image::ImageFormat>,
+    ct: image::ColorType,
+    jpeg_coefficients: f64,
+) -> f64 {
+    let bpp = ct.bytes_per_pixel() as f64;
+    let mut per = 4.0;
+    if !widened_in_place(ct) {
+        per += bpp;
+    }
+    match format {
+        Some(image::ImageFormat::Tiff) => per += bpp,
+        Some(image::ImageFormat::Jpeg) => per += jpeg_coefficients,
+        _ => {}
+    }
+    per
+}
+
+/// Bytes a pixel a JPEG's decoder holds beside its output, read from the markers up to the
+/// first scan: a progressive file, or one whose first scan does not hold every component,
+/// keeps every component's DCT coefficients (2 bytes a sample, at most one sample per
+/// component a pixel) until its last scan; a baseline interleaved file is decoded one row
+/// of blocks at a time (0). Leaves `r` where it found it.
+pub fn jpeg_coefficient_bytes<R: Read + Seek>(r: &mut R) -> std::io::Result<f64> {
+    let start = r.stream_position()?;
+    let found = jpeg_scan_layout(r);
+    r.seek(SeekFrom::Start(start))?;
+    // A header we cannot follow is the decoder's to refuse; count the worst case meanwhile.
+    Ok(match found {
+        Ok(Some((progressive, components, first_scan))) => {
+            if progressive || first_scan < components {
+                2.0 * components as f64
+            } else {
+                0.0
+            }
+        }
+        Ok(None) | Err(_) => 8.0,
+    })
+}
+
+/// (progressive, components of the frame, components of its first scan) from a JPEG's
+/// markers, `None` when the file ends or is no JPEG before the first scan.
+fn jpeg_scan_layout<R: Read + Seek>(r: &mut R) -> std::io::Result<Option<(bool, u8, u8)>> {
+    let mut two = [0u8; 2];
+    let mut one = [0u8; 1];
+    r.read_exact(&mut two)?;
+    if two != [0xFF, 0xD8] {
+        return Ok(None);
+    }
+    let mut frame: Option<(bool, u8)> = None;
+    // Markers (and stray bytes between them) up to the first scan; real files have tens.
+    for _ in 0..65_536 {
+        r.read_exact(&mut one)?;
+        if one[0] != 0xFF {
+            continue;
+        }
+        let mut m = 0xFF;
+        while m == 0xFF {
+            r.read_exact(&mut one)?;
+            m = one[0];
+        }
+        match m {
+            0x00 | 0x01 | 0xD0..=0xD7 => continue,
+            0xD9 => return Ok(None),
+            _ => {}
+        }
+        r.read_exact(&mut two)?;
+        let len = i64::from(u16::from_be_bytes(two));
+        if len < 2 {
+            return Ok(None);
+        }
+        match m {
+            0xC0..=0xCF if !matches!(m, 0xC4 | 0xC8 | 0xCC) => {
+                let mut sof = [0u8; 6];
+                r.read_exact(&mut sof)?;
+                frame = Some((matches!(m, 0xC2 | 0xC6 | 0xCA | 0xCE), sof[5]));
+                r.seek(SeekFrom::Current((len - 8).max(0)))?;
+            }
+            0xDA => {
+                r.read_exact(&mut one)?;
+                return Ok(frame.map(|(p, n)| (p, n, one[0])));
+            }
+            _ => {
+                r.seek(SeekFrom::Current(len - 2))?;
+            }
+        }
+    }
+    Ok(None)
+}
+
+fn decode_grey_from<R: std::io::BufRead + Seek>(
+    path: &Path,
+    r: image::ImageReader<R>,
+) -> Result<(usize, usize, Vec<f32>)> {
+    use image::{ColorType as C, ImageDecoder};
+    let format = r.format();
+    let (r, jpeg) = if format == Some(image::ImageFormat::Jpeg) {
+        let mut inner = r.into_inner();
+        let c = jpeg_coefficient_bytes(&mut inner).map_err(|e| FormatError::io(path, e))?;
+        (
+            image::ImageReader::with_format(inner, image::ImageFormat::Jpeg),
+            c,
+        )
+    } else {
+        (r, 0.0)
+    };
+    let decoder = limited_decoder(path, r)?;
+    let ct = decoder.color_type();
+    let (w, h) = decoder.dimensions();
+    check_photo_memory(
+        path,
+        w.into(),
+        h.into(),
+        grey_decode_cost(format, ct, jpeg),
+        &format!("{ct:?}"),
+    )?;
+    let n = w as usize * h as usize;
+    let alloc = |what: &str, e: std::collections::TryReserveError| {
+        FormatError::invalid(
+            path,
+            format!("cannot allocate the {what} of {w}×{h} pixels: {e}"),
+        )
+    };
+    let mut data: Vec<f32> = Vec::new();
+    data.try_reserve_exact(n)
+        .map_err(|e| alloc("grey image", e))?;
+    data.resize(n, 0.0);
+    let bpp = ct.bytes_per_pixel() as usize;
+    if widened_in_place(ct) {
+        decoder
+            .read_image(&mut f32_bytes_mut(&mut data)[..n * bpp])
+            .map_err(bad_image(path))?;
+        let ne16 = |b: &[u8]| f32::from(u16::from_ne_bytes([b[0], b[1]]));
+        let luma = |b: &[u8]| 0.299 * b[0] as f32 + 0.587 * b[1] as f32 + 0.114 * b[2] as f32;
+        match ct {
+            C::L8 => widen::<1>(&mut data, |b| f32::from(b[0])),
+            C::La8 => widen::<2>(&mut data, |b| {
+                let l = f32::from(b[0]);
+                0.299 * l + 0.587 * l + 0.114 * l
+            }),
+            C::Rgb8 => widen::<3>(&mut data, |b| luma(b)),
+            C::Rgba8 => widen::<4>(&mut data, |b| luma(b)),
+            C::L16 => widen::<2>(&mut data, |b| ne16(b)),
+            _ => widen::<4>(&mut data, |b| ne16(b)),
+        }
+    } else {
+        let mut buf: Vec<u8> = Vec::new();
+        let total = n * bpp;
+        buf.try_reserve_exact(total)
+            .map_err(|e| alloc("decoded image", e))?;
+        buf.resize(total, 0);
+        decoder.read_image(&mut buf).map_err(bad_image(path))?;
+        let ch = usize::from(ct.channel_count());
+        let (f32_ch, u16_ch) = (
+            matches!(ct, C::Rgb32F | C::Rgba32F),
+            matches!(ct, C::Rgb16 | C::Rgba16),
+        );
+        if !(f32_ch || u16_ch) {
+            return Err(FormatError::invalid(
+                path,
+                format!("colour type {ct:?} is not one a photo is read in"),
+            ));
+        }
+        for (d, px) in data.iter_mut().zip(buf.chunks_exact(bpp)) {
+            let c = |k: usize| {
+                let b = &px[k * bpp / ch..(k + 1) * bpp / ch];
+                if f32_ch {
+                    f32::from_ne_bytes([b[0], b[1], b[2], b[3]])
+                } else {
+                    f32::from(u16::from_ne_bytes([b[0], b[1]]))
+                }
+            };
+            let l = 0.299 * c(0) + 0.587 * c(1) + 0.114 * c(2);
+            *d = if f32_ch { 65535.0 * l } else { l };
+        }
+    }
+    Ok((w as usize, h as usize, data))
+}
+
+/// The bytes of an f32 buffer, for a decoder to write into.
+fn f32_bytes_mut(v: &mut [f32]) -> &mut [u8] {
+    // SAFETY: the slice covers exactly the memory of `v`, u8 has no alignment requirement,
+    // and every byte pattern is a valid f32, so the buffer stays valid whatever is written.
+    unsafe { std::slice::from_raw_parts_mut(v.as_mut_ptr().cast::<u8>(), std::mem::size_of_val(v)) }
+}
+
+/// Widens pixels of `B` ≤ 4 bytes, packed at the start of `data`'s memory, to one f32 each
+/// (`f` of the pixel's bytes), in place: from the last pixel to the first, so that a pixel's
+/// bytes are read before any f32 is written over them.
+fn widen<const B: usize>(data: &mut [f32], f: impl Fn(&[u8; B]) -> f32) {
+    const { assert!(B >= 1 && B <= 4) };
+    let base = data.as_mut_ptr();
+    let bytes = base.cast::<u8>().cast_const();
+    for i in (0..data.len()).rev() {
+        // SAFETY: pixel i's bytes [B·i, B·i + B) lie inside the buffer (B ≤ 4) and below
+        // [4(i + 1), …), the only bytes written so far (B·i + B ≤ 4i + 4), so they are
+        // intact; they are copied out before f32 i is written; both stay inside `data`.
+        unsafe {
+            let px = bytes.add(B * i).cast::<[u8; B]>().read();
+            base.add(i).write(f(&px));
+        }
+    }
 }
 
 /// Rows read from GDAL per call: a file whose data ends early fails after one strip, not
@@ -143,22 +518,51 @@ pub fn read_band_strips(
     (c, r, w, h): (usize, usize, usize, usize),
     mut strip: impl FnMut(&[Vec<f32>]),
 ) -> Result<()> {
-    let handles = bands
-        .iter()
-        .map(|&b| ds.rasterband(b).map_err(|e| FormatError::gdal(path, e)))
-        .collect::<Result<Vec<_>>>()?;
     let mut row = r;
     while row < r + h {
         let rows = STRIP_ROWS.min(r + h - row);
-        let parts = handles
-            .iter()
-            .map(|band| {
-                band.read::<f32>((c, row), (w, rows), (w, rows))
-                    .map_err(|e| FormatError::gdal(path, e))
-            })
-            .collect::<Result<Vec<_>>>()?;
-        strip(&parts);
+        strip(&read_strip(path, ds, bands, (c, row, w, rows))?);
         row += rows;
     }
     Ok(())
+}
+
+/// [`read_band_strips`] dropping GDAL's cached blocks of the dataset after each strip:
+/// GDAL keeps the blocks it decoded up to its cache size (5 % of the machine's memory by
+/// default), which for a whole scan read by strips would be a second copy of it beside
+/// ours. A tiled file whose tiles are taller than a strip decodes a tile row again for its
+/// next strip.
+pub fn read_band_strips_uncached(
+    path: &Path,
+    ds: &mut Dataset,
+    bands: &[usize],
+    (c, r, w, h): (usize, usize, usize, usize),
+    mut strip: impl FnMut(&[Vec<f32>]),
+) -> Result<()> {
+    let mut row = r;
+    while row < r + h {
+        let rows = STRIP_ROWS.min(r + h - row);
+        let parts = read_strip(path, ds, bands, (c, row, w, rows));
+        ds.flush_cache().map_err(|e| FormatError::gdal(path, e))?;
+        strip(&parts?);
+        row += rows;
+    }
+    Ok(())
+}
+
+fn read_strip(
+    path: &Path,
+    ds: &Dataset,
+    bands: &[usize],
+    (c, row, w, rows): (usize, usize, usize, usize),
+) -> Result<Vec<Vec<f32>>> {
+    bands
+        .iter()
+        .map(|&b| {
+            ds.rasterband(b)
+                .map_err(|e| FormatError::gdal(path, e))?
+                .read::<f32>((c, row), (w, rows), (w, rows))
+                .map_err(|e| FormatError::gdal(path, e))
+        })
+        .collect()
 }

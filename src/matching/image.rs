@@ -107,14 +107,19 @@ impl GreyImage {
     }
 
     /// Loads a whole image file (8/16-bit grey or RGB(A); colour is reduced to luma
-    /// with the Rec. 601 weights that scanners and film densitometry conventionally use).
+    /// with the Rec. 601 weights that scanners and film densitometry conventionally use)
+    /// within the photo memory budget (`formats::image_open`: the grey copy and its
+    /// pyramid, and what the decoder needs, are counted from the header before anything is
+    /// decoded; [`crate::formats::image_open::PHOTO_MEMORY_ENV`] sets it).
     pub fn load(path: &Path) -> Result<GreyImage> {
         let err = |m: String| MatchingError::Read {
             path: path.to_path_buf(),
             message: m,
         };
         use crate::formats::{image_open, FormatError};
-        let img = match image_open::decode_image(path) {
+        // A malformed budget is the error, not a reason to try GDAL.
+        image_open::photo_memory_for(path).map_err(|e| err(e.detail()))?;
+        let (w, h, data) = match image_open::decode_grey(path) {
             Ok(i) => i,
             // Refused for its size: GDAL must not read it either.
             Err(e @ FormatError::TooLarge { .. }) => return Err(err(e.detail())),
@@ -128,33 +133,14 @@ impl GreyImage {
                 })
             }
         };
-        let (w, h) = (img.width() as usize, img.height() as usize);
-        let data: Vec<f32> = match img {
-            image::DynamicImage::ImageLuma8(b) => b.into_raw().into_iter().map(f32::from).collect(),
-            image::DynamicImage::ImageLuma16(b) => {
-                b.into_raw().into_iter().map(f32::from).collect()
-            }
-            image::DynamicImage::ImageLumaA8(_)
-            | image::DynamicImage::ImageRgb8(_)
-            | image::DynamicImage::ImageRgba8(_) => {
-                let rgb = img.to_rgb8();
-                rgb.pixels()
-                    .map(|p| 0.299 * p[0] as f32 + 0.587 * p[1] as f32 + 0.114 * p[2] as f32)
-                    .collect()
-            }
-            other => {
-                let rgb = other.to_rgb32f();
-                rgb.pixels()
-                    .map(|p| 65535.0 * (0.299 * p[0] + 0.587 * p[1] + 0.114 * p[2]))
-                    .collect()
-            }
-        };
         GreyImage::new(w, h, data).map_err(|e| err(e.to_string()))
     }
 
     /// Reads a window (col, row, width, height) of a raster with GDAL without loading the
     /// whole file — scans are often 10⁸ pixels. `None` reads everything. Multi-band
-    /// rasters are reduced to luma from their first three bands.
+    /// rasters are reduced to luma from their first three bands. The window is held within
+    /// the photo memory budget (as [`GreyImage::load`]), read by strips with GDAL's block
+    /// cache dropped after each.
     pub fn load_window(
         path: &Path,
         window: Option<(usize, usize, usize, usize)>,
@@ -164,7 +150,7 @@ impl GreyImage {
             message: m,
         };
         use crate::formats::image_open;
-        let ds = image_open::open_raster(path).map_err(|e| err(e.detail()))?;
+        let mut ds = image_open::open_raster(path).map_err(|e| err(e.detail()))?;
         let (rw, rh) = ds.raster_size();
         let (c, r, w, h) = window.unwrap_or((0, 0, rw, rh));
         if w == 0 || h == 0 || c + w > rw || r + h > rh {
@@ -173,14 +159,27 @@ impl GreyImage {
             )));
         }
         image_open::check_pixels(path, w as u64, h as u64).map_err(|e| err(e.detail()))?;
-        // Luma from the first three bands, strip by strip.
         let bands: &[usize] = if ds.raster_count() >= 3 {
             &[1, 2, 3]
         } else {
             &[1]
         };
+        image_open::check_photo_memory(
+            path,
+            w as u64,
+            h as u64,
+            image_open::MATCHING_BYTES_PER_PIXEL,
+            &format!("{} band(s) read by GDAL", bands.len()),
+        )
+        .map_err(|e| err(e.detail()))?;
         let mut data = Vec::new();
-        image_open::read_band_strips(path, &ds, bands, (c, r, w, h), |s| match s {
+        data.try_reserve_exact(w * h).map_err(|e| {
+            err(format!(
+                "cannot allocate the grey image of {w}×{h} pixels: {e}"
+            ))
+        })?;
+        // Luma from the first three bands, strip by strip.
+        image_open::read_band_strips_uncached(path, &mut ds, bands, (c, r, w, h), |s| match s {
             [rr, gg, bb] => data.extend(
                 rr.iter()
                     .zip(gg)

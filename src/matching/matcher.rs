@@ -5,7 +5,8 @@
 
 use super::lsm::{lsm, LsmOptions, LsmResult};
 use super::ncc::{ncc_search_pyramid, NccPeak, Window};
-use super::{holds_template, GreyImage, Pyramid, Result};
+use super::pyramid::Levels;
+use super::{holds_template, GreyImage, Result};
 use serde::Serialize;
 
 #[derive(Debug, Clone)]
@@ -60,14 +61,14 @@ pub struct MatchResult {
 }
 
 /// Matches `tpl` inside `window` of the image pyramid `pyr`.
-pub fn match_template(
-    pyr: &Pyramid,
+pub fn match_template<P: Levels + ?Sized>(
+    pyr: &P,
     tpl: &GreyImage,
     window: Window,
     initial_affine: Option<[f64; 4]>,
     opts: &MatchOptions,
 ) -> Result<MatchResult> {
-    let img = &pyr.levels[0];
+    let img = pyr.level(0);
     holds_template("image", img.width, img.height, tpl)?;
     let peak: NccPeak = ncc_search_pyramid(pyr, tpl, window, opts.min_template_px, opts.absolute)?;
     let mut out = MatchResult {

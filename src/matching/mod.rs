@@ -36,7 +36,7 @@ pub use oriented::{
 pub use pair_matching::{
     match_photo_pairs, plan_pairs, InMemory, MatchedPairs, PairMatching, PhotoPairs, PreparedPhotos,
 };
-pub use pyramid::Pyramid;
+pub use pyramid::{Levels, Pyramid, PyramidOver};
 pub use resample::{warp_patch, Interpolation, PatchWarp};
 pub use ties::{
     coverage, link_tracks, match_pair, predict_shift, relative_orientation, tie_points, Coverage,

@@ -5,7 +5,8 @@
 //! parallel (rayon) and each is computed independently, so results do not depend on
 //! the thread count.
 
-use super::{holds_template, invalid, GreyImage, MatchingError, Pyramid, Result};
+use super::pyramid::Levels;
+use super::{holds_template, invalid, GreyImage, MatchingError, Result};
 use rayon::prelude::*;
 use rustfft::num_complex::Complex32;
 use rustfft::{Fft, FftPlanner};
@@ -527,13 +528,49 @@ pub fn ncc_surface(img: &GreyImage, tpl: &GreyImage, window: Window) -> Result<N
     ncc_surface_with(img, tpl, window, CorrelationMethod::Auto)
 }
 
-/// [`ncc_surface`] with a chosen correlation method (benchmarks, tests).
+/// [`ncc_surface`] with a chosen correlation method (benchmarks, tests). With
+/// [`CorrelationMethod::Auto`], a window whose correlation buffers would exceed
+/// [`NCC_SCRATCH_BYTES`] is correlated in bands of rows ([`band_rows`]), so only the
+/// surface itself is whole.
 pub fn ncc_surface_with(
     img: &GreyImage,
     tpl: &GreyImage,
     window: Window,
     method: CorrelationMethod,
 ) -> Result<NccSurface> {
+    check_window(img, tpl, window)?;
+    let (tw, th) = (tpl.width, tpl.height);
+    let (sw, sh) = (window.width - tw + 1, window.height - th + 1);
+    let band = match method {
+        CorrelationMethod::Auto => band_rows(window, tw, th)?,
+        _ => None,
+    };
+    let Some(band) = band else {
+        return surface_at_once(img, tpl, window, method);
+    };
+    let mut values = Vec::new();
+    values.try_reserve_exact(sw * sh).map_err(|e| {
+        invalid(
+            "search window",
+            format!("cannot allocate a correlation surface of {sw}×{sh}: {e}"),
+        )
+    })?;
+    for j0 in (0..sh).step_by(band) {
+        let j1 = (j0 + band).min(sh);
+        let part = surface_at_once(img, tpl, rows_of(window, th, j0, j1), method)?;
+        values.extend_from_slice(&part.values);
+    }
+    Ok(NccSurface {
+        window,
+        width: sw,
+        height: sh,
+        values,
+    })
+}
+
+/// Refuses a window outside the image or smaller than the template, and a constant
+/// template.
+fn check_window(img: &GreyImage, tpl: &GreyImage, window: Window) -> Result<()> {
     if window.col + window.width > img.width || window.row + window.height > img.height {
         return Err(invalid(
             "search window",
@@ -544,6 +581,74 @@ pub fn ncc_surface_with(
         ));
     }
     holds_template("search window", window.width, window.height, tpl)?;
+    prepared_template(tpl, "template").map(|_| ())
+}
+
+/// Largest correlation buffers (bytes) one search or surface takes at once: the surface,
+/// two f64 integral images and two complex FFT arrays of the window, about 36 bytes a
+/// window pixel. A larger window is correlated in bands of rows (the same values but for
+/// the last bits of the window sums and the FFT), twice for a search (its best peak, then
+/// the second), so that matching a template in a whole photo holds no float copies of the
+/// photo beyond its pyramid.
+pub const NCC_SCRATCH_BYTES: u64 = 64 << 20;
+
+/// Correlation buffers of a `ww`×`wh` window and a `tw`×`th` template (bytes).
+fn scratch_bytes(ww: usize, wh: usize, tw: usize, th: usize) -> u64 {
+    let (sw, sh) = ((ww + 1 - tw) as u64, (wh + 1 - th) as u64);
+    let (ww, wh) = (ww as u64, wh as u64);
+    4 * sw * sh
+        + 16 * (ww + 1) * (wh + 1)
+        + 16 * fast_len(ww as usize) as u64 * fast_len(wh as usize) as u64
+}
+
+/// Surface rows per band for a window whose buffers exceed [`NCC_SCRATCH_BYTES`] (`None`:
+/// at once). Each band also computes one row above and below it (for the local maxima of
+/// a search). A band of 8 rows of a template too tall for the limit is refused beyond four
+/// times it.
+fn band_rows(window: Window, tw: usize, th: usize) -> Result<Option<usize>> {
+    let (ww, wh) = (window.width, window.height);
+    if scratch_bytes(ww, wh, tw, th) <= NCC_SCRATCH_BYTES {
+        return Ok(None);
+    }
+    let per_row = scratch_bytes(ww, th + 1, tw, th) / (th as u64 + 1);
+    let mut band = ((NCC_SCRATCH_BYTES / per_row.max(1)) as usize)
+        .saturating_sub(th + 1)
+        .max(8);
+    while band > 8 && scratch_bytes(ww, band + th + 1, tw, th) > NCC_SCRATCH_BYTES {
+        band = (band * 7 / 8).max(8);
+    }
+    let need = scratch_bytes(ww, (band + th + 1).min(wh), tw, th);
+    if need > 4 * NCC_SCRATCH_BYTES {
+        return Err(invalid(
+            "search window",
+            format!(
+                "a {}×{} template over a {ww}×{wh} window needs {need} bytes of correlation \
+                 buffers even in bands of 8 rows, over 4 × {NCC_SCRATCH_BYTES}: search a \
+                 narrower window or on a coarser pyramid level",
+                tw, th
+            ),
+        ));
+    }
+    Ok(Some(band))
+}
+
+/// The part of `window` whose surface rows are `j0..j1` (template height `th`).
+fn rows_of(window: Window, th: usize, j0: usize, j1: usize) -> Window {
+    Window {
+        col: window.col,
+        row: window.row + j0,
+        width: window.width,
+        height: j1 - j0 + th - 1,
+    }
+}
+
+/// The surface of a checked window in one piece.
+fn surface_at_once(
+    img: &GreyImage,
+    tpl: &GreyImage,
+    window: Window,
+    method: CorrelationMethod,
+) -> Result<NccSurface> {
     let (tw, th) = (tpl.width, tpl.height);
     let (t, tnorm) = prepared_template(tpl, "template")?;
     let (sw, sh) = (window.width - tw + 1, window.height - th + 1);
@@ -699,16 +804,8 @@ impl NccSurface {
                 }
             }
         }
-        let para = |m: f64, c: f64, p: f64| {
-            let d = m - 2.0 * c + p;
-            if d < 0.0 {
-                (0.5 * (m - p) / d).clamp(-0.5, 0.5)
-            } else {
-                0.0
-            }
-        };
         let dx = if bi > 0 && bi + 1 < w {
-            para(
+            parabola(
                 self.v(bi - 1, bj, absolute),
                 bv,
                 self.v(bi + 1, bj, absolute),
@@ -717,7 +814,7 @@ impl NccSurface {
             0.0
         };
         let dy = if bj > 0 && bj + 1 < h {
-            para(
+            parabola(
                 self.v(bi, bj - 1, absolute),
                 bv,
                 self.v(bi, bj + 1, absolute),
@@ -736,35 +833,136 @@ impl NccSurface {
     }
 }
 
-/// NCC search of `tpl` over `window` of `img` at one resolution.
+/// NCC search of `tpl` over `window` of `img` at one resolution. A window whose
+/// correlation buffers exceed [`NCC_SCRATCH_BYTES`] is searched in bands of rows, twice:
+/// the best peak first, then the second-best local maximum and the peak's neighbours.
 pub fn ncc_search(
     img: &GreyImage,
     tpl: &GreyImage,
     window: Window,
     absolute: bool,
 ) -> Result<NccPeak> {
-    let s = ncc_surface(img, tpl, window)?;
+    check_window(img, tpl, window)?;
     let excl = (tpl.width.min(tpl.height) / 4).max(2);
-    Ok(s.peak(tpl.width, tpl.height, excl, absolute))
+    match band_rows(window, tpl.width, tpl.height)? {
+        None => {
+            let s = surface_at_once(img, tpl, window, CorrelationMethod::Auto)?;
+            Ok(s.peak(tpl.width, tpl.height, excl, absolute))
+        }
+        Some(band) => search_in_bands(img, tpl, window, band, excl, absolute),
+    }
+}
+
+/// [`NccSurface::peak`] of the surface of `window`, computed in bands of `band` rows
+/// (each with one row more above and below, the same in both passes).
+fn search_in_bands(
+    img: &GreyImage,
+    tpl: &GreyImage,
+    window: Window,
+    band: usize,
+    exclusion: usize,
+    absolute: bool,
+) -> Result<NccPeak> {
+    let (tw, th) = (tpl.width, tpl.height);
+    let (sw, sh) = (window.width - tw + 1, window.height - th + 1);
+    // Rows j0..j1 and their computed rows lo..hi (with the neighbouring rows).
+    let bands = || {
+        (0..sh).step_by(band).map(move |j0| {
+            let j1 = (j0 + band).min(sh);
+            (j0, j1, j0.saturating_sub(1), (j1 + 1).min(sh))
+        })
+    };
+    let part = |lo: usize, hi: usize| {
+        surface_at_once(
+            img,
+            tpl,
+            rows_of(window, th, lo, hi),
+            CorrelationMethod::Auto,
+        )
+    };
+    let mut best = (0usize, 0usize, f64::NEG_INFINITY);
+    for (j0, j1, lo, hi) in bands() {
+        let s = part(lo, hi)?;
+        for j in j0..j1 {
+            for i in 0..sw {
+                let v = s.v(i, j - lo, absolute);
+                if v > best.2 {
+                    best = (i, j, v);
+                }
+            }
+        }
+    }
+    let (bi, bj, bv) = best;
+    let mut second = f64::NEG_INFINITY;
+    let (mut dx, mut dy) = (0.0, 0.0);
+    for (j0, j1, lo, hi) in bands() {
+        let s = part(lo, hi)?;
+        let h = hi - lo;
+        if (j0..j1).contains(&bj) {
+            let (r, v) = (bj - lo, |i: usize, r: usize| s.v(i, r, absolute));
+            if bi > 0 && bi + 1 < sw {
+                dx = parabola(v(bi - 1, r), bv, v(bi + 1, r));
+            }
+            if bj > 0 && bj + 1 < sh {
+                dy = parabola(v(bi, r - 1), bv, v(bi, r + 1));
+            }
+        }
+        for j in j0..j1 {
+            let r = j - lo;
+            for i in 0..sw {
+                if i.abs_diff(bi) <= exclusion && j.abs_diff(bj) <= exclusion {
+                    continue;
+                }
+                let v = s.v(i, r, absolute);
+                if v <= second {
+                    continue;
+                }
+                let is_max = (r.saturating_sub(1)..(r + 2).min(h)).all(|rr| {
+                    (i.saturating_sub(1)..(i + 2).min(sw)).all(|ii| s.v(ii, rr, absolute) <= v)
+                });
+                if is_max {
+                    second = v;
+                }
+            }
+        }
+    }
+    let second = second.max(0.0);
+    Ok(NccPeak {
+        x: window.col as f64 + bi as f64 + dx + tw as f64 / 2.0,
+        y: window.row as f64 + bj as f64 + dy + th as f64 / 2.0,
+        ncc: bv,
+        second,
+        ratio: if bv > 0.0 { second / bv } else { 1.0 },
+    })
+}
+
+/// Sub-pixel offset of a peak `c` between its neighbours `m` and `p` (a parabola through
+/// the three), within ±0.5.
+fn parabola(m: f64, c: f64, p: f64) -> f64 {
+    let d = m - 2.0 * c + p;
+    if d < 0.0 {
+        (0.5 * (m - p) / d).clamp(-0.5, 0.5)
+    } else {
+        0.0
+    }
 }
 
 /// Coarse-to-fine NCC: a full search of `window` at the coarsest level where the
 /// template still has `min_template_px` pixels across, then ±2 px searches around the
 /// doubled position on each finer level, ending at full resolution. The ambiguity ratio
 /// is the one of the full search (the only level where all candidates compete).
-pub fn ncc_search_pyramid(
-    pyr: &Pyramid,
+pub fn ncc_search_pyramid<P: Levels + ?Sized>(
+    pyr: &P,
     tpl: &GreyImage,
     window: Window,
     min_template_px: usize,
     absolute: bool,
 ) -> Result<NccPeak> {
-    let img = &pyr.levels[0];
     holds_template("search window", window.width, window.height, tpl)?;
     prepared_template(tpl, "template")?;
     let mut tpls = vec![tpl.clone()];
     let mut level = 0;
-    while level + 1 < pyr.levels.len() {
+    while level + 1 < pyr.count() {
         let t = tpls.last().expect("level 0");
         let l = level + 1;
         let s = 1usize << l;
@@ -784,7 +982,7 @@ pub fn ncc_search_pyramid(
     }
     let scale_win = |l: usize| {
         let s = 1usize << l;
-        let lv = &pyr.levels[l];
+        let lv = pyr.level(l);
         let c0 = window.col.div_ceil(s);
         let r0 = window.row.div_ceil(s);
         let c1 = ((window.col + window.width) / s).min(lv.width);
@@ -796,7 +994,7 @@ pub fn ncc_search_pyramid(
             height: r1.saturating_sub(r0),
         }
     };
-    let coarse = ncc_search(&pyr.levels[level], &tpls[level], scale_win(level), absolute)?;
+    let coarse = ncc_search(pyr.level(level), &tpls[level], scale_win(level), absolute)?;
     let mut peak = coarse;
     for l in (0..level).rev() {
         let t = &tpls[l];
@@ -815,10 +1013,9 @@ pub fn ncc_search_pyramid(
             width: c1.saturating_sub(c0),
             height: r1.saturating_sub(r0),
         };
-        peak = ncc_search(&pyr.levels[l], t, w, absolute)?;
+        peak = ncc_search(pyr.level(l), t, w, absolute)?;
     }
     peak.second = coarse.second;
     peak.ratio = coarse.ratio;
-    let _ = img;
     Ok(peak)
 }

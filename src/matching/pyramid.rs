@@ -10,23 +10,39 @@ pub struct Pyramid {
     pub levels: Vec<GreyImage>,
 }
 
+/// The levels of an image pyramid as the coarse-to-fine searches read them
+/// ([`crate::matching::match_template`], [`crate::matching::ncc_search_pyramid`]): an owned
+/// [`Pyramid`], or a [`PyramidOver`] an image the caller holds.
+pub trait Levels {
+    /// Number of levels, level 0 (full resolution) included.
+    fn count(&self) -> usize;
+    /// Level `l` (0: full resolution).
+    fn level(&self, l: usize) -> &GreyImage;
+}
+
+impl Levels for Pyramid {
+    fn count(&self) -> usize {
+        self.levels.len()
+    }
+    fn level(&self, l: usize) -> &GreyImage {
+        &self.levels[l]
+    }
+}
+
 impl Pyramid {
     /// Builds levels until the smaller side would drop below `min_size` or `max_levels`
-    /// levels (level 0 included) exist.
+    /// levels (level 0 included) exist. Level 0 is a copy of `image`: a caller that keeps
+    /// the image uses [`PyramidOver`], one that does not [`Pyramid::from_image`].
     pub fn new(image: &GreyImage, max_levels: usize, min_size: usize) -> Self {
         Self::from_image(image.clone(), max_levels, min_size)
     }
 
     /// As [`Pyramid::new`], taking the image as level 0 without copying it.
     pub fn from_image(image: GreyImage, max_levels: usize, min_size: usize) -> Self {
-        let mut levels = vec![image];
-        while levels.len() < max_levels.max(1) {
-            let last = levels.last().expect("level 0");
-            if last.width / 2 < min_size.max(1) || last.height / 2 < min_size.max(1) {
-                break;
-            }
-            levels.push(downsample(last));
-        }
+        let coarse = coarse_levels(&image, max_levels, min_size);
+        let mut levels = Vec::with_capacity(coarse.len() + 1);
+        levels.push(image);
+        levels.extend(coarse);
         Self { levels }
     }
 
@@ -37,6 +53,50 @@ impl Pyramid {
             .map(|l| (l.data.len() * std::mem::size_of::<f32>()) as u64)
             .sum()
     }
+}
+
+/// A pyramid over an image held by the caller: level 0 is the image itself (borrowed, not
+/// copied), the coarser levels are owned — a third of the image's bytes beside it.
+#[derive(Debug, Clone)]
+pub struct PyramidOver<'a> {
+    base: &'a GreyImage,
+    coarse: Vec<GreyImage>,
+}
+
+impl<'a> PyramidOver<'a> {
+    /// The levels [`Pyramid::new`] builds, over `image` without copying it.
+    pub fn new(image: &'a GreyImage, max_levels: usize, min_size: usize) -> Self {
+        Self {
+            base: image,
+            coarse: coarse_levels(image, max_levels, min_size),
+        }
+    }
+}
+
+impl Levels for PyramidOver<'_> {
+    fn count(&self) -> usize {
+        self.coarse.len() + 1
+    }
+    fn level(&self, l: usize) -> &GreyImage {
+        match l {
+            0 => self.base,
+            l => &self.coarse[l - 1],
+        }
+    }
+}
+
+/// Levels 1.. of the pyramid of `image` (see [`Pyramid::new`]).
+fn coarse_levels(image: &GreyImage, max_levels: usize, min_size: usize) -> Vec<GreyImage> {
+    let mut coarse: Vec<GreyImage> = Vec::new();
+    while coarse.len() + 1 < max_levels.max(1) {
+        let last = coarse.last().unwrap_or(image);
+        if last.width / 2 < min_size.max(1) || last.height / 2 < min_size.max(1) {
+            break;
+        }
+        let next = downsample(last);
+        coarse.push(next);
+    }
+    coarse
 }
 
 /// Blur with (1 4 6 4 1)/16 separably (edge-replicated) and keep every second sample;
@@ -60,10 +120,8 @@ pub fn downsample(img: &GreyImage) -> GreyImage {
     // compiles to straight loads (the clamped loop was 8 % of a small block's run).
     let lo = 1.min(nw);
     let inner = lo..nw.min(w.saturating_sub(4) / 2 + 1).max(lo);
-    let mut tmp = vec![0.0f32; nw * h];
-    for r in 0..h {
+    let horizontal = |r: usize, out: &mut [f32]| {
         let row = img.row(r);
-        let out = &mut tmp[r * nw..(r + 1) * nw];
         let clamped = |i: usize| {
             let base = 2 * i as isize - 2;
             let mut s = 0.0;
@@ -84,14 +142,27 @@ pub fn downsample(img: &GreyImage) -> GreyImage {
             }
             *o = s;
         }
-    }
+    };
+    // The horizontal pass of the six rows 2j − 2 … 2j + 3 an output row j needs, kept in a
+    // ring of eight (row r in slot r mod 8) and each computed once: half an image of f32
+    // for the whole pass was the largest buffer of a scan's pyramid.
+    const RING: usize = 8;
+    let mut ring = vec![0.0f32; RING * nw];
+    let mut held = [usize::MAX; RING];
     let mut out = vec![0.0f32; nw * nh];
     for j in 0..nh {
         let base = 2 * j as isize - 2;
+        for k in 0..K.len() {
+            let r = clampi(base + k as isize, h);
+            if held[r % RING] != r {
+                horizontal(r, &mut ring[(r % RING) * nw..(r % RING + 1) * nw]);
+                held[r % RING] = r;
+            }
+        }
+        let dst = &mut out[j * nw..(j + 1) * nw];
         for (k, kv) in K.iter().enumerate() {
             let r = clampi(base + k as isize, h);
-            let src = &tmp[r * nw..(r + 1) * nw];
-            let dst = &mut out[j * nw..(j + 1) * nw];
+            let src = &ring[(r % RING) * nw..(r % RING + 1) * nw];
             for (d, s) in dst.iter_mut().zip(src) {
                 *d += kv * s;
             }

@@ -187,7 +187,8 @@ pub fn matching(a: MatchArgs) -> ExitCode {
         ncc_threshold: a.ncc_threshold,
         ..MatchOptions::default()
     };
-    let pyr = Pyramid::new(&img, 8, 16);
+    // The image becomes level 0 of its pyramid: no second copy of it.
+    let pyr = Pyramid::from_image(img, 8, 16);
     match match_template(&pyr, &tpl, window, None, &opts) {
         Ok(m) => {
             println!(
@@ -221,14 +222,15 @@ pub fn ties(a: TiesArgs, quiet: bool) -> ExitCode {
     if a.photos.len() < 2 {
         return fail("ties", "at least two photos are needed");
     }
-    let mut photos = Vec::new();
+    // Each photo becomes level 0 of its pyramid (held once, not copied into it).
+    let mut pyrs = Vec::new();
     for p in &a.photos {
         match GreyImage::load(p) {
-            Ok(i) => photos.push(i),
+            Ok(i) => pyrs.push(Pyramid::from_image(i, 6, 32)),
             Err(e) => return fail("ties", e),
         }
     }
-    let pyrs: Vec<Pyramid> = photos.iter().map(|p| Pyramid::new(p, 6, 32)).collect();
+    let photos: Vec<&GreyImage> = pyrs.iter().map(|p| &p.levels[0]).collect();
     let opts = TieOptions {
         robust,
         ..TieOptions::default()
@@ -254,7 +256,7 @@ pub fn ties(a: TiesArgs, quiet: bool) -> ExitCode {
     );
     let mut pairs = Vec::new();
     for p in &preds {
-        match match_pair(&photos[p.a], &pyrs[p.b], p, &opts) {
+        match match_pair(photos[p.a], &pyrs[p.b], p, &opts) {
             Ok(m) => pairs.push(m),
             Err(e) => tracing::warn!("pair {}–{} skipped: {e}", p.a, p.b),
         }

@@ -29,7 +29,8 @@ pub use shape::{render_template, FiducialShape, ShapeKind};
 
 use super::matcher::{match_template, MatchOptions};
 use super::ncc::Window;
-use super::{GreyImage, MatchingError, Pyramid, Result};
+use super::pyramid::PyramidOver;
+use super::{GreyImage, MatchingError, Result};
 use crate::geometry::{InteriorOrientation, InteriorTransformKind};
 use nalgebra::{Matrix2, Vector2};
 use orientation::Hypothesis;
@@ -182,7 +183,8 @@ pub fn interior_orientation(
         }
         None => cam.format_mm[0].max(cam.format_mm[1]) / img.width.min(img.height) as f64,
     };
-    let pyr = Pyramid::new(img, 8, 16);
+    // Level 0 is the scan itself, not a copy.
+    let pyr = PyramidOver::new(img, 8, 16);
     let centre = Vector2::new(img.width as f64 / 2.0, img.height as f64 / 2.0);
     // Two marks far apart carry the wide search; when one of them is missing or
     // damaged, the next pair (by decreasing distance) takes over.
@@ -462,7 +464,7 @@ fn o_lin(io: &InteriorOrientation) -> Matrix2<f64> {
 fn measure_marks(
     cam: &CameraDefinition,
     img: &GreyImage,
-    pyr: &Pyramid,
+    pyr: &PyramidOver,
     lin: &dyn Fn(&FiducialDef) -> Matrix2<f64>,
     predict: &dyn Fn(&FiducialDef) -> Vector2<f64>,
     s: f64,
