@@ -83,6 +83,12 @@ impl CameraDefinition {
     /// folder). A path that is absolute or leaves `dir` (`..`, a symbolic link out) is
     /// refused: a camera file must not make the program read elsewhere.
     pub fn load_templates(&mut self, dir: &Path) -> std::result::Result<(), String> {
+        // The folder of a bare file name (`camera.json`) is the working folder.
+        let dir = if dir.as_os_str().is_empty() {
+            Path::new(".")
+        } else {
+            dir
+        };
         let root = dir
             .canonicalize()
             .map_err(|e| format!("camera folder {}: {e}", dir.display()))?;
@@ -113,6 +119,11 @@ impl CameraDefinition {
                     f.id
                 ));
             }
+            // The size from the header first: a template is a small crop, and a file that
+            // claims more is refused before it is decoded.
+            let (w, h) = crate::formats::image_open::image_size(&real)
+                .map_err(|e| format!("fiducial {}: {e}", f.id))?;
+            check_template_size(f, self.format_mm, &real, w.into(), h.into())?;
             let img = GreyImage::load(&real).map_err(|e| format!("fiducial {}: {e}", f.id))?;
             if let Some([cx, cy]) = f.shape.centre_px {
                 if !(cx >= 0.0 && cy >= 0.0 && cx <= img.width as f64 && cy <= img.height as f64) {
@@ -145,6 +156,13 @@ impl CameraDefinition {
         if self.fiducials.len() < 3 {
             return Err(format!(
                 "{} fiducials defined; interior orientation needs at least 3",
+                self.fiducials.len()
+            ));
+        }
+        if self.fiducials.len() > MAX_FIDUCIALS {
+            return Err(format!(
+                "fiducials: {} marks listed; a camera has at most {MAX_FIDUCIALS} \
+                 (fiducial::MAX_FIDUCIALS: 4 corner and 4 midside marks, 8 on a few)",
                 self.fiducials.len()
             ));
         }
@@ -190,6 +208,55 @@ impl CameraDefinition {
         Ok(())
     }
 }
+
+/// Checks a template mark's image of `w`×`h` pixels (read from the header of `file`)
+/// against [`MAX_TEMPLATE_PIXELS`] and its extent on the film against the mark bound
+/// ([`MAX_MARK_FRACTION`] of the shorter film side, from the mark's point to the crop's
+/// farthest corner).
+fn check_template_size(
+    f: &FiducialDef,
+    format_mm: [f64; 2],
+    file: &Path,
+    w: u64,
+    h: u64,
+) -> std::result::Result<(), String> {
+    if w.saturating_mul(h) > MAX_TEMPLATE_PIXELS {
+        return Err(format!(
+            "fiducial {}: template {} of {w}×{h} pixels: at most {MAX_TEMPLATE_PIXELS} pixels \
+             (fiducial::MAX_TEMPLATE_PIXELS; a mark's crop is a few hundred pixels a side)",
+            f.id,
+            file.display()
+        ));
+    }
+    let tp = f.shape.pixel_mm.unwrap_or(0.0);
+    let [cx, cy] = f
+        .shape
+        .centre_px
+        .unwrap_or([w as f64 / 2.0, h as f64 / 2.0]);
+    let reach = cx.max(w as f64 - cx).hypot(cy.max(h as f64 - cy)) * tp;
+    let side = format_mm[0].min(format_mm[1]);
+    let max_mark = MAX_MARK_FRACTION * side;
+    if reach.is_nan() || reach > max_mark {
+        return Err(format!(
+            "fiducial {}: template {} of {w}×{h} pixels at pixel_mm {tp} reaches {reach:.1} mm \
+             from the mark's point: not a mark: at most {max_mark} mm ({MAX_MARK_FRACTION} of \
+             the {side} mm film side; is pixel_mm the template's pixel on the film?)",
+            f.id,
+            file.display()
+        ));
+    }
+    Ok(())
+}
+
+/// Most fiducial marks a camera definition may list: metric cameras have 4 (corners or
+/// midsides) or 8; every step that pairs marks is bounded by it.
+pub const MAX_FIDUCIALS: usize = 16;
+
+/// Most pixels of a template mark's image, and of any template rendered into a scan's
+/// geometry (4 Mi pixels, 16 MiB as f32): a real mark's crop is a few hundred pixels a
+/// side (the largest NAGAP crop with its data strip text, 1790 × 440); the correlation of
+/// a larger one would outgrow the search's buffers ([`crate::matching::ncc::NCC_SCRATCH_BYTES`]).
+pub const MAX_TEMPLATE_PIXELS: u64 = 1 << 22;
 
 /// Largest film format side accepted (mm): aerial film is at most 9 × 18 in (229 × 457 mm).
 pub const MAX_FORMAT_MM: f64 = 500.0;

@@ -16,7 +16,8 @@ mod solve;
 
 pub use camera::{
     check_scan_pixel_um, scan_pixel_um_from_dpi, CameraDefinition, DataStrip, DistortionDef,
-    FiducialDef, MAX_FORMAT_MM, MAX_MARK_FRACTION, SCAN_PIXEL_UM,
+    FiducialDef, MAX_FIDUCIALS, MAX_FORMAT_MM, MAX_MARK_FRACTION, MAX_TEMPLATE_PIXELS,
+    SCAN_PIXEL_UM,
 };
 pub use frame_image::{
     mean_scan_pixel_mm, resample_scan, write_frame_image, FiducialFrame, FrameImageReport,
@@ -183,6 +184,29 @@ pub fn interior_orientation(
         }
         None => cam.format_mm[0].max(cam.format_mm[1]) / img.width.min(img.height) as f64,
     };
+    let margin_mm = 0.5
+        * cam
+            .fiducials
+            .iter()
+            .map(|f| f.shape.extent_mm())
+            .fold(0.0, f64::max);
+    // Templates are drawn at the scan's pixel (within the 0.8–1.25 of it the search
+    // accepts): a mark large for that pixel is refused here, not drawn.
+    for f in &cam.fiducials {
+        let px = f.shape.template_pixels_bound(0.8 * s, margin_mm);
+        if px.is_nan() || px > MAX_TEMPLATE_PIXELS as f64 {
+            return Err(orr(format!(
+                "camera {:?}, fiducial {}: its template at {:.4} mm a scan pixel would have \
+                 {px:.0} pixels (a mark reaching {:.2} mm, drawn with a {margin_mm:.2} mm \
+                 border), over {MAX_TEMPLATE_PIXELS} (fiducial::MAX_TEMPLATE_PIXELS): a \
+                 mark too large for this scan's pixel size",
+                cam.name,
+                f.id,
+                s,
+                f.shape.extent_mm()
+            )));
+        }
+    }
     // Level 0 is the scan itself, not a copy.
     let pyr = PyramidOver::new(img, 8, 16);
     let centre = Vector2::new(img.width as f64 / 2.0, img.height as f64 / 2.0);
@@ -200,12 +224,6 @@ pub fn interior_orientation(
     let dmax = pairs[0].2;
     pairs.retain(|p| p.2 >= 0.6 * dmax);
     let (ia, ib) = (pairs[0].0, pairs[0].1);
-    let margin_mm = 0.5
-        * cam
-            .fiducials
-            .iter()
-            .map(|f| f.shape.extent_mm())
-            .fold(0.0, f64::max);
     let mut wide_cache: HashMap<WideKey, Option<(f64, f64, f64)>> = HashMap::new();
     let mut wide = |f: &FiducialDef, o: ScanOrientation| -> Option<(f64, f64, f64)> {
         let lin = o.linear(s);
@@ -489,7 +507,10 @@ fn measure_marks(
             reason: None,
         };
         let Some(tpl) = render_template(&f.shape, &lin, margin_mm) else {
-            mr.reason = Some("template smaller than 5 scan pixels".into());
+            mr.reason = Some(format!(
+                "no template at this scale (smaller than 5 scan pixels, or more than \
+                 {MAX_TEMPLATE_PIXELS} pixels)"
+            ));
             marks.push(mr);
             continue;
         };

@@ -2,6 +2,7 @@
 //! composites cameras actually have (a crosshair in a ring with a central dot, a cross
 //! whose bars stop short of the centre), and image templates cut from real marks.
 
+use super::camera::MAX_TEMPLATE_PIXELS;
 use crate::matching::resample::bilinear;
 use crate::matching::GreyImage;
 use nalgebra::{Matrix2, Vector2};
@@ -127,6 +128,19 @@ impl FiducialShape {
             .max(self.dot_mm.unwrap_or(0.0) / 2.0)
     }
 
+    /// Upper bound of the pixels of this mark's template drawn at a scan pixel of at least
+    /// `pixel_mm` (a primitive within a `margin_mm` border, an image template over its
+    /// crop), before it is drawn ([`render_template`]).
+    pub(super) fn template_pixels_bound(&self, pixel_mm: f64, margin_mm: f64) -> f64 {
+        match (self.kind, &self.image, self.pixel_mm) {
+            (ShapeKind::Template, Some(img), Some(tp)) => {
+                (img.width as f64 * tp / pixel_mm + 3.0) * (img.height as f64 * tp / pixel_mm + 3.0)
+            }
+            (ShapeKind::Template, ..) => 0.0,
+            _ => (2.0 * ((self.extent_mm() + margin_mm) / pixel_mm).ceil() + 1.0).powi(2),
+        }
+    }
+
     fn template_centre(&self, img: &GreyImage) -> [f64; 2] {
         self.centre_px
             .unwrap_or([img.width as f64 / 2.0, img.height as f64 / 2.0])
@@ -207,7 +221,8 @@ impl FiducialShape {
 /// primitive as mark 1 on background 0, anti-aliased by 4×4 supersampling, within a
 /// `margin_mm` border; a template image resampled into the scan's geometry (its own
 /// extent, no border). Width and height are odd, the mark centre at the middle.
-/// `None` for a template whose image is not loaded.
+/// `None` for a template whose image is not loaded, and for one of more than
+/// [`MAX_TEMPLATE_PIXELS`] (a mark large for the scan's pixel: nothing is drawn).
 pub fn render_template(
     shape: &FiducialShape,
     lin: &Matrix2<f64>,
@@ -217,8 +232,12 @@ pub fn render_template(
     if shape.kind == ShapeKind::Template {
         return render_image_template(shape, lin);
     }
-    let half = ((shape.extent_mm() + margin_mm) / s).ceil() as usize;
-    let n = 2 * half + 1;
+    let half = ((shape.extent_mm() + margin_mm) / s).ceil();
+    let pixels = (2.0 * half + 1.0).powi(2);
+    if pixels.is_nan() || pixels > MAX_TEMPLATE_PIXELS as f64 {
+        return None;
+    }
+    let n = 2 * half as usize + 1;
     let c = n as f64 / 2.0;
     Some(GreyImage::from_fn(n, n, |x, y| {
         let mut hit = 0;
@@ -259,7 +278,10 @@ fn render_image_template(shape: &FiducialShape, lin: &Matrix2<f64>) -> Option<Gr
         hy = hy.min(p.y.abs());
     }
     let (hw, hh) = ((hx - 1.0).floor(), (hy - 1.0).floor());
-    if !(hw >= 2.0 && hh >= 2.0) {
+    if !(hw >= 2.0
+        && hh >= 2.0
+        && (2.0 * hw + 1.0) * (2.0 * hh + 1.0) <= MAX_TEMPLATE_PIXELS as f64)
+    {
         return None;
     }
     let (w, h) = (2 * hw as usize + 1, 2 * hh as usize + 1);
