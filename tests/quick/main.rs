@@ -34,6 +34,7 @@ mod formats_ortho;
 mod formats_workflow;
 mod geometry;
 mod hostile_inputs;
+mod hostile_memory;
 mod hostile_packages;
 mod hostile_references;
 mod leftovers;
