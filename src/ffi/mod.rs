@@ -105,7 +105,8 @@ impl From<crate::formats::FormatError> for FfiError {
     fn from(e: crate::formats::FormatError) -> Self {
         use crate::formats::FormatError as F;
         let status = match &e {
-            F::Io { .. } => CcpStatus::Io,
+            // A FIFO, a device, a socket or a link cycle named as an input file.
+            F::Io { .. } | F::NotRegularFile { .. } => CcpStatus::Io,
             F::Geometry(_) => CcpStatus::Numeric,
             _ => CcpStatus::Format,
         };

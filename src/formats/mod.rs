@@ -10,6 +10,7 @@ pub mod crs_input;
 pub mod csv;
 pub mod gdal;
 pub mod image_open;
+pub mod input;
 pub mod odm_gcp;
 pub mod ortho;
 pub mod pos;
@@ -47,6 +48,11 @@ pub enum FormatError {
         limit: u64,
         basis: String,
     },
+    /// An input that is not a regular file (a FIFO, a device, a socket, a folder where a
+    /// file is expected) or is reached through a symbolic link cycle: refused before
+    /// anything is read from it ([`input`]).
+    #[error("{path}: {message}")]
+    NotRegularFile { path: PathBuf, message: String },
     #[error("{path}: GDAL: {message}")]
     Gdal { path: PathBuf, message: String },
     #[error(transparent)]
@@ -82,6 +88,7 @@ impl FormatError {
         match self {
             FormatError::Io { source, .. } => source.to_string(),
             FormatError::Invalid { message, .. } => message.clone(),
+            FormatError::NotRegularFile { message, .. } => message.clone(),
             FormatError::TooLarge {
                 what,
                 claimed,
