@@ -2,13 +2,13 @@
 //! organisations: a member is read only when it is a regular file inside the package
 //! folder — no symbolic link at any level (a link may point out of the package, to
 //! `/dev/zero`, to a FIFO), no device, FIFO, socket or folder — and no larger than its
-//! limit. The type is checked on the path's metadata before anything is opened (opening a
-//! FIFO for reading would wait for a writer), then again on the open file, which is opened
-//! without following links and without blocking, so a member swapped between the check
-//! and the open is refused too.
+//! limit. The folders on the way are checked here; the member itself is opened by the one
+//! opener of inputs ([`crate::formats::input`]) without following links: its type is
+//! checked on the path before it is opened, then again on the open file, which is opened
+//! without blocking, so a member swapped between the check and the open is refused too.
 
-use std::fs::{File, Metadata};
-use std::io::Read;
+use crate::formats::input::{self, Cap, Links};
+use crate::formats::FormatError;
 use std::path::{Component, Path};
 
 /// Largest chip file read (a 193 × 193 16-bit PNG chip is ~75 KB; 64 MiB holds a
@@ -35,32 +35,6 @@ impl std::fmt::Display for MemberError {
             MemberError::Refused(m) => write!(f, "{m}"),
             MemberError::Io(e) => write!(f, "cannot be read ({e})"),
         }
-    }
-}
-
-fn kind(m: &Metadata) -> &'static str {
-    let t = m.file_type();
-    #[cfg(unix)]
-    {
-        use std::os::unix::fs::FileTypeExt;
-        if t.is_fifo() {
-            return "a FIFO";
-        }
-        if t.is_char_device() || t.is_block_device() {
-            return "a device";
-        }
-        if t.is_socket() {
-            return "a socket";
-        }
-    }
-    if t.is_symlink() {
-        "a symbolic link"
-    } else if t.is_dir() {
-        "a folder"
-    } else if t.is_file() {
-        "a regular file"
-    } else {
-        "not a regular file"
     }
 }
 
@@ -103,7 +77,7 @@ pub fn read_member(package: &Path, relative: &str, limit: u64) -> Result<Vec<u8>
             return Err(refuse(format!(
                 "lies in {}, which is {}, not a folder",
                 within.display(),
-                kind(&m)
+                input::kind(&m)
             )));
         }
         if last {
@@ -116,7 +90,7 @@ pub fn read_member(package: &Path, relative: &str, limit: u64) -> Result<Vec<u8>
     if !meta.is_file() {
         return Err(refuse(format!(
             "is {}; package members must be regular files",
-            kind(&meta)
+            input::kind(&meta)
         )));
     }
     if meta.len() > limit {
@@ -125,52 +99,26 @@ pub fn read_member(package: &Path, relative: &str, limit: u64) -> Result<Vec<u8>
             meta.len()
         )));
     }
-    let file = open_no_follow(&path).map_err(|e| match e.kind() {
-        std::io::ErrorKind::NotFound => MemberError::Missing,
-        _ => MemberError::Io(e),
+    let (file, opened) = input::open_file(&path, Links::Refuse).map_err(|e| match e {
+        FormatError::Io { source, .. } if source.kind() == std::io::ErrorKind::NotFound => {
+            MemberError::Missing
+        }
+        FormatError::Io { source, .. } => MemberError::Io(source),
+        e => refuse(e.detail()),
     })?;
-    let opened = file.metadata().map_err(MemberError::Io)?;
-    if !opened.is_file() || !same_file(&meta, &opened) {
+    if !input::same_file(&meta, &opened) {
         return Err(refuse(format!(
             "changed while it was opened (now {})",
-            kind(&opened)
+            input::kind(&opened)
         )));
     }
-    let mut data = Vec::with_capacity(opened.len().min(limit) as usize);
-    file.take(limit + 1)
-        .read_to_end(&mut data)
-        .map_err(MemberError::Io)?;
-    if data.len() as u64 > limit {
-        return Err(refuse(format!(
-            "grew beyond {limit} bytes, the largest such member read"
-        )));
-    }
-    Ok(data)
-}
-
-#[cfg(unix)]
-fn open_no_follow(path: &Path) -> std::io::Result<File> {
-    use std::os::unix::fs::OpenOptionsExt;
-    // O_NONBLOCK: a FIFO swapped in after the type check does not block the open; reads of
-    // a regular file are not affected by it.
-    std::fs::OpenOptions::new()
-        .read(true)
-        .custom_flags(libc::O_NOFOLLOW | libc::O_NONBLOCK)
-        .open(path)
-}
-
-#[cfg(not(unix))]
-fn open_no_follow(path: &Path) -> std::io::Result<File> {
-    File::open(path)
-}
-
-#[cfg(unix)]
-fn same_file(a: &Metadata, b: &Metadata) -> bool {
-    use std::os::unix::fs::MetadataExt;
-    a.dev() == b.dev() && a.ino() == b.ino()
-}
-
-#[cfg(not(unix))]
-fn same_file(_: &Metadata, _: &Metadata) -> bool {
-    true
+    input::read_opened(&path, file, opened.len(), Cap::fixed(limit, "such member")).map_err(|e| {
+        match e {
+            FormatError::Io { source, .. } => MemberError::Io(source),
+            FormatError::TooLarge { claimed, .. } => refuse(format!(
+                "is {claimed} bytes, more than {limit}, the largest such member read"
+            )),
+            e => refuse(e.detail()),
+        }
+    })
 }

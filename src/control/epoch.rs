@@ -57,7 +57,8 @@ impl EpochCamera {
     /// Reads a camera file (formats/cameras/): a film certificate when it lists
     /// fiducials, else a frame camera (`{"kind": "frame", …}`).
     pub fn load(path: &Path) -> Result<Self, EpochError> {
-        let text = std::fs::read_to_string(path).map_err(|e| input_err(path, e.to_string()))?;
+        let text = crate::formats::input::read_text(path, crate::formats::input::Cap::camera())
+            .map_err(|e| input_err(path, e.detail()))?;
         let json: serde_json::Value =
             serde_json::from_str(&text).map_err(|e| input_err(path, format!("not JSON: {e}")))?;
         if json.get("fiducials").is_some() {

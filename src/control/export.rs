@@ -406,7 +406,8 @@ pub fn read_oriented_block(block_json: &Path, images_json: &Path) -> Result<Bloc
 }
 
 fn read_json(path: &Path) -> Result<serde_json::Value, EpochError> {
-    let text = std::fs::read_to_string(path).map_err(|e| input_err(path, e.to_string()))?;
+    let text = crate::formats::input::read_text(path, crate::formats::input::Cap::document())
+        .map_err(|e| input_err(path, e.detail()))?;
     serde_json::from_str(&text).map_err(|e| input_err(path, e.to_string()))
 }
 

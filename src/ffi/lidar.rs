@@ -11,6 +11,11 @@ use std::path::PathBuf;
 impl From<LidarError> for FfiError {
     fn from(e: LidarError) -> Self {
         use LidarError as L;
+        // A file error (not a regular file, too large, missing) keeps its own status.
+        let e = match e {
+            L::Format(f) => return FfiError::from(f),
+            e => e,
+        };
         let status = match &e {
             L::Io { source, .. } if source.kind() == std::io::ErrorKind::NotFound => {
                 CcpStatus::NotFound
@@ -19,7 +24,6 @@ impl From<LidarError> for FfiError {
             L::NonFinite { .. } => CcpStatus::NotFinite,
             L::InvalidOption(_) | L::TooFewPoints { .. } => CcpStatus::InvalidArgument,
             L::TooFewCorrespondences { .. } | L::Singular { .. } => CcpStatus::Numeric,
-            L::Format(f) => return FfiError::new(CcpStatus::Format, f.to_string()),
             _ => CcpStatus::Format,
         };
         FfiError::new(status, e.to_string())

@@ -7,9 +7,10 @@
 //! own, so that every error knows its column and every `f64` is checked to be finite
 //! (the `csv` crate's own deserializer forgets the column of custom errors).
 
-use super::{FormatError, Result};
+use super::{input, FormatError, Result};
 use serde::de::{self, DeserializeOwned, IntoDeserializer, Visitor};
 use std::fmt;
+use std::io::{BufRead, Read};
 use std::path::Path;
 
 /// What to do with header columns that are neither required nor optional.
@@ -55,9 +56,18 @@ impl<T> Table<T> {
 /// fields are comma-separated, trimmed, and may be quoted (`"a, b"`); a row may leave off
 /// trailing cells (they read as empty) but not have more cells than the header; numbers
 /// must be finite. Every error names the file, the line and, where there is one, the column.
+///
+/// The file must be a regular file of at most [`input::Limits::csv_bytes`]; it is read
+/// line by line, each line (and each quoted record) at most
+/// [`input::Limits::csv_line_bytes`], the header at most [`input::Limits::csv_columns`]
+/// columns (formats/README.md, "Input files").
 pub fn read_records<T: DeserializeOwned>(path: &Path, layout: &Layout) -> Result<Table<T>> {
-    let text = std::fs::read_to_string(path).map_err(|e| FormatError::io(path, e))?;
-    parse_records(path, &text, layout)
+    let file = input::open_capped(path, input::Cap::csv())?;
+    parse_from(
+        path,
+        std::io::BufReader::with_capacity(1 << 16, file),
+        layout,
+    )
 }
 
 /// [`read_records`] on text already in memory (`path` names it in errors).
@@ -66,47 +76,199 @@ pub fn parse_records<T: DeserializeOwned>(
     text: &str,
     layout: &Layout,
 ) -> Result<Table<T>> {
-    let text = text.strip_prefix('\u{feff}').unwrap_or(text);
-    // Comments and blank lines are taken out, and line ends made `\n`, before the csv
-    // crate sees the text: its positions count neither the empty lines it skips nor the
-    // `\n` of a `\r\n`. `original[k]` is the file's line of the kept line k + 1.
-    let mut cleaned = String::with_capacity(text.len());
-    let mut original = Vec::new();
-    for (i, l) in text.lines().enumerate() {
-        let t = l.trim_start();
-        if !t.is_empty() && !t.starts_with('#') {
-            cleaned.push_str(l);
-            cleaned.push('\n');
-            original.push(i + 1);
+    parse_from(path, text.as_bytes(), layout)
+}
+
+/// The lines of a CSV text as the `csv` crate reads them: comments and blank lines taken
+/// out and line ends made `\n` (its positions count neither the empty lines it skips nor
+/// the `\r` of a `\r\n`), each line and each record bounded. `original[k]` is the file's
+/// line of the kept line k + 1.
+struct Cleaned<R> {
+    lines: input::Lines<R>,
+    original: Vec<usize>,
+    pending: Vec<u8>,
+    at: usize,
+    /// Bytes handed to the `csv` crate since its last record ended: a quoted field that
+    /// runs on over many lines is cut off at the line cap too.
+    fed: u64,
+    record_cap: u64,
+    /// Whether the last line ended inside a quoted field ([`blanks_before_quotes`]).
+    in_quotes: bool,
+    /// Why reading stopped, kept typed (the `csv` crate sees an I/O error).
+    error: Option<FormatError>,
+}
+
+impl<R: BufRead> Read for Cleaned<R> {
+    fn read(&mut self, out: &mut [u8]) -> std::io::Result<usize> {
+        while self.at == self.pending.len() {
+            let (no, line) = match self.lines.next_bytes() {
+                None => return Ok(0),
+                Some(Ok(l)) => l,
+                Some(Err(e)) => {
+                    self.error = Some(e);
+                    return Err(std::io::Error::other("line too long"));
+                }
+            };
+            let line = match (no, line.strip_prefix("\u{feff}".as_bytes())) {
+                (1, Some(rest)) => rest,
+                _ => line,
+            };
+            let t = line.trim_ascii_start();
+            if t.is_empty() || t.starts_with(b"#") {
+                continue;
+            }
+            self.pending.clear();
+            blanks_before_quotes(line, &mut self.in_quotes, &mut self.pending);
+            self.pending.push(b'\n');
+            self.at = 0;
+            self.original.push(no);
         }
+        let n = out.len().min(self.pending.len() - self.at);
+        out[..n].copy_from_slice(&self.pending[self.at..self.at + n]);
+        self.at += n;
+        self.fed += n as u64;
+        if self.fed > self.record_cap {
+            let line = self.original.last().copied().unwrap_or(0);
+            self.error = Some(FormatError::at(
+                self.lines_path(),
+                line,
+                None,
+                format!(
+                    "a quoted field runs on past {} bytes, the longest record read (raise \
+                     `csv_line` in {})",
+                    self.record_cap,
+                    input::LIMITS_ENV
+                ),
+            ));
+            return Err(std::io::Error::other("record too long"));
+        }
+        Ok(n)
     }
+}
+
+/// Appends `line` to `out` without the blanks (spaces, tabs) between a field's start and
+/// its opening quote: fields are trimmed (formats/README.md), so `a, "b, c"` holds the
+/// field `b, c`, but the `csv` crate takes a quote as opening a quoted field only as the
+/// field's first character (its trimming comes after the split, and ` "b` would be read
+/// as an unquoted field, `c"` as another). `in_quotes` carries a quoted field that runs
+/// on over the line end into the next line; blanks inside quotes are kept.
+fn blanks_before_quotes(line: &[u8], in_quotes: &mut bool, out: &mut Vec<u8>) {
+    let mut field_start = !*in_quotes;
+    let mut i = 0;
+    while i < line.len() {
+        let b = line[i];
+        if *in_quotes {
+            // `""` inside quotes is one quote; a lone quote closes the field.
+            if b == b'"' {
+                if line.get(i + 1) == Some(&b'"') {
+                    out.extend_from_slice(b"\"\"");
+                    i += 2;
+                    continue;
+                }
+                *in_quotes = false;
+            }
+            out.push(b);
+        } else if field_start {
+            field_start = false;
+            let blanks = line[i..]
+                .iter()
+                .take_while(|c| **c == b' ' || **c == b'\t')
+                .count();
+            if line.get(i + blanks) == Some(&b'"') {
+                *in_quotes = true;
+                out.push(b'"');
+                i += blanks + 1;
+                continue;
+            }
+            continue;
+        } else {
+            if b == b',' {
+                field_start = true;
+            }
+            out.push(b);
+        }
+        i += 1;
+    }
+}
+
+impl<R: BufRead> Cleaned<R> {
+    fn lines_path(&self) -> &Path {
+        self.lines.path()
+    }
+}
+
+fn parse_from<T: DeserializeOwned, R: BufRead>(
+    path: &Path,
+    reader: R,
+    layout: &Layout,
+) -> Result<Table<T>> {
+    let limits = input::limits();
+    let line_cap = input::Cap::csv_line();
+    let cleaned = Cleaned {
+        lines: input::Lines::new(reader, path, line_cap),
+        original: Vec::new(),
+        pending: Vec::new(),
+        at: 0,
+        fed: 0,
+        // The csv crate reads ahead by its buffer (8 KiB) past the end of a record.
+        record_cap: line_cap.bytes.saturating_add(64 << 10),
+        in_quotes: false,
+        error: None,
+    };
     let mut reader = ::csv::ReaderBuilder::new()
         .has_headers(false)
         .flexible(true)
         .trim(::csv::Trim::All)
-        .from_reader(cleaned.as_bytes());
-    let mut records = reader.records();
-    let line_at = |p: Option<&::csv::Position>| {
-        p.and_then(|p| original.get((p.line() as usize).checked_sub(1)?))
-            .copied()
-            .unwrap_or(0)
+        .from_reader(cleaned);
+    let line_at = |reader: &::csv::Reader<Cleaned<R>>, p: Option<&::csv::Position>| {
+        p.and_then(|p| {
+            reader
+                .get_ref()
+                .original
+                .get((p.line() as usize).checked_sub(1)?)
+        })
+        .copied()
+        .unwrap_or(0)
     };
-    let line_of = |r: &::csv::StringRecord| line_at(r.position());
-    let syntax = |e: ::csv::Error| {
-        let line = line_at(e.position());
-        FormatError::at(path, line, None, e.to_string())
-    };
-    let header = match records.next() {
-        None => return Err(FormatError::invalid(path, "empty file: no header line")),
-        Some(r) => r.map_err(syntax)?,
-    };
-    let header_line = line_of(&header);
+    // The next record, or None at the end; the reader's own errors kept typed.
+    let next =
+        |reader: &mut ::csv::Reader<Cleaned<R>>, r: &mut ::csv::StringRecord| -> Result<bool> {
+            let got = reader.read_record(r);
+            reader.get_mut().fed = 0;
+            match got {
+                Ok(more) => Ok(more),
+                Err(e) => match reader.get_mut().error.take() {
+                    Some(typed) => Err(typed),
+                    None => {
+                        let line = line_at(reader, e.position());
+                        Err(FormatError::at(path, line, None, e.to_string()))
+                    }
+                },
+            }
+        };
+    let mut header = ::csv::StringRecord::new();
+    if !next(&mut reader, &mut header)? {
+        return Err(FormatError::invalid(path, "empty file: no header line"));
+    }
+    let header_line = line_at(&reader, header.position());
+    if header.len() as u64 > limits.csv_columns {
+        return Err(FormatError::TooLarge {
+            path: path.to_path_buf(),
+            what: format!("line {header_line}: columns of the header"),
+            claimed: header.len() as u64,
+            limit: limits.csv_columns,
+            basis: format!(
+                "the most columns a CSV header may have (raise `csv_columns` in {})",
+                input::LIMITS_ENV
+            ),
+        });
+    }
     let columns: Vec<String> = header.iter().map(|h| h.to_ascii_lowercase()).collect();
     check_header(path, header_line, &columns, layout)?;
     let mut rows = Vec::new();
-    for r in records {
-        let r = r.map_err(syntax)?;
-        let line = line_of(&r);
+    let mut r = ::csv::StringRecord::new();
+    while next(&mut reader, &mut r)? {
+        let line = line_at(&reader, r.position());
         if r.len() > columns.len() {
             return Err(FormatError::at(
                 path,

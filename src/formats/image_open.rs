@@ -165,9 +165,8 @@ pub fn open_raster(path: &Path) -> Result<Dataset> {
             "is not a local file (GDAL virtual file systems and URLs are not opened)",
         ));
     }
-    if !path.is_file() {
-        return Err(FormatError::invalid(path, "is not a file"));
-    }
+    // A regular file only (links followed): GDAL opening a FIFO would wait for a writer.
+    super::input::check_file(path, None)?;
     Dataset::open_raster(path, RASTER_DRIVERS).map_err(|e| {
         FormatError::invalid(
             path,
@@ -180,9 +179,13 @@ pub fn open_raster(path: &Path) -> Result<Dataset> {
 }
 
 fn reader(path: &Path) -> Result<image::ImageReader<std::io::BufReader<std::fs::File>>> {
-    image::ImageReader::open(path)
-        .map_err(|e| FormatError::io(path, e))?
-        .with_guessed_format()
+    // A regular file only (formats/README.md, "Input files"): not a FIFO, not /dev/zero.
+    let file = super::input::open(path)?;
+    let mut r = image::ImageReader::new(std::io::BufReader::new(file));
+    if let Ok(f) = image::ImageFormat::from_path(path) {
+        r.set_format(f);
+    }
+    r.with_guessed_format()
         .map_err(|e| FormatError::io(path, e))
 }
 

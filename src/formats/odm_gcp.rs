@@ -93,7 +93,7 @@ pub fn read_odm_gcp(path: &Path, opts: &GcpOptions) -> Result<GcpFile> {
         limit: MAX_FILE_BYTES,
         basis: "the largest GCP file read (bytes)".into(),
     };
-    let file = std::fs::File::open(path).map_err(|e| FormatError::io(path, e))?;
+    let file = super::input::open(path)?;
     if let Some(len) = file.metadata().ok().map(|m| m.len()) {
         if len > MAX_FILE_BYTES {
             return Err(too_large(len));

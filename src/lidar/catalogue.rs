@@ -115,11 +115,12 @@ pub fn expand_inputs(inputs: &[PathBuf]) -> Result<Vec<PathBuf>> {
             let mut files: Vec<PathBuf> = std::fs::read_dir(p)
                 .map_err(|e| LidarError::io(p, e))?
                 .filter_map(|e| e.ok().map(|e| e.path()))
+                // Not only regular files: a tile that is a FIFO or a link to a device is
+                // refused when opened, naming it, rather than dropped unsaid.
                 .filter(|f| {
-                    f.is_file()
-                        && f.extension().and_then(|x| x.to_str()).is_some_and(|x| {
-                            x.eq_ignore_ascii_case("las") || x.eq_ignore_ascii_case("laz")
-                        })
+                    f.extension().and_then(|x| x.to_str()).is_some_and(|x| {
+                        x.eq_ignore_ascii_case("las") || x.eq_ignore_ascii_case("laz")
+                    })
                 })
                 .collect();
             files.sort();
@@ -452,7 +453,8 @@ impl Catalogue {
     /// catalogue's folder; schema 1: against the working directory when the tile is there,
     /// else the catalogue's folder), so the tiles are found from any working directory.
     pub fn load(path: &Path) -> Result<Self> {
-        let text = std::fs::read_to_string(path).map_err(|e| LidarError::io(path, e))?;
+        let text = crate::formats::input::read_text(path, crate::formats::input::Cap::document())
+            .map_err(super::las::input_error)?;
         let mut c: Catalogue = serde_json::from_str(&text).map_err(|e| LidarError::Las {
             path: path.to_path_buf(),
             message: format!("not a catalogue JSON: {e}"),

@@ -309,11 +309,26 @@ fn raw_points(path: &Path, h: &las_guard::PublicHeader, file_len: u64) -> Result
     Ok((layout, start))
 }
 
+/// Opens a LAS/LAZ file for reading: a regular file only (a FIFO would block the
+/// open, a device would never end; formats/README.md, "Input files").
+fn open_las(path: &Path) -> Result<File> {
+    crate::formats::input::open(path).map_err(input_error)
+}
+
+/// An error of [`crate::formats::input`] as a LiDAR error: an I/O error stays one (a
+/// missing file keeps its status at the C ABI).
+pub(crate) fn input_error(e: crate::formats::FormatError) -> LidarError {
+    match e {
+        crate::formats::FormatError::Io { path, source } => LidarError::Io { path, source },
+        e => e.into(),
+    }
+}
+
 impl LasStream {
     /// Opens a file, reads its header and VLRs and checks that the point records the
     /// header declares are present (uncompressed LAS: from the file size).
     pub fn open(path: &Path) -> Result<Self> {
-        let mut file = File::open(path).map_err(|e| LidarError::io(path, e))?;
+        let mut file = open_las(path)?;
         let file_len = file.metadata().map_err(|e| LidarError::io(path, e))?.len();
         // Bounds first: the crates below size buffers from header fields.
         let guarded = las_guard::guard(path, &mut file, file_len)?;
@@ -585,7 +600,7 @@ pub fn rewrite_las(
     output: &Path,
     mut edit: impl FnMut(u64, las::Point) -> Option<las::Point>,
 ) -> Result<u64> {
-    let mut f = File::open(input).map_err(|e| LidarError::io(input, e))?;
+    let mut f = open_las(input)?;
     let len = f.metadata().map_err(|e| LidarError::io(input, e))?.len();
     if let Some(h) = las_guard::guard(input, &mut f, len)? {
         if !h.compressed() {

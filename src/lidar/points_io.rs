@@ -34,10 +34,12 @@ pub fn read_xyz(path: &Path) -> Result<Vec<[f64; 3]>> {
 /// `X,Y,Z` per line (comma, semicolon, tab or blanks); a first line that is not numeric is
 /// a header; `#` starts a comment; extra columns are ignored.
 pub fn read_text(path: &Path) -> Result<Vec<[f64; 3]>> {
-    let f = std::fs::File::open(path).map_err(|e| LidarError::io(path, e))?;
+    // A regular file, each line at most the `line` cap (formats/README.md, "Input files").
+    let lines = crate::formats::input::lines(path, crate::formats::input::Cap::line())
+        .map_err(super::las::input_error)?;
     let mut out = Vec::new();
-    for (i, line) in BufReader::new(f).lines().enumerate() {
-        let line = line.map_err(|e| LidarError::io(path, e))?;
+    for (i, line) in lines.enumerate() {
+        let (_, line) = line.map_err(super::las::input_error)?;
         let t = line.trim();
         if t.is_empty() || t.starts_with('#') {
             continue;
@@ -74,7 +76,7 @@ pub fn read_text(path: &Path) -> Result<Vec<[f64; 3]>> {
 
 /// PLY vertices (x, y, z as float or double; other properties skipped).
 pub fn read_ply(path: &Path) -> Result<Vec<[f64; 3]>> {
-    let f = std::fs::File::open(path).map_err(|e| LidarError::io(path, e))?;
+    let f = crate::formats::input::open(path).map_err(super::las::input_error)?;
     let file_len = f.metadata().map_err(|e| LidarError::io(path, e))?.len();
     let mut r = BufReader::new(f);
     let mut header_len = 0u64;

@@ -23,7 +23,7 @@ pub fn write_json<T: Serialize>(path: &Path, v: &T) -> Result<(), FormatError> {
 }
 
 pub fn read_json<T: for<'de> Deserialize<'de>>(path: &Path) -> Result<T, FormatError> {
-    let bytes = std::fs::read(path).map_err(|e| FormatError::io(path, e))?;
+    let bytes = crate::formats::input::read_bytes(path, crate::formats::input::Cap::document())?;
     serde_json::from_slice(&bytes).map_err(|e| FormatError::invalid(path, e.to_string()))
 }
 

@@ -297,10 +297,17 @@ impl Project {
 
     /// Reads and validates a project file. Relative paths are taken from the file's folder.
     pub fn load(path: &Path) -> Result<Self, ProjectError> {
-        let text = std::fs::read_to_string(path).map_err(|e| ProjectError::Io {
-            path: path.into(),
-            source: e,
-        })?;
+        let text = crate::formats::input::read_text(path, crate::formats::input::Cap::project())
+            .map_err(|e| match e {
+                crate::formats::FormatError::Io { source, .. } => ProjectError::Io {
+                    path: path.into(),
+                    source,
+                },
+                e => ProjectError::Parse {
+                    path: path.into(),
+                    message: e.detail(),
+                },
+            })?;
         let mut p: Project = toml::from_str(&text).map_err(|e| ProjectError::Parse {
             path: path.into(),
             message: e.to_string(),
@@ -365,11 +372,10 @@ impl Project {
             message,
         };
         let exists = |key: &str, p: &Path| -> Result<(), ProjectError> {
-            if p.exists() {
-                Ok(())
-            } else {
-                Err(key_err(key, format!("{} does not exist", p.display())))
+            if !p.exists() && p.symlink_metadata().is_err() {
+                return Err(key_err(key, format!("{} does not exist", p.display())));
             }
+            check_input(key, p).map_err(|e| key_err(key, e.to_string()))
         };
         let crs = crate::formats::crs::Crs::parse(&self.crs)
             .map_err(|e| key_err("crs", e.to_string()))?;
@@ -624,6 +630,23 @@ impl Project {
             check_scan_pixel_um(um).map_err(|m| key_err("outputs.film_pixel_um", m))?;
         }
         Ok(())
+    }
+}
+
+/// The checks of a listed input that need not read it (formats/README.md, "Input
+/// files"): a regular file (links followed) within its kind's size cap, or for a folder
+/// (photos, LiDAR, a COLMAP model) a tree of regular files and folders without link
+/// cycles. The kind is told by the key.
+fn check_input(key: &str, p: &Path) -> Result<(), crate::formats::FormatError> {
+    use crate::formats::input::{check_file, check_tree, Cap};
+    let name = key.rsplit('.').next().unwrap_or(key);
+    match name {
+        "pos" | "strips" | "checkpoints" | "checkpoint_images" => {
+            check_file(p, Some(Cap::csv())).map(|_| ())
+        }
+        "camera" => check_file(p, Some(Cap::camera())).map(|_| ()),
+        "orthophoto" | "dem" => check_file(p, None).map(|_| ()),
+        _ => check_tree(p),
     }
 }
 

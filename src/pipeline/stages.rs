@@ -9,7 +9,7 @@
 //! temporary folders and files a killed run left behind (`.STAGE.part-PID`,
 //! `.stages.part-PID.json`) are removed when the next run takes the lock.
 
-use crate::formats::{write_bytes_atomically, FormatError};
+use crate::formats::{input, write_bytes_atomically, FormatError};
 use serde::{Deserialize, Serialize};
 use sha2::{Digest, Sha256};
 use std::collections::BTreeMap;
@@ -76,14 +76,25 @@ impl Inputs {
         self
     }
 
+    /// SHA-256 over every input file's path and content digest (each file streamed
+    /// through the hash, never read whole; only regular files, [`input::open`]) and the
+    /// parameters. A file reached by two paths is read once.
     fn fingerprint(&self) -> Result<String, FormatError> {
         let mut h = Sha256::new();
+        let mut digests: BTreeMap<(u64, u64), [u8; 32]> = BTreeMap::new();
         for f in &self.files {
             for file in files_below(f)? {
-                let bytes = std::fs::read(&file).map_err(|e| FormatError::io(&file, e))?;
-                h.update(file.to_string_lossy().as_bytes());
+                let digest = match digests.get(&file.id) {
+                    Some(d) => *d,
+                    None => {
+                        let d = input::sha256(&file.path)?;
+                        digests.insert(file.id, d);
+                        d
+                    }
+                };
+                h.update(file.path.to_string_lossy().as_bytes());
                 h.update([0]);
-                h.update(Sha256::digest(&bytes));
+                h.update(digest);
             }
         }
         for (k, v) in &self.params {
@@ -96,27 +107,16 @@ impl Inputs {
     }
 }
 
-fn files_below(p: &Path) -> Result<Vec<PathBuf>, FormatError> {
-    if p.is_file() {
-        return Ok(vec![p.to_path_buf()]);
-    }
-    if !p.exists() {
-        return Err(FormatError::invalid(p, "stage input does not exist"));
-    }
-    let mut out = Vec::new();
-    let mut stack = vec![p.to_path_buf()];
-    while let Some(d) = stack.pop() {
-        for e in std::fs::read_dir(&d).map_err(|e| FormatError::io(&d, e))? {
-            let path = e.map_err(|e| FormatError::io(&d, e))?.path();
-            if path.is_dir() {
-                stack.push(path);
-            } else {
-                out.push(path);
-            }
+/// The regular files of a stage input, sorted by path: the file itself or every file
+/// below the folder, links followed; FIFOs, devices, sockets, link cycles and oversized
+/// trees refused ([`input::files_below`]).
+fn files_below(p: &Path) -> Result<Vec<input::Found>, FormatError> {
+    match std::fs::symlink_metadata(p) {
+        Err(e) if e.kind() == std::io::ErrorKind::NotFound => {
+            Err(FormatError::invalid(p, "stage input does not exist"))
         }
+        _ => input::files_below(p),
     }
-    out.sort();
-    Ok(out)
 }
 
 #[derive(Debug, Clone, Default, Serialize, Deserialize, PartialEq)]

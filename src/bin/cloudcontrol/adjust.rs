@@ -9,6 +9,7 @@ use cloudcontrol::adjust::{
 use cloudcontrol::block::{Block, ObjectPoint, PointId, PointKind};
 use cloudcontrol::formats::control_points::{self, Measurement, SurveyedPoint};
 use cloudcontrol::formats::csv::{read_records, Extra, Layout};
+use cloudcontrol::formats::input;
 use cloudcontrol::formats::odm_gcp::{read_odm_gcp, GcpOptions};
 use cloudcontrol::formats::write_bytes_atomically;
 use cloudcontrol::geometry::{Brown, Camera, FrameCamera};
@@ -116,7 +117,7 @@ fn text<E: std::fmt::Display>(e: E) -> String {
 // `resect --points` has columns x,y,X,Y,Z that differ only in case, which the project's
 // CSV reader (case-insensitive names) cannot tell apart: it keeps this positional reader.
 fn read_csv(path: &Path) -> Result<Vec<Vec<String>>, String> {
-    let text = std::fs::read_to_string(path).map_err(|e| format!("{}: {e}", path.display()))?;
+    let text = input::read_text(path, input::Cap::csv()).map_err(|e| e.to_string())?;
     let mut rows = Vec::new();
     for (i, line) in text.lines().enumerate() {
         let l = line.trim();

@@ -298,8 +298,12 @@ pub fn run(cmd: DcpCommand, json_out: bool) -> Result<(), String> {
             let ortho_crs = match (orthophoto_crs, orthophoto_crs_file) {
                 (Some(c), _) => Some(c),
                 (None, Some(f)) => Some(
-                    std::fs::read_to_string(&f)
-                        .map_err(|e| format!("{}: {e}", f.display()))?
+                    // A CRS definition is at most 64 KiB (formats/README.md).
+                    cloudcontrol::formats::input::read_text(
+                        &f,
+                        cloudcontrol::formats::input::Cap::fixed(64 << 10, "CRS definition"),
+                    )
+                    .map_err(|e| e.to_string())?
                         .trim()
                         .to_string(),
                 ),

@@ -300,8 +300,11 @@ pub fn ties(a: TiesArgs, quiet: bool) -> ExitCode {
 /// its images and the DEM (or mean height), writing the report and the extended block.
 fn ties_oriented(a: &TiesArgs, robust: RobustMethod, quiet: bool) -> ExitCode {
     let path = a.block.as_ref().expect("checked by the caller");
-    let mut block: Block = match std::fs::read_to_string(path)
-        .map_err(|e| e.to_string())
+    let mut block: Block = match cloudcontrol::formats::input::read_text(
+        path,
+        cloudcontrol::formats::input::Cap::document(),
+    )
+    .map_err(|e| e.detail())
         .and_then(|t| serde_json::from_str(&t).map_err(|e| e.to_string()))
     {
         Ok(b) => b,

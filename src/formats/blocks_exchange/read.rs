@@ -21,7 +21,7 @@ struct Group {
 
 /// Reads the first `<Block>` of a BlocksExchange file (`.xml`; `.xmlz` must be unzipped).
 pub fn read(path: &Path) -> Result<Block> {
-    let text = std::fs::read_to_string(path).map_err(|e| FormatError::io(path, e))?;
+    let text = super::super::input::read_text(path, super::super::input::Cap::document())?;
     read_str(&text, path)
 }
 

@@ -26,7 +26,7 @@ pub use read::read;
 pub use side_file::SIDE_FILE;
 pub use write::write;
 
-use super::{FormatError, Result};
+use super::Result;
 use std::fs::File;
 use std::io::BufReader;
 use std::path::Path;
@@ -69,7 +69,6 @@ impl Default for WriteOptions {
 
 /// A model file opened for streaming, with a buffer large enough for bulk records.
 fn open(path: &Path) -> Result<BufReader<File>> {
-    File::open(path)
-        .map(|f| BufReader::with_capacity(1 << 20, f))
-        .map_err(|e| FormatError::io(path, e))
+    // A regular file only (formats/README.md, "Input files").
+    super::input::open(path).map(|f| BufReader::with_capacity(1 << 20, f))
 }

@@ -75,7 +75,7 @@ pub(super) fn apply(dir: &Path, block: &mut Block) -> Result<()> {
     if !side.is_file() {
         return Ok(());
     }
-    let s = std::fs::read_to_string(&side).map_err(|e| FormatError::io(&side, e))?;
+    let s = crate::formats::input::read_text(&side, crate::formats::input::Cap::document())?;
     let sf: SideFile = serde_json::from_str(&s)
         .map_err(|e| FormatError::invalid(&side, format!("not a valid side file: {e}")))?;
     block.crs = sf.crs;

@@ -8,7 +8,7 @@ use super::records::{
 use super::{open, INVALID_POINT3D};
 use crate::formats::{FormatError, Result};
 use std::collections::{BTreeMap, HashMap};
-use std::io::{BufRead, Write};
+use std::io::Write;
 use std::path::Path;
 
 /// Whitespace-token cursor over one text line, with errors naming file, line and field.
@@ -76,16 +76,17 @@ fn text_lines(
     path: &Path,
     keep_empty: bool,
 ) -> Result<impl Iterator<Item = Result<(usize, String)>>> {
-    let r = open(path)?;
-    let p = path.to_path_buf();
-    Ok(r.lines().enumerate().filter_map(move |(i, l)| match l {
-        Err(e) => Some(Err(FormatError::io(&p, e))),
-        Ok(l) => {
+    // Each line at most the `line` cap long (formats/README.md, "Input files").
+    let lines =
+        crate::formats::input::Lines::new(open(path)?, path, crate::formats::input::Cap::line());
+    Ok(lines.filter_map(move |l| match l {
+        Err(e) => Some(Err(e)),
+        Ok((no, l)) => {
             let t = l.trim_start();
             if t.starts_with('#') || (!keep_empty && t.trim().is_empty()) {
                 None
             } else {
-                Some(Ok((i + 1, l)))
+                Some(Ok((no, l)))
             }
         }
     }))

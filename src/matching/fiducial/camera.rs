@@ -65,7 +65,8 @@ impl CameraDefinition {
     /// folder of `path`.
     pub fn load(path: &Path) -> Result<Self> {
         let in_file = |e: String| MatchingError::Camera(format!("{}: {e}", path.display()));
-        let text = std::fs::read_to_string(path).map_err(|e| in_file(e.to_string()))?;
+        let text = crate::formats::input::read_text(path, crate::formats::input::Cap::camera())
+            .map_err(|e| in_file(e.detail()))?;
         let json = serde_json::from_str(&text).map_err(|e| in_file(e.to_string()))?;
         Self::from_json(json, path.parent().unwrap_or(Path::new("."))).map_err(in_file)
     }

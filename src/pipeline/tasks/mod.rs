@@ -305,7 +305,7 @@ pub(crate) fn read_result<T: for<'de> Deserialize<'de> + HasItem>(
 }
 
 pub(crate) fn read_msgpack<T: for<'de> Deserialize<'de>>(path: &Path) -> Result<T, WorkError> {
-    let bytes = std::fs::read(path).map_err(|e| FormatError::io(path, e))?;
+    let bytes = crate::formats::input::read_bytes(path, crate::formats::input::Cap::document())?;
     Ok(rmp_serde::from_slice(&bytes)
         .map_err(|e| FormatError::invalid(path, format!("task file: {e}")))?)
 }
