@@ -33,6 +33,7 @@ mod formats_odm_gcp;
 mod formats_ortho;
 mod formats_workflow;
 mod geometry;
+mod hostile_files;
 mod hostile_inputs;
 mod hostile_memory;
 mod hostile_packages;
