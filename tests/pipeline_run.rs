@@ -135,7 +135,10 @@ fn demo_runs_the_workflow_and_a_killed_run_resumes_identically() {
     assert!(!paths.is_empty());
     for p in &paths {
         assert!(!p.starts_with('/') && !p.contains('\\'), "{p}");
-        assert!(ref_dir.join(p).is_file(), "{p} not found from the XML's folder");
+        assert!(
+            ref_dir.join(p).is_file(),
+            "{p} not found from the XML's folder"
+        );
     }
     for (tif, bands) in [("orthophoto.tif", 4), ("lidar_dem.tif", 1)] {
         let info = Command::new("gdalinfo")

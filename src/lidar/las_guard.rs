@@ -402,7 +402,14 @@ fn check_chunk_table(
             format!("what the {} LAZ chunks can hold", entries.len()),
         ));
     }
-    check_layers(path, f, &vlr, h.record_len, data_start + 8, entries.as_ref())
+    check_layers(
+        path,
+        f,
+        &vlr,
+        h.record_len,
+        data_start + 8,
+        entries.as_ref(),
+    )
 }
 
 /// Byte counts a LASzip 3 item keeps in each chunk's header, one per layer (laz's
@@ -442,10 +449,7 @@ fn check_layers(
             f.seek(SeekFrom::Start(start + record_len + 4))
                 .and_then(|_| f.read_exact(&mut sizes))
                 .map_err(|x| LidarError::io(path, x))?;
-            let claimed: u64 = sizes
-                .chunks_exact(4)
-                .map(|b| u64::from(le_u32(b, 0)))
-                .sum();
+            let claimed: u64 = sizes.chunks_exact(4).map(|b| u64::from(le_u32(b, 0))).sum();
             let room = e.byte_count - head;
             if claimed > room {
                 return Err(too_large(

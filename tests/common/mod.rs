@@ -222,7 +222,12 @@ impl Confined {
             self.peak_rss >> 20,
             self.stderr
         );
-        assert!(self.seconds <= seconds, "{:.1} s: {}", self.seconds, self.stderr);
+        assert!(
+            self.seconds <= seconds,
+            "{:.1} s: {}",
+            self.seconds,
+            self.stderr
+        );
         let all = format!("{}{}", self.stdout, self.stderr);
         for w in words {
             assert!(all.contains(w), "says {w:?}: {all}");
@@ -294,9 +299,5 @@ pub fn run_confined(cmd: &mut std::process::Command, rlimit_as: u64, limit_s: f6
 /// [`run_confined`] on the CLI with the acceptance's limits: 2 GiB of address space,
 /// killed after 30 s (the assertions then ask for much less).
 pub fn cli_confined(args: &[&str]) -> Confined {
-    run_confined(
-        std::process::Command::new(exe()).args(args),
-        2 << 30,
-        30.0,
-    )
+    run_confined(std::process::Command::new(exe()).args(args), 2 << 30, 30.0)
 }

@@ -286,7 +286,10 @@ fn las_counts_and_lengths_beyond_the_file_are_refused() {
     // Refused before the file size is asked: no 64-bit offset reaches its records.
     las_refused(
         &f,
-        &["point count 9223372036854775808 exceeds", "a 64-bit file offset can address"],
+        &[
+            "point count 9223372036854775808 exceeds",
+            "a 64-bit file offset can address",
+        ],
     );
     // 2³² − 1 VLRs (54 bytes each at least).
     let mut las = HandLas {

@@ -304,8 +304,8 @@ pub fn run(cmd: DcpCommand, json_out: bool) -> Result<(), String> {
                         cloudcontrol::formats::input::Cap::fixed(64 << 10, "CRS definition"),
                     )
                     .map_err(|e| e.to_string())?
-                        .trim()
-                        .to_string(),
+                    .trim()
+                    .to_string(),
                 ),
                 (None, None) => None,
             };

@@ -235,8 +235,9 @@ fn write_json(path: &Path, v: &serde_json::Value) -> Result<(), String> {
 /// Tiny checkpoint CSV reader: `id,X,Y,Z` (comma, semicolon, tab or blanks); a non-numeric
 /// first line is a header; `#` comments.
 pub fn read_checkpoints(path: &Path) -> Result<Vec<(String, [f64; 3])>, String> {
-    let text = cloudcontrol::formats::input::read_text(path, cloudcontrol::formats::input::Cap::csv())
-        .map_err(|e| e.to_string())?;
+    let text =
+        cloudcontrol::formats::input::read_text(path, cloudcontrol::formats::input::Cap::csv())
+            .map_err(|e| e.to_string())?;
     let mut out = Vec::new();
     for (i, line) in text.lines().enumerate() {
         let t = line.trim();

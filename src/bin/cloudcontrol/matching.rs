@@ -305,7 +305,7 @@ fn ties_oriented(a: &TiesArgs, robust: RobustMethod, quiet: bool) -> ExitCode {
         cloudcontrol::formats::input::Cap::document(),
     )
     .map_err(|e| e.detail())
-        .and_then(|t| serde_json::from_str(&t).map_err(|e| e.to_string()))
+    .and_then(|t| serde_json::from_str(&t).map_err(|e| e.to_string()))
     {
         Ok(b) => b,
         Err(e) => return fail("ties", format!("{}: {e}", path.display())),
