@@ -34,6 +34,11 @@ struct ChipsResult {
 
 has_item!(ChipsResult => photo);
 
+/// A `chips` result file read as the stage reads it ([`super::read_task_file`]).
+pub(super) fn read_result_file(path: &Path) -> Result<(), WorkError> {
+    super::read_msgpack::<ChipsResult>(path).map(drop)
+}
+
 /// Every photo's chips of `plan` (in its photo order), from the `chips` tasks of stage
 /// `stage` under output folder `output` (inputs fingerprint `key`): run here, or returned
 /// as pending. A photo whose image cannot be read fails the export, naming the photo.

@@ -207,6 +207,14 @@ pub(super) fn own_scans(task: &Task, ctx: &EpochContext) -> Result<Option<ScanCa
 
 has_item!(OrientResult => photo, ScanResult => photo);
 
+/// A `scan` or `orient` result file read as the stage reads it ([`super::read_task_file`]).
+pub(super) fn read_result_file(kind: TaskKind, path: &Path) -> Result<(), WorkError> {
+    match kind {
+        TaskKind::Scan => super::read_msgpack::<ScanResult>(path).map(drop),
+        _ => super::read_msgpack::<OrientResult>(path).map(drop),
+    }
+}
+
 /// Runs one task with the stage's context and writes its result.
 fn execute_with(
     task: &Task,

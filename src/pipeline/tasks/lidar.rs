@@ -78,7 +78,7 @@ pub(crate) fn clean_sources(
         let offsets = strip_offsets(&screened, &opts)?;
         write_msgpack(&offsets_file, &offsets)?;
     }
-    let offsets: Option<StripOffsetReport> = read_msgpack(&offsets_file)?;
+    let offsets = read_offsets(&offsets_file)?;
     let cleans = st.tasks(TaskKind::Clean, names.iter().map(String::as_str), None);
     // A result whose tile has gone (moved by a stage that did not finish) is run again.
     for t in &cleans {
@@ -102,6 +102,19 @@ pub(crate) fn clean_sources(
         strip_offsets: offsets,
         tiles,
     })
+}
+
+/// The strip offsets the stage found (`strip_offsets.msgpack`).
+pub(super) fn read_offsets(path: &Path) -> Result<Option<StripOffsetReport>, WorkError> {
+    read_msgpack(path)
+}
+
+/// A `screen` or `clean` result file read as the stage reads it ([`super::read_task_file`]).
+pub(super) fn read_result_file(kind: TaskKind, path: &Path) -> Result<(), WorkError> {
+    match kind {
+        TaskKind::Screen => read_msgpack::<ScreenResult>(path).map(drop),
+        _ => read_msgpack::<CleanResult>(path).map(drop),
+    }
 }
 
 fn cleaned_file(task: &Task) -> PathBuf {
@@ -139,7 +152,7 @@ fn execute(task: &Task, plan: &LidarPlan) -> Result<TaskSummary, WorkError> {
                 kind: TaskKind::Screen,
                 ..task.clone()
             })?;
-            let offsets: Option<StripOffsetReport> = read_msgpack(&task.folder.join(OFFSETS))?;
+            let offsets = read_offsets(&task.folder.join(OFFSETS))?;
             let out = cleaned_file(task);
             if let Some(dir) = out.parent() {
                 std::fs::create_dir_all(dir).map_err(|e| FormatError::io(dir, e))?;

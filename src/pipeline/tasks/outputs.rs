@@ -98,6 +98,15 @@ struct OrthoResult {
 
 has_item!(ResampleResult => photo, OrthoResult => tiles_of);
 
+/// A `resample` or `ortho` result file read as the stage reads it
+/// ([`super::read_task_file`]).
+pub(super) fn read_result_file(kind: TaskKind, path: &Path) -> Result<(), WorkError> {
+    match kind {
+        TaskKind::Resample => super::read_msgpack::<ResampleResult>(path).map(drop),
+        _ => super::read_msgpack::<OrthoResult>(path).map(drop),
+    }
+}
+
 /// The tasks of one products stage of a run.
 pub(crate) struct OutputTasks(StageTasks);
 

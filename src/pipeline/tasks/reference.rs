@@ -31,6 +31,11 @@ struct PairsResult {
 
 has_item!(PairsResult => item);
 
+/// A `pairs` result file read as the stage reads it ([`super::read_task_file`]).
+pub(super) fn read_result_file(path: &Path) -> Result<(), WorkError> {
+    super::read_msgpack::<PairsResult>(path).map(drop)
+}
+
 /// The reference epoch stage's tasks (a planning run: its photos' pairs are returned as
 /// tasks for other processes).
 pub(crate) struct ReferenceTasks {

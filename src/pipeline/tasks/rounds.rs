@@ -151,7 +151,7 @@ fn execute<R: Round>(
 
 /// A round as a process read it from its file.
 #[derive(Clone)]
-enum Loaded {
+pub(super) enum Loaded {
     Cut(Arc<CutRound>),
     Match(Arc<MatchRound>),
     Reorient(Arc<OrientRound>),
@@ -172,7 +172,18 @@ fn load(file: &Path, task: &Task) -> Result<Loaded, WorkError> {
     }
     // The last round's data is dropped before the next is read.
     *cache = None;
-    let r = match task.kind {
+    if !matches!(task.kind, TaskKind::Cut | TaskKind::Match | TaskKind::Reorient) {
+        return Err(super::not_of(task, "an epoch's rounds"));
+    }
+    let r = read_round(file, task.kind)?;
+    *cache = Some((file.to_path_buf(), r.clone()));
+    Ok(r)
+}
+
+/// The round of `kind` (`cut`, `match`, `reorient`) in `file`, checked (uncached; also
+/// [`super::read_task_file`]).
+pub(super) fn read_round(file: &Path, kind: TaskKind) -> Result<Loaded, WorkError> {
+    Ok(match kind {
         TaskKind::Cut => Loaded::Cut(Arc::new(read_msgpack(file)?)),
         TaskKind::Match => {
             let r: MatchRound = read_msgpack(file)?;
@@ -181,10 +192,29 @@ fn load(file: &Path, task: &Task) -> Result<Loaded, WorkError> {
             Loaded::Match(Arc::new(r))
         }
         TaskKind::Reorient => Loaded::Reorient(Arc::new(read_msgpack(file)?)),
-        _ => return Err(super::not_of(task, "an epoch's rounds")),
-    };
-    *cache = Some((file.to_path_buf(), r.clone()));
-    Ok(r)
+        _ => {
+            return Err(crate::formats::FormatError::invalid(
+                file,
+                "not a round's file (cut, match or reorient)",
+            )
+            .into())
+        }
+    })
+}
+
+/// A round task's result file (`<kind>-<round>-<index>.msgpack`) read as the stage reads
+/// it ([`super::read_task_file`]).
+pub(super) fn read_result_file(kind: TaskKind, path: &Path) -> Result<(), WorkError> {
+    match kind {
+        TaskKind::Cut => read_msgpack::<RoundResult<<CutRound as Round>::Output>>(path).map(drop),
+        TaskKind::Match => {
+            read_msgpack::<RoundResult<<MatchRound as Round>::Output>>(path).map(drop)
+        }
+        TaskKind::Reorient => {
+            read_msgpack::<RoundResult<<OrientRound as Round>::Output>>(path).map(drop)
+        }
+        _ => Err(crate::formats::FormatError::invalid(path, "not a round task's result").into()),
+    }
 }
 
 /// Runs one round task in a process of its own: the round read from its file, the photo's
