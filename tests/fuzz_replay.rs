@@ -44,6 +44,10 @@ fn every_input_replays_and_the_seeds_reach_the_readers() {
                 "project_toml" => cloudcontrol_fuzz::project_toml,
                 "camera_json" => cloudcontrol_fuzz::camera_json,
                 "image_header" => cloudcontrol_fuzz::image_header,
+                "fiducial_io" => cloudcontrol_fuzz::fiducial_io,
+                "image_decode" => cloudcontrol_fuzz::image_decode,
+                "task_files" => cloudcontrol_fuzz::task_files,
+                "project_check" => cloudcontrol_fuzz::project_check,
                 t => panic!("target {t} has no entry here"),
             };
             run(&data);
@@ -62,4 +66,48 @@ fn every_input_replays_and_the_seeds_reach_the_readers() {
             "no seed of {target} is read by its reader"
         );
     }
+}
+
+/// `project_check` stands for `cloudcontrol run --check`: every seed and fixed reproducer,
+/// laid out in a folder as the target lays it out, must be accepted by the CLI's check
+/// exactly when the target accepts it (should the CLI check more than `Project::load`,
+/// the target must follow).
+#[test]
+fn project_check_accepts_what_run_check_accepts() {
+    let cli = env!("CARGO_BIN_EXE_cloudcontrol");
+    let files: Vec<PathBuf> = inputs("corpus", "project_check")
+        .into_iter()
+        .chain(inputs("artifacts-fixed", "project_check"))
+        .collect();
+    let mut accepted = 0;
+    for f in &files {
+        let data = std::fs::read(f).unwrap();
+        let parts = cloudcontrol_fuzz::members(&data, 3);
+        let Some(toml) = parts[0] else { continue };
+        let target = cloudcontrol_fuzz::reads("project_check", &data).unwrap();
+        let dir = tempfile::tempdir().unwrap();
+        cloudcontrol_fuzz::lay_out_project(
+            dir.path(),
+            parts[1].unwrap_or_default(),
+            parts[2].unwrap_or_default(),
+        );
+        let project = dir.path().join("project.toml");
+        std::fs::write(&project, toml).unwrap();
+        let out = std::process::Command::new(cli)
+            .args(["run", "--check"])
+            .arg(&project)
+            .output()
+            .unwrap();
+        assert_eq!(
+            out.status.success(),
+            target,
+            "{}: run --check {} ({}), the target {}",
+            f.display(),
+            if out.status.success() { "accepts" } else { "refuses" },
+            String::from_utf8_lossy(&out.stderr).trim(),
+            if target { "accepts" } else { "refuses" },
+        );
+        accepted += target as usize;
+    }
+    assert!(accepted > 0, "no project_check seed is accepted");
 }

@@ -12,8 +12,16 @@ use cloudcontrol::control::dcp::DcpPackage;
 use cloudcontrol::control::epoch::EpochCamera;
 use cloudcontrol::formats::odm_gcp::{read_odm_gcp, GcpOptions};
 use cloudcontrol::formats::{blocks_exchange, colmap, image_open};
+use cloudcontrol::geometry::{Camera, FilmCamera, InteriorOrientation, InteriorTransformKind};
 use cloudcontrol::lidar::{points_io, LasStream, PointBatch};
+use cloudcontrol::matching::fiducial::{
+    check_scan_pixel_um, interior_orientation_file, render_template, CameraDefinition,
+    FiducialFrame, IoOptions, ScanOrientation,
+};
+use cloudcontrol::matching::GreyImage;
 use cloudcontrol::pipeline::project::Project;
+use cloudcontrol::pipeline::tasks::read_task_file;
+use nalgebra::{Matrix2, Vector2};
 use sha2::{Digest, Sha256};
 use std::path::{Path, PathBuf};
 
@@ -326,12 +334,396 @@ fn project_toml_reads(data: &[u8]) -> bool {
     Project::load(&path).is_ok()
 }
 
-/// A camera JSON file: a frame camera or a film camera's certificate.
+/// The template image a film camera's `template` marks may name (`"file":
+/// "template.png"` or `"marks/L.png"`, as formats/cameras/README.md's example), beside
+/// the camera file of the `camera_json` target: a 32 × 32 grey crop.
+const TEMPLATE_PNG: &[u8] = include_bytes!("../../formats/dcp/sample.dcp/chips/p1_1.png");
+
+/// A camera JSON file: a frame camera or a film camera's certificate, read, validated
+/// and then built into what the workflow uses (see [`use_camera`]).
 fn camera_json_reads(data: &[u8]) -> bool {
     let dir = scratch("camera_json");
+    for name in ["template.png", "marks/L.png"] {
+        if !dir.join(name).is_file() {
+            put(&dir.join(name), TEMPLATE_PNG);
+        }
+    }
     let path = dir.join("camera.json");
     put(&path, data);
-    EpochCamera::load(&path).is_ok()
+    match EpochCamera::load(&path) {
+        Ok(cam) => {
+            use_camera(&cam);
+            true
+        }
+        Err(_) => false,
+    }
+}
+
+/// Side (pixels) of the nominal scan a film camera is built for in [`use_camera`]: the
+/// scan pixel is the film format over it (clamped to the plausible scan pixels), so the
+/// templates drawn stay small whatever the camera says.
+const NOMINAL_SCAN_SIDE: f64 = 256.0;
+
+/// What the workflow does with a camera once read: a frame camera's projections (pixel
+/// to ray and back over a grid of the image, its parameter vector); a film camera's mark
+/// templates drawn in every scan orientation, its fiducial frame and frame camera, and
+/// the film camera of a nominal scan projected like a frame camera's.
+fn use_camera(cam: &EpochCamera) {
+    match cam {
+        EpochCamera::Frame(f) => project_grid(&Camera::Frame(f.clone())),
+        EpochCamera::Film(def) => {
+            let [fw, fh] = def.format_mm;
+            let s = (fw.max(fh) / NOMINAL_SCAN_SIDE).clamp(0.003, 0.2);
+            let margin = 0.5
+                * def
+                    .fiducials
+                    .iter()
+                    .map(|f| f.shape.extent_mm())
+                    .fold(0.0, f64::max);
+            for o in ScanOrientation::all() {
+                for f in &def.fiducials {
+                    let _ = render_template(&f.shape, &o.linear(s), margin);
+                }
+            }
+            let (w, h) = ((fw / s).round(), (fh / s).round());
+            let Ok(interior) = InteriorOrientation::affine(
+                &Matrix2::new(s, 0.0, 0.0, -s),
+                &Vector2::new(-s * w / 2.0, s * h / 2.0),
+            ) else {
+                return;
+            };
+            let d = &def.distortion;
+            let film = FilmCamera {
+                width: w as u32,
+                height: h as u32,
+                focal_mm: def.focal_mm,
+                principal_point_mm: def.principal_point_mm,
+                distortion: cloudcontrol::geometry::Brown::from_array([
+                    d.k1, d.k2, d.k3, d.p1, d.p2,
+                ]),
+                interior,
+            };
+            if let Ok(frame) = FiducialFrame::new(def.format_mm, s) {
+                let _ = frame.sensor_size_mm();
+                project_grid(&Camera::Frame(frame.frame_camera(&film)));
+            }
+            project_grid(&Camera::Film(film));
+        }
+    }
+}
+
+/// A camera validated, then a 5 × 5 grid of its image (edges included) taken to rays and
+/// projected back, and its parameters read and set again.
+fn project_grid(cam: &Camera) {
+    if cam.validate().is_err() {
+        return;
+    }
+    let (w, h) = cam.image_size();
+    let _ = cam.focal_px();
+    for i in 0..5 {
+        for j in 0..5 {
+            let px = [w as f64 * i as f64 / 4.0, h as f64 * j as f64 / 4.0];
+            if let Ok(ray) = cam.unproject(px) {
+                let _ = cam.project(&ray);
+            }
+        }
+    }
+    let mut c = cam.clone();
+    let p = c.params();
+    let _ = c.set_params(&p);
+}
+
+/// Largest side (pixels) of the scan the `fiducial_io` target orients: larger scans are
+/// skipped (by their header) to keep the target fast; the marks of a small camera (a
+/// 23 mm format, 2 mm marks) on such a scan are ~20 pixels, as on a real scan.
+pub const FIDUCIAL_MAX_SCAN_SIDE: u32 = 256;
+
+/// Fiducial interior orientation, the whole path of `cloudcontrol io --camera camera.json
+/// [--pixel-um U] [--orientation O] [--projective] scan` (src/bin/cloudcontrol/matching.rs):
+/// camera definition, scan, options and a template image by [`members`]. The options
+/// member is text, the CLI's flags as `pixel_um=U`, `orientation=O` and `projective`
+/// separated by white space. The scan must be an image whose header the `image` crate
+/// reads and at most [`FIDUCIAL_MAX_SCAN_SIDE`] a side.
+fn fiducial_io_reads(data: &[u8]) -> bool {
+    let dir = scratch("fiducial_io");
+    clear(&dir, &["camera.json", "scan", "template.png"]);
+    let parts = members(data, 4);
+    let (Some(camera), Some(scan)) = (parts[0], parts[1]) else {
+        return false;
+    };
+    match image_open::image_size_bytes(Path::new("scan"), scan) {
+        Ok((w, h)) if w <= FIDUCIAL_MAX_SCAN_SIDE && h <= FIDUCIAL_MAX_SCAN_SIDE => {}
+        _ => return false,
+    }
+    let (camera_path, scan_path) = (dir.join("camera.json"), dir.join("scan"));
+    put(&camera_path, camera);
+    put(&scan_path, scan);
+    if let Some(t) = parts[3] {
+        put(&dir.join("template.png"), t);
+    }
+    // The CLI's flags.
+    let (mut pixel_um, mut orientation, mut projective) = (None, None, false);
+    for word in String::from_utf8_lossy(parts[2].unwrap_or_default()).split_whitespace() {
+        match word.split_once('=') {
+            Some(("pixel_um", v)) => match v.parse::<f64>() {
+                Ok(v) => pixel_um = Some(v),
+                Err(_) => return false,
+            },
+            Some(("orientation", v)) => orientation = Some(v.to_string()),
+            None if word == "projective" => projective = true,
+            _ => return false,
+        }
+    }
+    // As `matching::io` does.
+    if let Some(um) = pixel_um {
+        if check_scan_pixel_um(um).is_err() {
+            return false;
+        }
+    }
+    let cam = match CameraDefinition::load(&camera_path) {
+        Ok(c) => c,
+        Err(e) => return verdict(Err::<(), _>(e)),
+    };
+    let Ok(orientation) = orientation.as_deref().map(str::parse).transpose() else {
+        return false;
+    };
+    let opts = IoOptions {
+        pixel_mm: pixel_um.map(|u| u / 1000.0),
+        orientation,
+        kind: if projective {
+            InteriorTransformKind::Projective
+        } else {
+            InteriorTransformKind::Affine
+        },
+        ..IoOptions::default()
+    };
+    match interior_orientation_file(&cam, &scan_path, &opts) {
+        Ok(io) => {
+            let text = serde_json::to_string_pretty(&io.to_json()).expect("io.json serialises");
+            !text.is_empty()
+        }
+        Err(e) => verdict(Err::<(), _>(e)),
+    }
+}
+
+/// An image decoded whole, as DCP chips (`decode_image_bytes`, in memory) and photos and
+/// scans (`GreyImage::load` of a file: `decode_image`, the reduction to grey, GDAL for
+/// what the `image` crate cannot read) are, within the decoders' memory limits.
+fn image_decode_reads(data: &[u8]) -> bool {
+    let chip = image_open::decode_image_bytes(Path::new("chip"), data).is_ok();
+    let dir = scratch("image_decode");
+    let path = dir.join("photo");
+    put(&path, data);
+    let photo = GreyImage::load(&path).is_ok();
+    chip || photo
+}
+
+/// The task files a `task_files` input may be, by its first byte (modulo their number):
+/// every kind's result, a round's result, a round's file and a photo's part of it, the
+/// strip offsets (src/pipeline/tasks/).
+pub const TASK_FILES: [&str; 16] = [
+    "screen-00000.msgpack",
+    "clean-00000.msgpack",
+    "strip_offsets.msgpack",
+    "scan-00000.msgpack",
+    "orient-00000.msgpack",
+    "cut-000-00000.msgpack",
+    "match-000-00000.msgpack",
+    "reorient-000-00000.msgpack",
+    "round-000-cut.msgpack",
+    "round-000-match.msgpack",
+    "round-000-reorient.msgpack",
+    "round-000-match-00000.msgpack",
+    "pairs-00000.msgpack",
+    "chips-00000.msgpack",
+    "resample-00000.msgpack",
+    "ortho-00000.msgpack",
+];
+
+/// A task file (MessagePack) read as its stage reads it back
+/// (`pipeline::tasks::read_task_file`): the first byte picks its name from
+/// [`TASK_FILES`], the rest is the file.
+fn task_files_reads(data: &[u8]) -> bool {
+    let Some((&k, body)) = data.split_first() else {
+        return false;
+    };
+    let dir = scratch("task_files");
+    let path = dir.join(TASK_FILES[k as usize % TASK_FILES.len()]);
+    put(&path, body);
+    let ok = verdict(read_task_file(&path));
+    let _ = std::fs::remove_file(&path);
+    ok
+}
+
+/// Whether `r` is Ok; with CLOUDCONTROL_FUZZ_VERBOSE set, the error is printed (to see
+/// why a seed is refused: `CLOUDCONTROL_FUZZ_VERBOSE=1 cargo test --release --test
+/// fuzz_replay -- --nocapture`).
+fn verdict<T, E: std::fmt::Display>(r: Result<T, E>) -> bool {
+    match r {
+        Ok(_) => true,
+        Err(e) => {
+            if std::env::var_os("CLOUDCONTROL_FUZZ_VERBOSE").is_some() {
+                eprintln!("refused: {e}");
+            }
+            false
+        }
+    }
+}
+
+/// What a path a project names is in a `project_check` input's folder (the layout
+/// member's byte for it, modulo 10).
+#[derive(Clone, Copy, PartialEq)]
+enum Entry {
+    /// What the example project expects there (its folders a folder, files a file with the
+    /// content member, the output folder absent).
+    Expected,
+    Absent,
+    File,
+    EmptyDir,
+    /// A folder holding a file (for the output folder: a user's folder).
+    FullDir,
+    /// A symbolic link to a regular file of the content member.
+    LinkToFile,
+    /// A symbolic link to itself.
+    LinkLoop,
+    /// A symbolic link to nothing.
+    Dangling,
+    Fifo,
+    /// A folder holding `.cloudcontrol-output`, the content member (the marker a run's
+    /// output folder will carry).
+    RunDir,
+}
+
+const ENTRIES: [Entry; 10] = [
+    Entry::Expected,
+    Entry::Absent,
+    Entry::File,
+    Entry::EmptyDir,
+    Entry::FullDir,
+    Entry::LinkToFile,
+    Entry::LinkLoop,
+    Entry::Dangling,
+    Entry::Fifo,
+    Entry::RunDir,
+];
+
+/// The paths a project may name in `project_check`'s folder (formats/project/example.toml
+/// and its commented keys), parents first, with what each is when expected: a folder
+/// (`true`), a file, or for `out` (the output), nothing.
+pub const CHECK_PATHS: [(&str, Option<bool>); 17] = [
+    ("lidar", Some(true)),
+    ("lidar/tile.las", Some(false)),
+    ("checkpoints.csv", Some(false)),
+    ("checkpoint_images.csv", Some(false)),
+    ("epochs/reference/images", Some(true)),
+    ("epochs/reference/camera.json", Some(false)),
+    ("epochs/reference/pos.csv", Some(false)),
+    ("epochs/digital/images", Some(true)),
+    ("epochs/digital/camera.json", Some(false)),
+    ("epochs/digital/pos.csv", Some(false)),
+    ("epochs/film/images", Some(true)),
+    ("epochs/film/camera.json", Some(false)),
+    ("epochs/film/strips.csv", Some(false)),
+    ("ortho/orthophoto.tif", Some(false)),
+    ("ortho/dem.tif", Some(false)),
+    ("at/blocks_exchange.xml", Some(false)),
+    ("out", None),
+];
+
+/// Top-level names [`CHECK_PATHS`] and the target's own files use, removed before each input.
+const CHECK_ROOTS: [&str; 10] = [
+    "lidar",
+    "checkpoints.csv",
+    "checkpoint_images.csv",
+    "epochs",
+    "ortho",
+    "at",
+    "out",
+    "project.toml",
+    "content",
+    "nothing",
+];
+
+/// Lays out `project_check`'s folder: each of [`CHECK_PATHS`] as its byte of `layout`
+/// says ([`Entry`]; [`Entry::Expected`] where the layout ends), files holding `content`.
+pub fn lay_out_project(dir: &Path, layout: &[u8], content: &[u8]) {
+    for name in CHECK_ROOTS {
+        let p = dir.join(name);
+        match std::fs::symlink_metadata(&p) {
+            Ok(m) if m.is_dir() => std::fs::remove_dir_all(&p).expect("scratch folder removed"),
+            Ok(_) => std::fs::remove_file(&p).expect("scratch file removed"),
+            Err(_) => {}
+        }
+    }
+    put(&dir.join("content"), content);
+    for (k, (rel, expected)) in CHECK_PATHS.iter().enumerate() {
+        let p = dir.join(rel);
+        // A child of something that is not a folder cannot be made.
+        match p.parent().map(std::fs::symlink_metadata) {
+            Some(Ok(m)) if m.is_dir() => {}
+            Some(Ok(_)) => continue,
+            _ => std::fs::create_dir_all(p.parent().expect("relative path"))
+                .expect("scratch sub-folder can be made"),
+        }
+        let entry = match layout.get(k) {
+            Some(&b) => ENTRIES[b as usize % ENTRIES.len()],
+            None => Entry::Expected,
+        };
+        let entry = match (entry, expected) {
+            (Entry::Expected, Some(true)) => Entry::EmptyDir,
+            (Entry::Expected, Some(false)) => Entry::File,
+            (Entry::Expected, None) => Entry::Absent,
+            (e, _) => e,
+        };
+        match entry {
+            Entry::Expected | Entry::Absent => {}
+            Entry::File => put(&p, content),
+            Entry::EmptyDir => std::fs::create_dir(&p).expect("scratch folder made"),
+            Entry::FullDir => {
+                std::fs::create_dir(&p).expect("scratch folder made");
+                put(&p.join("notes.txt"), content);
+            }
+            Entry::RunDir => {
+                std::fs::create_dir(&p).expect("scratch folder made");
+                put(&p.join(".cloudcontrol-output"), content);
+            }
+            Entry::LinkToFile => link(&dir.join("content"), &p),
+            Entry::LinkLoop => link(&p, &p),
+            Entry::Dangling => link(&dir.join("nothing"), &p),
+            Entry::Fifo => {
+                let c = std::ffi::CString::new(p.as_os_str().as_encoded_bytes())
+                    .expect("scratch path without NUL");
+                // SAFETY: a NUL-terminated path.
+                let rc = unsafe { libc::mkfifo(c.as_ptr(), 0o600) };
+                assert_eq!(rc, 0, "mkfifo {}", p.display());
+            }
+        }
+    }
+}
+
+fn link(target: &Path, at: &Path) {
+    std::os::unix::fs::symlink(target, at).expect("scratch link made");
+}
+
+/// A project file through the checks `cloudcontrol run --check` makes (src/bin/cloudcontrol/
+/// run.rs: `Project::load`, its parse, paths and validation), in a folder where each path the project may name
+/// is present or not, a file, a folder, a link, a FIFO or a run's output folder:
+/// project.toml, the layout and the files' content by [`members`] ([`lay_out_project`]).
+/// tests/fuzz_replay.rs checks that the CLI accepts exactly the seeds this target does.
+fn project_check_reads(data: &[u8]) -> bool {
+    let dir = scratch("project_check");
+    let parts = members(data, 3);
+    lay_out_project(
+        &dir,
+        parts[1].unwrap_or_default(),
+        parts[2].unwrap_or_default(),
+    );
+    let Some(toml) = parts[0] else {
+        return false;
+    };
+    let path = dir.join("project.toml");
+    put(&path, toml);
+    Project::load(&path).is_ok()
 }
 
 /// An image header (PNG, TIFF, JPEG): the size query DCP chips and photos go through.
@@ -376,4 +768,8 @@ targets!(
     project_toml => project_toml_reads,
     camera_json => camera_json_reads,
     image_header => image_header_reads,
+    fiducial_io => fiducial_io_reads,
+    image_decode => image_decode_reads,
+    task_files => task_files_reads,
+    project_check => project_check_reads,
 );

@@ -1,0 +1,2 @@
+#![no_main]
+libfuzzer_sys::fuzz_target!(|d: &[u8]| cloudcontrol_fuzz::fiducial_io(d));
