@@ -20,5 +20,5 @@ echo "header compiles as C++"
 echo "== Python binding tests"
 CLOUDCONTROL_LIB="$PWD/target/release/libcloudcontrol.so" .venv/bin/python -m pytest -q -p no:cacheprovider bindings/python/tests
 
-echo "== Fuzz targets (short runs where a fuzz build is kept; else skipped, with the reason)"
+echo "== Fuzz targets: every target ${FUZZ_SECONDS:-60} s, two at a time, ASan, -rss_limit_mb=2048 (fuzz/README.md)"
 fuzz/run.sh ci
