@@ -460,18 +460,17 @@ impl DcpPackage {
             crate::formats::FormatError::Io { path, source } => DcpError::Io { path, source },
             e => invalid(parent, e.to_string()),
         })?;
-        let name = dir
-            .file_name()
-            .map(|n| n.to_string_lossy().into_owned())
-            .unwrap_or_else(|| "dcp".into());
-        let tmp = parent.join(format!(".{name}.part-{}", std::process::id()));
+        let named = match dir.file_name() {
+            Some(n) => parent.join(n),
+            None => parent.join("dcp"),
+        };
+        // A name of this call alone, made exclusively (formats::temporary_sibling).
+        let tmp = crate::formats::temporary_sibling(&named);
         let result = (|| -> Result<()> {
-            if tmp.exists() {
-                std::fs::remove_dir_all(&tmp).map_err(|e| DcpError::Io {
-                    path: tmp.clone(),
-                    source: e,
-                })?;
-            }
+            std::fs::create_dir(&tmp).map_err(|e| DcpError::Io {
+                path: tmp.clone(),
+                source: e,
+            })?;
             manifest.files.clear();
             for (file, bytes) in chips {
                 if !safe_relative(file) {
@@ -509,7 +508,7 @@ impl DcpPackage {
             return Err(e);
         }
         // Swap in: move an old package aside first so a failure leaves it intact.
-        let old = parent.join(format!(".{name}.old-{}", std::process::id()));
+        let old = crate::formats::temporary_sibling(&named);
         let had_old = dir.exists();
         if had_old {
             std::fs::rename(dir, &old).map_err(|e| DcpError::Io {
@@ -656,6 +655,10 @@ impl DcpPackage {
     /// written. Each copy is verified again while it is made, in a temporary sibling that
     /// is renamed into place, and the copies of a failed import are removed. A package that
     /// is already in the store with the same manifest is left as it is.
+    ///
+    /// Imports into one store, from threads of one process or from several processes,
+    /// run one after the other: each holds the store's lock (`flock` on the folder) from
+    /// reading what the store holds to its last copy.
     pub fn import(packages: &[PathBuf], store: &Path) -> Result<Vec<Self>> {
         if packages.is_empty() {
             return Err(invalid(store, "nothing to import"));
@@ -676,6 +679,24 @@ impl DcpPackage {
             }
             opened.push((pkg, name));
         }
+        let created = crate::formats::create_folders(store).map_err(|e| match e {
+            crate::formats::FormatError::Io { path, source } => DcpError::Io { path, source },
+            e => invalid(store, e.detail()),
+        })?;
+        let locked = crate::formats::Lock::exclusive(store, true).map_err(|e| DcpError::Io {
+            path: store.into(),
+            source: e,
+        });
+        let result = locked.and_then(|_lock| Self::import_locked(opened, store));
+        if result.is_err() {
+            // Only a store this call made, and only while empty.
+            created.undo(false);
+        }
+        result
+    }
+
+    /// [`DcpPackage::import`] of the opened packages, under the store's lock.
+    fn import_locked(opened: Vec<(Self, String)>, store: &Path) -> Result<Vec<Self>> {
         // The first package sets the CRS of an empty store.
         let mut reference: Option<(String, PathBuf)> = store_crs(store)?;
         for (pkg, _) in &opened {
@@ -716,10 +737,6 @@ impl DcpPackage {
             }
             plan.push((pkg, dest));
         }
-        std::fs::create_dir_all(store).map_err(|e| DcpError::Io {
-            path: store.into(),
-            source: e,
-        })?;
         let mut done: Vec<PathBuf> = Vec::new();
         let mut out = Vec::new();
         for (pkg, dest) in plan {
@@ -748,18 +765,15 @@ impl DcpPackage {
     /// checking each file's checksum on the bytes written (the source may have changed
     /// since it was opened), then opens the copy.
     fn copy_verified(&self, dest: &Path) -> Result<Self> {
-        let parent = dest.parent().unwrap_or(Path::new("."));
-        let name = folder_name(dest)?;
-        let tmp = parent.join(format!(".{name}.part-{}", std::process::id()));
+        folder_name(dest)?;
+        // A name of this call alone, made exclusively (formats::temporary_sibling).
+        let tmp = crate::formats::temporary_sibling(dest);
         let io = |path: &Path, e: std::io::Error| DcpError::Io {
             path: path.into(),
             source: e,
         };
         let result = (|| -> Result<Self> {
-            if tmp.exists() {
-                std::fs::remove_dir_all(&tmp).map_err(|e| io(&tmp, e))?;
-            }
-            std::fs::create_dir_all(&tmp).map_err(|e| io(&tmp, e))?;
+            std::fs::create_dir(&tmp).map_err(|e| io(&tmp, e))?;
             for (file, sum) in &self.manifest.files {
                 let data = member(&self.dir, file)?;
                 if !sha256_hex(&data).eq_ignore_ascii_case(sum) {

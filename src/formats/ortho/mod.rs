@@ -471,6 +471,8 @@ pub fn write_orthophoto(
 /// Writes the orthophoto of `grid` as an RGB + alpha GeoTIFF (atomically) from its tiles,
 /// `tile(k)` giving the k-th of [`OrthoGrid::tiles`]: rendered here or elsewhere, only
 /// one is held at a time. The report's image counts are the renderer's (zero here).
+/// The temporary files a killed writer of `path` left beside it are removed first
+/// ([`super::remove_dead_temporaries`]).
 pub fn write_tiles(
     path: &Path,
     grid: &OrthoGrid,
@@ -480,6 +482,11 @@ pub fn write_tiles(
 ) -> Result<OrthoReport> {
     let (width, height, gsd, gt) = (grid.width, grid.height, grid.gsd, grid.gt);
     let order = grid.tiles();
+    // What a killed writer of this orthophoto left (its temporary GeoTIFF, the COG's
+    // scratch file, GDAL's files beside them) goes now; a live writer's stays.
+    if let Err(e) = super::remove_dead_temporaries(path) {
+        tracing::warn!(path = %path.display(), "temporary files of a killed writer not removed: {e}");
+    }
     let report = write_atomically(path, |tmp| {
         let err = |e: GdalError| FormatError::gdal(path, e);
         let driver = Driver::by_name("GTiff").map_err(err)?;
