@@ -19,7 +19,7 @@ use super::epoch_files::{epoch_report, load_block, read_json, save_epoch, write_
 use super::ground::{control_dem, ControlGround};
 use super::project::{Epoch, Project, ProjectError};
 use super::report::{self, EpochReport, IcpIteration, OrthoPreview};
-use super::stages::{Inputs, Runner, StageError, WorkError};
+use super::stages::{resolved_path, Inputs, OutputFolder, Runner, StageError, WorkError};
 use super::tasks::dcp::cut_chips;
 use super::tasks::lidar::{clean_sources, LidarPlan};
 use super::tasks::outputs::{OutputTasks, OutputsPlan};
@@ -395,6 +395,87 @@ pub fn run_project_with(
     })
 }
 
+/// Every input path of the project with its key (`control.lidar[0]`, `archive[1].pos`).
+fn input_paths(project: &Project) -> Vec<(String, &Path)> {
+    let c = &project.control;
+    let mut out: Vec<(String, &Path)> = c
+        .lidar
+        .iter()
+        .enumerate()
+        .map(|(i, l)| (format!("control.lidar[{i}]"), l.as_path()))
+        .collect();
+    for (key, p) in [
+        ("control.orthophoto", &c.orthophoto),
+        ("control.dem", &c.dem),
+        ("control.checkpoints", &c.checkpoints),
+        ("control.checkpoint_images", &c.checkpoint_images),
+    ] {
+        if let Some(p) = p {
+            out.push((key.into(), p));
+        }
+    }
+    let epochs = project
+        .reference
+        .iter()
+        .map(|e| ("reference".to_string(), e))
+        .chain(
+            project
+                .archive
+                .iter()
+                .enumerate()
+                .map(|(i, e)| (format!("archive[{i}]"), e)),
+        );
+    for (key, e) in epochs {
+        out.push((format!("{key}.photos"), &e.photos));
+        for (k, p) in [
+            ("camera", &e.camera),
+            ("pos", &e.pos),
+            ("strips", &e.strips),
+        ] {
+            if let Some(p) = p {
+                out.push((format!("{key}.{k}"), p));
+            }
+        }
+        if let Some(b) = &e.block {
+            out.push((format!("{key}.block.path"), &b.path));
+        }
+    }
+    out
+}
+
+/// Checks, changing nothing, that a run may write the project's `output`: the checks of
+/// [`stages::check_output_folder`] (not `/`, the home folder or a file; missing, empty
+/// or made by a run), and no input of the project is the output folder, lies in it or
+/// holds it (a run's outputs would become its inputs, or sit among them). `run --check`
+/// and every run make it before anything else.
+pub fn check_output(project: &Project) -> Result<OutputFolder, RunError> {
+    let out = &project.output;
+    let state = super::stages::check_output_folder(out)?;
+    let real = resolved_path(out);
+    for (key, p) in input_paths(project) {
+        let input = resolved_path(p);
+        let how = if input == real {
+            "is"
+        } else if real.starts_with(&input) {
+            "lies inside"
+        } else if input.starts_with(&real) {
+            "holds"
+        } else {
+            continue;
+        };
+        return Err(StageError::Output {
+            path: out.clone(),
+            message: format!(
+                "output {how} the input {key} ({}): a run's outputs and the project's inputs \
+                 must not share a folder; give an output of its own",
+                p.display()
+            ),
+        }
+        .into());
+    }
+    Ok(state)
+}
+
 fn run_stages(
     project: &Project,
     on_event: &mut dyn FnMut(&Event),
@@ -402,7 +483,8 @@ fn run_stages(
     task_mode: TaskMode,
 ) -> Result<RunSummary, RunError> {
     let out = &project.output;
-    let mut runner = Runner::new(out).map_err(StageError::from)?;
+    check_output(project)?;
+    let mut runner = Runner::new(out)?;
     let epochs: Vec<&Epoch> = project.epochs().collect();
     let has_reference = project.reference.is_some();
     let o = &project.outputs;

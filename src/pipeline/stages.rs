@@ -4,10 +4,16 @@
 //! stage whose inputs did not change and whose outputs are intact, and redoes it otherwise.
 //! Killing a run mid-way therefore loses at most the stage that was running.
 //!
+//! The output folder is the product's: a run writes only into a folder it made or found
+//! empty (its marker, [`MARKER`], says so), never into `/`, the home folder or a folder of
+//! the user's. The ledger lists every name each stage wrote, and a run removes nothing
+//! else: a stage is redone only when its folder holds nothing but its own names.
+//!
 //! A run holds a lock on its output folder (`flock` on the folder itself, released by the
 //! system when the process ends, killed or not), so two runs never write one folder; the
-//! temporary folders and files a killed run left behind (`.STAGE.part-PID`,
-//! `.stages.part-PID.json`) are removed when the next run takes the lock.
+//! temporary folders and files a killed run left behind (`.STAGE.part-PID-THREAD-N`, listed
+//! in the ledger before they are made, and `.stages.part-PID-THREAD-N.json`) are removed
+//! when the next run takes the lock.
 
 use crate::formats::{input, write_bytes_atomically, FormatError};
 use serde::{Deserialize, Serialize};
@@ -26,6 +32,17 @@ pub enum StageError {
     },
     #[error(transparent)]
     Format(#[from] FormatError),
+    /// The output folder, or a name in it, is not the run's to write: `/`, the home
+    /// folder, a file, a folder cloudcontrol did not make, an input of the project, or a
+    /// stage folder holding a file cloudcontrol did not write.
+    #[error("{path}: {message}")]
+    Output { path: PathBuf, message: String },
+    /// Another run holds the output folder's lock.
+    #[error(
+        "{path}: another cloudcontrol run is writing this output folder; wait for it to end \
+         or give another output"
+    )]
+    Busy { path: PathBuf },
 }
 
 /// What a stage's work failed on: the error of the module that failed, kept typed so that
@@ -119,46 +136,329 @@ fn files_below(p: &Path) -> Result<Vec<input::Found>, FormatError> {
     }
 }
 
-#[derive(Debug, Clone, Default, Serialize, Deserialize, PartialEq)]
+/// The marker file of an output folder a run made (or found empty and took): a run writes
+/// only into a folder that holds it (formats/project/README.md, "The output folder").
+pub const MARKER: &str = ".cloudcontrol-output";
+/// Format of the marker and of the ledger.
+const OUTPUT_FORMAT: u32 = 1;
+const LEDGER: &str = "stages.json";
+
+#[derive(Debug, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+struct Marker {
+    /// [`OUTPUT_FORMAT`] of the cloudcontrol that made the folder.
+    cloudcontrol_output: u32,
+}
+
+/// The ledger of an output folder (`stages.json`): what each stage wrote, and the
+/// fingerprints that let a rerun skip it.
+#[derive(Debug, Clone, Serialize, Deserialize, PartialEq)]
+#[serde(deny_unknown_fields)]
 struct Ledger {
-    /// Stage name → input fingerprint and output fingerprint of a finished stage.
-    stages: BTreeMap<String, (String, String)>,
+    format: u32,
+    stages: BTreeMap<String, Record>,
+    /// Temporary stage folders (`.STAGE.part-PID-THREAD-N`) a run is writing, listed
+    /// before they are made: those a killed run left are removed by the next.
+    #[serde(default)]
+    temporaries: Vec<String>,
+}
+
+impl Default for Ledger {
+    fn default() -> Self {
+        Self {
+            format: OUTPUT_FORMAT,
+            stages: BTreeMap::new(),
+            temporaries: Vec::new(),
+        }
+    }
+}
+
+/// One stage in the ledger.
+#[derive(Debug, Clone, Serialize, Deserialize, PartialEq)]
+#[serde(deny_unknown_fields)]
+struct Record {
+    /// Fingerprint of the inputs the stage finished with; absent while its folder is being
+    /// replaced (a run killed then redoes the stage).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    inputs: Option<String>,
+    /// Fingerprint of the files in `written`.
+    outputs: String,
+    /// Every name the stage wrote in its folder, relative to it, `/`-separated, folders
+    /// ending in `/`; while the folder is being replaced, the old and the new names. A
+    /// redo removes these and nothing else.
+    written: Vec<String>,
+}
+
+/// What an output folder is before a run takes it ([`check_output_folder`]).
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum OutputFolder {
+    /// Not there yet: the run makes it.
+    Missing,
+    /// An empty folder: the run takes it.
+    Empty,
+    /// A folder a run made (its marker is there).
+    Owned,
+}
+
+/// `path` made absolute with every link and `..` of its existing part resolved, the
+/// missing rest appended lexically: what it names, to compare with other paths.
+pub fn resolved_path(path: &Path) -> PathBuf {
+    let abs = std::path::absolute(path).unwrap_or_else(|_| path.to_path_buf());
+    let mut existing = abs.as_path();
+    let mut rest = Vec::new();
+    loop {
+        if let Ok(c) = std::fs::canonicalize(existing) {
+            let mut out = c;
+            for part in rest.iter().rev() {
+                match part {
+                    std::path::Component::ParentDir => {
+                        out.pop();
+                    }
+                    std::path::Component::CurDir => {}
+                    c => out.push(c.as_os_str()),
+                }
+            }
+            return out;
+        }
+        match (existing.parent(), existing.components().next_back()) {
+            (Some(parent), Some(last)) => {
+                rest.push(last);
+                existing = parent;
+            }
+            _ => return abs,
+        }
+    }
+}
+
+fn refuse(path: &Path, message: impl Into<String>) -> StageError {
+    StageError::Output {
+        path: path.to_path_buf(),
+        message: message.into(),
+    }
+}
+
+/// Checks, changing nothing, that a run may write into `root`: not `/`, the home folder
+/// or a folder holding it, not a file, and either missing, empty or made by a run (its
+/// [`MARKER`]); a folder of anything else is refused, naming what it holds.
+pub fn check_output_folder(root: &Path) -> Result<OutputFolder, StageError> {
+    let real = resolved_path(root);
+    if real.parent().is_none() {
+        return Err(refuse(
+            root,
+            "is the root folder: give a folder of its own for the outputs",
+        ));
+    }
+    if let Some(home) = std::env::var_os("HOME").filter(|h| !h.is_empty()) {
+        let home = resolved_path(Path::new(&home));
+        if home.starts_with(&real) {
+            return Err(refuse(
+                root,
+                format!(
+                    "is the home folder {} or holds it: give a folder of its own for the outputs",
+                    home.display()
+                ),
+            ));
+        }
+    }
+    let meta = match std::fs::metadata(root) {
+        Ok(m) => m,
+        Err(e) if e.kind() == std::io::ErrorKind::NotFound => {
+            if std::fs::symlink_metadata(root).is_ok() {
+                return Err(refuse(root, "is a link to nothing"));
+            }
+            return Ok(OutputFolder::Missing);
+        }
+        Err(e) => return Err(FormatError::io(root, e).into()),
+    };
+    if !meta.is_dir() {
+        return Err(refuse(
+            root,
+            "exists and is not a folder: the output is a folder cloudcontrol makes",
+        ));
+    }
+    let marker = root.join(MARKER);
+    match std::fs::symlink_metadata(&marker) {
+        Ok(m) if m.is_file() => {
+            read_marker(&marker)?;
+            return Ok(OutputFolder::Owned);
+        }
+        Ok(_) => return Err(refuse(&marker, "is not a file cloudcontrol wrote")),
+        Err(e) if e.kind() == std::io::ErrorKind::NotFound => {}
+        Err(e) => return Err(FormatError::io(&marker, e).into()),
+    }
+    let mut names = Vec::new();
+    for e in std::fs::read_dir(root).map_err(|e| FormatError::io(root, e))? {
+        let e = e.map_err(|e| FormatError::io(root, e))?;
+        names.push(e.file_name().to_string_lossy().into_owned());
+        if names.len() > 100 {
+            break;
+        }
+    }
+    if names.is_empty() {
+        return Ok(OutputFolder::Empty);
+    }
+    names.sort();
+    let shown = names.iter().take(3).cloned().collect::<Vec<_>>().join(", ");
+    let more = if names.len() > 3 { ", …" } else { "" };
+    Err(refuse(
+        root,
+        format!(
+            "is a folder cloudcontrol did not make (no {MARKER} in it) and is not empty \
+             ({shown}{more}): a run writes only into a new or empty folder, or one an earlier \
+             run made; give another output"
+        ),
+    ))
+}
+
+fn read_marker(path: &Path) -> Result<(), StageError> {
+    use std::io::Read;
+    let mut text = Vec::new();
+    std::fs::File::open(path)
+        .and_then(|f| f.take(4096).read_to_end(&mut text))
+        .map_err(|e| FormatError::io(path, e))?;
+    match serde_json::from_slice::<Marker>(&text) {
+        Ok(m) if m.cloudcontrol_output <= OUTPUT_FORMAT => Ok(()),
+        Ok(m) => Err(refuse(
+            path,
+            format!(
+                "the folder was made by a newer cloudcontrol (output format {}; this one \
+                 writes {OUTPUT_FORMAT})",
+                m.cloudcontrol_output
+            ),
+        )),
+        Err(e) => Err(refuse(
+            path,
+            format!("is not a marker cloudcontrol wrote ({e})"),
+        )),
+    }
+}
+
+/// Every name below `dir` as a ledger lists them (relative, `/`-separated, folders ending
+/// in `/`), sorted; links are names, not followed.
+fn names_below(dir: &Path) -> Result<Vec<String>, FormatError> {
+    let mut out = Vec::new();
+    let mut stack = vec![(dir.to_path_buf(), String::new())];
+    while let Some((d, prefix)) = stack.pop() {
+        for e in std::fs::read_dir(&d).map_err(|e| FormatError::io(&d, e))? {
+            let e = e.map_err(|e| FormatError::io(&d, e))?;
+            let name = format!("{prefix}{}", e.file_name().to_string_lossy());
+            let is_dir = e
+                .file_type()
+                .map_err(|x| FormatError::io(e.path(), x))?
+                .is_dir();
+            if is_dir {
+                stack.push((e.path(), format!("{name}/")));
+                out.push(format!("{name}/"));
+            } else {
+                out.push(name);
+            }
+        }
+    }
+    out.sort();
+    Ok(out)
+}
+
+/// Fingerprint of the files a stage wrote (the output check of a skipped stage).
+fn written_fingerprint(dir: &Path, written: &[String]) -> Result<String, FormatError> {
+    let mut files: Vec<PathBuf> = written
+        .iter()
+        .filter(|w| !w.ends_with('/'))
+        .map(|w| dir.join(w))
+        .collect();
+    files.sort();
+    files
+        .into_iter()
+        .fold(Inputs::new(), |i, f| i.file(f))
+        .fingerprint()
 }
 
 /// Runs stages under one output folder.
 pub struct Runner {
     root: PathBuf,
-    /// The open output folder whose lock this run holds (released on drop).
-    _lock: std::fs::File,
+    /// The output folder's run lock (released on drop).
+    _lock: crate::formats::Lock,
     ledger: Ledger,
     /// Names of the stages skipped in this run (for logs and tests).
     pub skipped: Vec<String>,
     pub ran: Vec<String>,
 }
 
-const LEDGER: &str = "stages.json";
-
 impl Runner {
-    pub fn new(root: &Path) -> Result<Self, FormatError> {
-        std::fs::create_dir_all(root).map_err(|e| FormatError::io(root, e))?;
-        let lock = lock_folder(root)?;
-        remove_leftovers(root)?;
-        let ledger = match std::fs::read(root.join(LEDGER)) {
-            Ok(b) => serde_json::from_slice(&b).unwrap_or_default(),
-            Err(_) => Ledger::default(),
+    /// Takes `root` as a run's output folder: checks it ([`check_output_folder`]), makes
+    /// it with its marker or writes the marker into an empty one, takes its run lock
+    /// (refused with [`StageError::Busy`] while another run holds it), and removes the
+    /// temporary outputs a killed run left there.
+    pub fn new(root: &Path) -> Result<Self, StageError> {
+        let made = match check_output_folder(root)? {
+            OutputFolder::Missing => Some(crate::formats::create_folders(root)?),
+            _ => None,
         };
-        Ok(Self {
+        let taken = Self::take(root);
+        if let (Err(e), Some(m)) = (&taken, made) {
+            // This call made the folder, and nothing but its marker can be in it — unless
+            // another run took it meanwhile (busy), which is then that run's.
+            if !matches!(e, StageError::Busy { .. }) {
+                let _ = std::fs::remove_file(root.join(MARKER));
+                m.undo(false);
+            }
+        }
+        taken
+    }
+
+    fn take(root: &Path) -> Result<Self, StageError> {
+        let lock = crate::formats::Lock::exclusive(root, false)
+            .map_err(|e| FormatError::io(root, e))?
+            .ok_or_else(|| StageError::Busy {
+                path: root.to_path_buf(),
+            })?;
+        // Again under the lock: another run may have taken the folder meanwhile.
+        match check_output_folder(root)? {
+            OutputFolder::Owned => {}
+            OutputFolder::Empty => {
+                let json = serde_json::to_vec(&Marker {
+                    cloudcontrol_output: OUTPUT_FORMAT,
+                })
+                .expect("marker serialises");
+                write_bytes_atomically(&root.join(MARKER), &json)?;
+            }
+            OutputFolder::Missing => {
+                return Err(FormatError::invalid(root, "disappeared while it was taken").into())
+            }
+        }
+        let path = root.join(LEDGER);
+        let ledger = match std::fs::read(&path) {
+            Ok(b) => serde_json::from_slice::<Ledger>(&b)
+                .ok()
+                .filter(|l| l.format == OUTPUT_FORMAT)
+                .ok_or_else(|| {
+                    refuse(
+                        &path,
+                        "cannot be read as the ledger of this cloudcontrol: without it the run \
+                         cannot tell what it wrote; give another output",
+                    )
+                })?,
+            Err(e) if e.kind() == std::io::ErrorKind::NotFound => Ledger::default(),
+            Err(e) => return Err(FormatError::io(&path, e).into()),
+        };
+        let mut runner = Self {
             root: root.to_path_buf(),
             _lock: lock,
             ledger,
             skipped: Vec::new(),
             ran: Vec::new(),
-        })
+        };
+        runner.remove_leftovers()?;
+        Ok(runner)
     }
 
     /// The output folder of a stage.
     pub fn dir(&self, stage: &str) -> PathBuf {
         self.root.join(stage)
+    }
+
+    fn save(&self) -> Result<(), FormatError> {
+        let json = serde_json::to_vec_pretty(&self.ledger).expect("ledger serialises");
+        write_bytes_atomically(&self.root.join(LEDGER), &json)
     }
 
     /// Runs `work` into the stage's folder unless the stage finished before with the same
@@ -174,6 +474,10 @@ impl Runner {
 
     /// [`Runner::stage`], `work` also given the fingerprint of the stage's inputs (the key
     /// of its per-photo task results).
+    ///
+    /// A stage is redone into a temporary folder, and its old folder replaced only when it
+    /// holds nothing but names the ledger says the stage wrote: a file someone added there
+    /// stops the redo before any work, named in the error, and is never removed.
     pub fn stage_keyed(
         &mut self,
         name: &str,
@@ -182,96 +486,215 @@ impl Runner {
     ) -> Result<PathBuf, StageError> {
         let dir = self.dir(name);
         let fp = inputs.fingerprint()?;
-        if let Some((done_fp, out_fp)) = self.ledger.stages.get(name) {
-            if *done_fp == fp
+        if let Some(r) = self.ledger.stages.get(name) {
+            if r.inputs.as_deref() == Some(fp.as_str())
                 && dir.is_dir()
-                && Inputs::new().file(&dir).fingerprint().ok().as_ref() == Some(out_fp)
+                && written_fingerprint(&dir, &r.written).ok().as_ref() == Some(&r.outputs)
             {
                 tracing::info!(stage = name, "inputs unchanged, skipping");
                 self.skipped.push(name.into());
                 return Ok(dir);
             }
         }
-        let tmp = self
-            .root
-            .join(format!(".{name}.part-{}", std::process::id()));
-        if tmp.exists() {
-            std::fs::remove_dir_all(&tmp).map_err(|e| FormatError::io(&tmp, e))?;
-        }
-        std::fs::create_dir_all(&tmp).map_err(|e| FormatError::io(&tmp, e))?;
-        tracing::info!(stage = name, "running");
-        if let Err(source) = work(&tmp, &fp) {
+        self.check_replaceable(name)?;
+        let tmp = crate::formats::temporary_sibling(&dir);
+        let tmp_name = tmp
+            .file_name()
+            .map(|n| n.to_string_lossy().into_owned())
+            .unwrap_or_default();
+        // Listed before it is made, so that a killed run's is removed by the next.
+        self.ledger.temporaries.push(tmp_name.clone());
+        self.save()?;
+        let result = std::fs::create_dir(&tmp)
+            .map_err(|e| WorkError::from(FormatError::io(&tmp, e)))
+            .and_then(|()| {
+                tracing::info!(stage = name, "running");
+                work(&tmp, &fp)
+            });
+        if let Err(source) = result {
             let _ = std::fs::remove_dir_all(&tmp);
+            self.ledger.temporaries.retain(|t| *t != tmp_name);
+            let _ = self.save();
             return Err(StageError::Failed {
                 stage: name.into(),
                 source: Box::new(source),
             });
         }
-        if dir.exists() {
-            std::fs::remove_dir_all(&dir).map_err(|e| FormatError::io(&dir, e))?;
+        let installed = self.install(name, &tmp, fp);
+        self.ledger.temporaries.retain(|t| *t != tmp_name);
+        if installed.is_err() {
+            let _ = std::fs::remove_dir_all(&tmp);
         }
-        std::fs::rename(&tmp, &dir).map_err(|e| FormatError::io(&dir, e))?;
-        let out_fp = Inputs::new().file(&dir).fingerprint()?;
-        // Later stages depend on this one: their fingerprints include its outputs, so
-        // changing it invalidates them without any bookkeeping here.
-        self.ledger.stages.insert(name.into(), (fp, out_fp));
-        let json = serde_json::to_vec_pretty(&self.ledger).expect("ledger serialises");
-        write_bytes_atomically(&self.root.join(LEDGER), &json)?;
+        let saved = self.save();
+        installed?;
+        saved?;
         self.ran.push(name.into());
         Ok(dir)
     }
-}
 
-/// Takes the run lock of an output folder, refusing a folder another run holds.
-fn lock_folder(root: &Path) -> Result<std::fs::File, FormatError> {
-    let dir = std::fs::File::open(root).map_err(|e| FormatError::io(root, e))?;
-    #[cfg(unix)]
-    {
-        use std::os::unix::io::AsRawFd;
-        // SAFETY: flock on a descriptor this function owns.
-        if unsafe { libc::flock(dir.as_raw_fd(), libc::LOCK_EX | libc::LOCK_NB) } != 0 {
-            let e = std::io::Error::last_os_error();
-            if e.raw_os_error() == Some(libc::EWOULDBLOCK) {
-                return Err(FormatError::invalid(
-                    root,
-                    "another cloudcontrol run is writing this output folder; wait for it to \
-                     end or give another output",
-                ));
-            }
-            return Err(FormatError::io(root, e));
+    /// Puts a stage's finished temporary folder `tmp` in the place of its folder and
+    /// records it in the ledger (saved by the caller).
+    fn install(&mut self, name: &str, tmp: &Path, fp: String) -> Result<(), StageError> {
+        let dir = self.dir(name);
+        let written = names_below(tmp)?;
+        // The old names and the new ones are the stage's while the folder is replaced.
+        let mut both = written.clone();
+        if let Some(old) = self.ledger.stages.get(name) {
+            both.extend(old.written.iter().cloned());
+            both.sort();
+            both.dedup();
         }
+        self.ledger.stages.insert(
+            name.into(),
+            Record {
+                inputs: None,
+                outputs: String::new(),
+                written: both,
+            },
+        );
+        self.save()?;
+        // Again, now that the work is done: a file may have been added meanwhile.
+        self.check_replaceable(name)?;
+        self.remove_stage_folder(name)?;
+        std::fs::rename(tmp, &dir).map_err(|e| FormatError::io(&dir, e))?;
+        let outputs = written_fingerprint(&dir, &written)?;
+        // Later stages depend on this one: their fingerprints include its outputs, so
+        // changing it invalidates them without any bookkeeping here.
+        self.ledger.stages.insert(
+            name.into(),
+            Record {
+                inputs: Some(fp),
+                outputs,
+                written,
+            },
+        );
+        Ok(())
     }
-    Ok(dir)
+
+    /// Refuses to redo a stage whose folder holds a name the stage did not write (or that
+    /// the ledger does not list as a stage's at all), naming it.
+    fn check_replaceable(&self, name: &str) -> Result<(), StageError> {
+        let dir = self.dir(name);
+        let meta = match std::fs::symlink_metadata(&dir) {
+            Ok(m) => m,
+            Err(e) if e.kind() == std::io::ErrorKind::NotFound => return Ok(()),
+            Err(e) => return Err(FormatError::io(&dir, e).into()),
+        };
+        let Some(record) = self.ledger.stages.get(name).filter(|_| meta.is_dir()) else {
+            return Err(refuse(
+                &dir,
+                format!(
+                    "stage {name} must be written here, and this name was not written by \
+                     cloudcontrol ({LEDGER} does not list it): move it out of the output \
+                     folder and run again; cloudcontrol removes only what it wrote"
+                ),
+            ));
+        };
+        let own: std::collections::HashSet<&str> =
+            record.written.iter().map(String::as_str).collect();
+        let foreign: Vec<String> = names_below(&dir)?
+            .into_iter()
+            .filter(|n| !own.contains(n.as_str()))
+            .collect();
+        // A folder that holds a foreign name is named through that name.
+        let Some(first) = foreign.iter().find(|n| {
+            !(n.ends_with('/') && foreign.iter().any(|m| m != *n && m.starts_with(n.as_str())))
+        }) else {
+            return Ok(());
+        };
+        let others = match foreign.len() - 1 {
+            0 => String::new(),
+            n => format!(" (and {n} other name(s) it did not write)"),
+        };
+        Err(refuse(
+            &dir.join(first.trim_end_matches('/')),
+            format!(
+                "stage {name} must be redone, and this was not written by cloudcontrol{others}: \
+                 move it out of the output folder and run again; cloudcontrol removes only \
+                 what it wrote"
+            ),
+        ))
+    }
+
+    /// Removes a stage's folder by the ledger's list: its files, then its folders (each
+    /// must then be empty), then the folder itself.
+    fn remove_stage_folder(&self, name: &str) -> Result<(), StageError> {
+        let dir = self.dir(name);
+        if !dir.exists() {
+            return Ok(());
+        }
+        let written = self
+            .ledger
+            .stages
+            .get(name)
+            .map(|r| r.written.clone())
+            .unwrap_or_default();
+        let gone = |r: std::io::Result<()>, p: &Path| match r {
+            Err(e) if e.kind() != std::io::ErrorKind::NotFound => {
+                Err(StageError::from(FormatError::io(p, e)))
+            }
+            _ => Ok(()),
+        };
+        for f in written.iter().filter(|w| !w.ends_with('/')) {
+            let p = dir.join(f);
+            gone(std::fs::remove_file(&p), &p)?;
+        }
+        // Deepest first.
+        let mut folders: Vec<&String> = written.iter().filter(|w| w.ends_with('/')).collect();
+        folders.sort_by_key(|w| std::cmp::Reverse(w.matches('/').count()));
+        for f in folders
+            .into_iter()
+            .map(|f| dir.join(f))
+            .chain([dir.clone()])
+        {
+            gone(std::fs::remove_dir(&f), &f).map_err(|_| {
+                refuse(
+                    &f,
+                    "holds names cloudcontrol did not write; move them out of the output \
+                     folder and run again",
+                )
+            })?;
+        }
+        Ok(())
+    }
+
+    /// Removes the temporary outputs of runs that ended without cleaning up (killed):
+    /// under the run lock no other run can be writing them, and only names the product
+    /// writes are touched ([`is_leftover`]).
+    fn remove_leftovers(&mut self) -> Result<(), StageError> {
+        let root = &self.root;
+        for e in std::fs::read_dir(root).map_err(|e| FormatError::io(root, e))? {
+            let e = e.map_err(|e| FormatError::io(root, e))?;
+            let name = e.file_name().to_string_lossy().into_owned();
+            if !is_leftover(&name, &self.ledger.temporaries) {
+                continue;
+            }
+            let path = e.path();
+            let is_dir = e.file_type().is_ok_and(|t| t.is_dir());
+            let removed = if is_dir {
+                std::fs::remove_dir_all(&path)
+            } else {
+                std::fs::remove_file(&path)
+            };
+            removed.map_err(|e| FormatError::io(&path, e))?;
+            tracing::info!(path = %path.display(), "removed the leftover of an interrupted run");
+        }
+        if !self.ledger.temporaries.is_empty() {
+            self.ledger.temporaries.clear();
+            self.save()?;
+        }
+        Ok(())
+    }
 }
 
-/// Whether `name` is a temporary output of a run (`.NAME.part-PID[.EXT]`).
-fn is_leftover(name: &str) -> bool {
-    let Some(rest) = name.strip_prefix('.') else {
+/// Whether `name`, in an output folder, is a temporary output of a run: a temporary
+/// ([`crate::formats::parse_temporary`]) of the ledger or the marker, or a temporary stage
+/// folder the ledger lists.
+fn is_leftover(name: &str, temporaries: &[String]) -> bool {
+    let Some(t) = crate::formats::parse_temporary(name) else {
         return false;
     };
-    rest.rsplit_once(".part-").is_some_and(|(stem, tail)| {
-        let pid = tail.split('.').next().unwrap_or("");
-        !stem.is_empty() && !pid.is_empty() && pid.bytes().all(|b| b.is_ascii_digit())
-    })
-}
-
-/// Removes the temporary outputs of runs that ended without cleaning up (killed): under
-/// the run lock, no other run can be writing them.
-fn remove_leftovers(root: &Path) -> Result<(), FormatError> {
-    for e in std::fs::read_dir(root).map_err(|e| FormatError::io(root, e))? {
-        let e = e.map_err(|e| FormatError::io(root, e))?;
-        if !is_leftover(&e.file_name().to_string_lossy()) {
-            continue;
-        }
-        let path = e.path();
-        let is_dir = e.file_type().is_ok_and(|t| t.is_dir());
-        let removed = if is_dir {
-            std::fs::remove_dir_all(&path)
-        } else {
-            std::fs::remove_file(&path)
-        };
-        removed.map_err(|e| FormatError::io(&path, e))?;
-        tracing::info!(path = %path.display(), "removed the leftover of an interrupted run");
-    }
-    Ok(())
+    (t.stem == "stages" && t.rest == "json")
+        || (t.stem == MARKER && t.rest.is_empty())
+        || temporaries.iter().any(|n| n == name)
 }

@@ -2,7 +2,8 @@
 //! per-epoch summary table (or JSON).
 
 use cloudcontrol::pipeline::project::Project;
-use cloudcontrol::pipeline::run::{run_project, Event, RunSummary};
+use cloudcontrol::pipeline::run::{check_output, run_project, Event, RunError, RunSummary};
+use cloudcontrol::pipeline::stages::{OutputFolder, StageError};
 use cloudcontrol::pipeline::{demo, report::EpochReport};
 use cloudcontrol::synth::Preset;
 use indicatif::{ProgressBar, ProgressStyle};
@@ -124,13 +125,27 @@ fn row(e: &EpochReport) {
     );
 }
 
-/// Exit code 2: the project file is invalid and nothing ran; 1: a stage failed.
+/// Exit code 2: the project file is invalid, or its output folder is not a run's to write,
+/// and nothing ran; 1: a stage failed, or another run is writing the output folder.
 pub fn run(a: &RunArgs, json: bool, quiet: bool) -> Result<(), (u8, String)> {
     let project = Project::load(&a.project).map_err(|e| (2, e.to_string()))?;
+    let refused = |e: RunError| {
+        let code = match &e {
+            RunError::Stage(StageError::Output { .. }) => 2,
+            _ => 1,
+        };
+        (code, e.to_string())
+    };
     if a.check {
+        let state = check_output(&project).map_err(refused)?;
         if !quiet {
+            let what = match state {
+                OutputFolder::Missing => "made by the run",
+                OutputFolder::Empty => "empty, taken by the run",
+                OutputFolder::Owned => "made by an earlier run",
+            };
             println!(
-                "{}: valid; {} archive epoch(s), output {}",
+                "{}: valid; {} archive epoch(s), output {} ({what})",
                 a.project.display(),
                 project.archive.len(),
                 project.output.display()
@@ -139,7 +154,7 @@ pub fn run(a: &RunArgs, json: bool, quiet: bool) -> Result<(), (u8, String)> {
         return Ok(());
     }
     let mut on_event = progress(quiet || json);
-    let s = run_project(&project, &mut on_event, None).map_err(|e| (1, e.to_string()))?;
+    let s = run_project(&project, &mut on_event, None).map_err(refused)?;
     if !quiet || json {
         print_summary(&s, json);
     }
