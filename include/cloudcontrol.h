@@ -32,6 +32,10 @@ typedef enum CcpStatus {
   // A handle (or a string to free) that is not live: freed already, of another handle
   // type, or never made by this library. Nothing was done with it.
   CCP_STATUS_INVALID_HANDLE = 10,
+  // The destination is held by another call: a run (`ccp_project_run`,
+  // `ccp_project_plan`) is writing the same output folder, in this process or another.
+  // Nothing was done; call again once it ended, or give another output.
+  CCP_STATUS_BUSY = 11,
   CCP_STATUS_PANIC = 99,
 } CcpStatus;
 
@@ -679,7 +683,10 @@ enum CcpStatus ccp_photo_orientation_free(struct CcpPhotoOrientation *orientatio
 // stages whose inputs did not change are skipped — and returns in `*out_json` a
 // NUL-terminated JSON object `{"output", "ran", "skipped", "products", "report"}`, owned by
 // the library: release it with `ccp_string_free`. An invalid project file fails before
-// any work with `CCP_STATUS_INVALID_ARGUMENT` and a message naming the key.
+// any work with `CCP_STATUS_INVALID_ARGUMENT` and a message naming the key, and so does an
+// `output` a run may not write (`/`, the home folder, a file, a folder cloudcontrol did
+// not make, an input's folder; formats/project/README.md, "The output folder"). While
+// another run writes the same output folder, the call returns `CCP_STATUS_BUSY` at once.
 enum CcpStatus ccp_project_run(const char *project_path, char **out_json);
 
 // Runs the project file `project_path` as `ccp_project_run` does, except that the
@@ -688,7 +695,8 @@ enum CcpStatus ccp_project_run(const char *project_path, char **out_json);
 // with unfinished tasks and `*out_json` is `{"pending": {"stage": S, "tasks": [T, ...]}}`.
 // Run every task with `ccp_task_run` (in any process that sees the output folder), then
 // call again; when nothing is pending, `*out_json` is the summary `ccp_project_run`
-// gives. Release the string with `ccp_string_free`.
+// gives. Release the string with `ccp_string_free`. It fails as `ccp_project_run` does
+// (`CCP_STATUS_BUSY` while another run writes the output folder).
 enum CcpStatus ccp_project_plan(const char *project_path, char **out_json);
 
 // Runs one task that `ccp_project_plan` returned (`task_json`: the task object as given)

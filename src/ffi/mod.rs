@@ -67,6 +67,10 @@ pub enum CcpStatus {
     /// A handle (or a string to free) that is not live: freed already, of another handle
     /// type, or never made by this library. Nothing was done with it.
     InvalidHandle = 10,
+    /// The destination is held by another call: a run (`ccp_project_run`,
+    /// `ccp_project_plan`) is writing the same output folder, in this process or another.
+    /// Nothing was done; call again once it ended, or give another output.
+    Busy = 11,
     Panic = 99,
 }
 

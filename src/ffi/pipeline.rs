@@ -4,21 +4,32 @@
 use super::{guard, CcpStatus, FfiError};
 use crate::pipeline::project::{Project, ProjectError};
 use crate::pipeline::run::{run_project, run_project_with, RunError};
-use crate::pipeline::stages::WorkError;
+use crate::pipeline::stages::{StageError, WorkError};
 use crate::pipeline::tasks::{self, Task, TaskMode};
 use std::ffi::{c_char, CString};
 use std::path::PathBuf;
 
 impl From<RunError> for FfiError {
     fn from(e: RunError) -> Self {
-        let status = match &e {
+        let message = e.to_string();
+        let status = match e {
             RunError::Project(ProjectError::Io { .. }) => CcpStatus::Io,
             RunError::Project(_) => CcpStatus::InvalidArgument,
-            RunError::Stage(_) | RunError::Stopped(_) => CcpStatus::Numeric,
-            // Only a planning run ends so, and it returns the tasks instead.
-            RunError::Pending { .. } => CcpStatus::Numeric,
+            // Another run writes the output folder.
+            RunError::Stage(StageError::Busy { .. }) => CcpStatus::Busy,
+            // The output folder is not a run's to write (the project's `output`).
+            RunError::Stage(StageError::Output { .. }) => CcpStatus::InvalidArgument,
+            RunError::Stage(StageError::Format(f)) => FfiError::from(f).status,
+            RunError::Stage(StageError::Failed { source, .. }) => match *source {
+                WorkError::Format(f) => FfiError::from(f).status,
+                WorkError::Inconsistent(_) => CcpStatus::InvalidArgument,
+                _ => CcpStatus::Numeric,
+            },
+            // Not reached through the C ABI: it never stops a run early, and a planning
+            // run returns its pending tasks instead.
+            RunError::Stopped(_) | RunError::Pending { .. } => CcpStatus::Numeric,
         };
-        FfiError::new(status, e.to_string())
+        FfiError::new(status, message)
     }
 }
 
@@ -26,7 +37,10 @@ impl From<RunError> for FfiError {
 /// stages whose inputs did not change are skipped — and returns in `*out_json` a
 /// NUL-terminated JSON object `{"output", "ran", "skipped", "products", "report"}`, owned by
 /// the library: release it with `ccp_string_free`. An invalid project file fails before
-/// any work with `CCP_STATUS_INVALID_ARGUMENT` and a message naming the key.
+/// any work with `CCP_STATUS_INVALID_ARGUMENT` and a message naming the key, and so does an
+/// `output` a run may not write (`/`, the home folder, a file, a folder cloudcontrol did
+/// not make, an input's folder; formats/project/README.md, "The output folder"). While
+/// another run writes the same output folder, the call returns `CCP_STATUS_BUSY` at once.
 #[no_mangle]
 pub unsafe extern "C" fn ccp_project_run(
     project_path: *const c_char,
@@ -66,7 +80,8 @@ unsafe fn hand_out_json(v: &serde_json::Value, out_json: *mut *mut c_char) -> Re
 /// with unfinished tasks and `*out_json` is `{"pending": {"stage": S, "tasks": [T, ...]}}`.
 /// Run every task with `ccp_task_run` (in any process that sees the output folder), then
 /// call again; when nothing is pending, `*out_json` is the summary `ccp_project_run`
-/// gives. Release the string with `ccp_string_free`.
+/// gives. Release the string with `ccp_string_free`. It fails as `ccp_project_run` does
+/// (`CCP_STATUS_BUSY` while another run writes the output folder).
 #[no_mangle]
 pub unsafe extern "C" fn ccp_project_plan(
     project_path: *const c_char,
