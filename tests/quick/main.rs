@@ -35,6 +35,7 @@ mod formats_workflow;
 mod geometry;
 mod hostile_files;
 mod hostile_inputs;
+mod hostile_outputs;
 mod hostile_memory;
 mod hostile_packages;
 mod hostile_references;
