@@ -62,7 +62,7 @@ impl EpochCamera {
         let json: serde_json::Value =
             serde_json::from_str(&text).map_err(|e| input_err(path, format!("not JSON: {e}")))?;
         if json.get("fiducials").is_some() {
-            let dir = path.parent().unwrap_or(Path::new("."));
+            let dir = crate::formats::paths::folder_of(path);
             return CameraDefinition::from_json(json, dir)
                 .map(Self::Film)
                 .map_err(|e| input_err(path, e));

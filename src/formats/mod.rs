@@ -13,6 +13,7 @@ pub mod image_open;
 pub mod input;
 pub mod odm_gcp;
 pub mod ortho;
+pub mod paths;
 pub mod pos;
 pub mod raster;
 

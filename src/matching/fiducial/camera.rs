@@ -68,7 +68,7 @@ impl CameraDefinition {
         let text = crate::formats::input::read_text(path, crate::formats::input::Cap::camera())
             .map_err(|e| in_file(e.detail()))?;
         let json = serde_json::from_str(&text).map_err(|e| in_file(e.to_string()))?;
-        Self::from_json(json, path.parent().unwrap_or(Path::new("."))).map_err(in_file)
+        Self::from_json(json, crate::formats::paths::folder_of(path)).map_err(in_file)
     }
 
     /// A camera definition from its JSON, validated, with template marks' image files read
