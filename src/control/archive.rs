@@ -234,10 +234,27 @@ pub fn first_pass(input: &EpochInput, ctx: &ArchiveContext, dem: &Dem) -> FirstP
         EpochCamera::Film(def) => Some(ScanCameras::measure(def, &input.photos, ctx.io_options())),
         EpochCamera::Frame(_) => None,
     };
+    // Each photo's end as a progress event (target `cloudcontrol::progress`, as the
+    // pipeline's tasks and rounds give them: the CLI's per-photo progress).
+    let (span, done) = (
+        tracing::Span::current(),
+        std::sync::atomic::AtomicUsize::new(0),
+    );
     let outcomes = input
         .photos
         .par_iter()
-        .map(|ph| ctx.orient(ph, &input.camera, dem, scans.as_ref()))
+        .map(|ph| {
+            let _in = span.enter();
+            let o = ctx.orient(ph, &input.camera, dem, scans.as_ref());
+            tracing::info!(
+                target: "cloudcontrol::progress",
+                work = "orient",
+                item = %ph.name,
+                done = done.fetch_add(1, std::sync::atomic::Ordering::Relaxed) + 1,
+                total = input.photos.len(),
+            );
+            o
+        })
         .collect();
     FirstPass { scans, outcomes }
 }

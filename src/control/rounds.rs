@@ -23,6 +23,7 @@ use rayon::prelude::*;
 use serde::de::DeserializeOwned;
 use serde::{Deserialize, Serialize};
 use std::collections::BTreeMap;
+use std::sync::atomic::{AtomicUsize, Ordering};
 
 /// What a photo's work in a round reads besides the round: the epoch's inputs and
 /// options, the same in every process.
@@ -107,10 +108,37 @@ impl EpochRounds for InMemory {
     type Error = EpochError;
 
     fn run<R: Round>(&self, round: &R, env: &EpochEnv) -> Result<Vec<R::Output>, EpochError> {
-        Ok((0..round.photos().len())
+        // Each photo in the caller's span (its epoch), and its end as a progress event
+        // (target `cloudcontrol::progress`: the CLI's per-photo progress).
+        let (photos, span, done) = (
+            round.photos(),
+            tracing::Span::current(),
+            AtomicUsize::new(0),
+        );
+        Ok((0..photos.len())
             .into_par_iter()
-            .map(|k| round.run(k, env))
+            .map(|k| {
+                let _in = span.enter();
+                let out = round.run(k, env);
+                tracing::info!(
+                    target: "cloudcontrol::progress",
+                    work = round_label(R::KIND),
+                    item = %env.input.photos.get(photos[k]).map_or("", |p| p.name.as_str()),
+                    done = done.fetch_add(1, Ordering::Relaxed) + 1,
+                    total = photos.len(),
+                );
+                out
+            })
             .collect())
+    }
+}
+
+/// A round's work as its progress events name it.
+fn round_label(kind: RoundKind) -> &'static str {
+    match kind {
+        RoundKind::Cut => "cut",
+        RoundKind::Match => "match",
+        RoundKind::Reorient => "reorient",
     }
 }
 

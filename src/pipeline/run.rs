@@ -694,6 +694,10 @@ fn run_stages(
         dcp_dirs.push(ddir);
     }
     for (k, e) in epochs.iter().enumerate() {
+        // Every log line of the epoch's stages names it; at ERROR level, so that every
+        // filter that lets a line through keeps its epoch (an INFO span is off at the
+        // default WARN level).
+        let _epoch = tracing::error_span!("epoch", name = %e.name).entered();
         let mut inputs = Inputs::new()
             .file(&sources)
             .file(&e.photos)
@@ -945,6 +949,7 @@ fn run_stages(
     let mut ortho_preview: Option<OrthoPreview> = None;
     if want_outputs {
         for (k, e) in epochs.iter().enumerate() {
+            let _epoch = tracing::error_span!("epoch", name = %e.name).entered();
             let edir = epoch_dirs[k].clone();
             // The camera definition gives a film epoch's format (its frame images).
             let odir = stage!(

@@ -40,6 +40,7 @@ use crate::matching::ScanOrientation;
 use rayon::prelude::*;
 use serde::{Deserialize, Serialize};
 use std::path::{Path, PathBuf};
+use std::sync::atomic::{AtomicUsize, Ordering};
 use std::sync::{Arc, Mutex};
 
 /// What a task does.
@@ -275,7 +276,26 @@ impl StageTasks {
         }
         match mode {
             TaskMode::Plan => Err(WorkError::Pending(missing)),
-            TaskMode::InProcess => missing.par_iter().map(|t| exec(t).map(|_| ())).collect(),
+            TaskMode::InProcess => {
+                // Each task in the caller's span (its epoch), and its end as a progress
+                // event (target `cloudcontrol::progress`: the CLI's per-photo progress).
+                let (span, done) = (tracing::Span::current(), AtomicUsize::new(0));
+                missing
+                    .par_iter()
+                    .map(|t| {
+                        let _in = span.enter();
+                        exec(t)?;
+                        tracing::info!(
+                            target: "cloudcontrol::progress",
+                            work = t.kind.label(),
+                            item = %t.item,
+                            done = done.fetch_add(1, Ordering::Relaxed) + 1,
+                            total = missing.len(),
+                        );
+                        Ok(())
+                    })
+                    .collect()
+            }
         }
     }
 
