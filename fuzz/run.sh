@@ -57,6 +57,9 @@ target_flags() {
     case "$1" in
         # LAS/LAZ: the seeds are 40-point files (< 4 KB); the fixed reproducers reach 18 KB.
         las) echo "-max_len=20000" ;;
+        # Images: the seeds are < 7 KB; a decoder's cost is per pixel, and a bomb (a small
+        # file claiming a large image) fits in 8 KB.
+        image_decode) echo "-max_len=8192" ;;
     esac
 }
 

@@ -20,6 +20,8 @@ use cloudcontrol::matching::fiducial::{
 };
 use cloudcontrol::matching::GreyImage;
 use cloudcontrol::pipeline::project::Project;
+use cloudcontrol::pipeline::run::check_output;
+use cloudcontrol::pipeline::stages::MARKER;
 use cloudcontrol::pipeline::tasks::read_task_file;
 use nalgebra::{Matrix2, Vector2};
 use sha2::{Digest, Sha256};
@@ -589,8 +591,8 @@ enum Entry {
     /// A symbolic link to nothing.
     Dangling,
     Fifo,
-    /// A folder holding `.cloudcontrol-output`, the content member (the marker a run's
-    /// output folder will carry).
+    /// A folder a run made: its marker file (`pipeline::stages::MARKER`) holding the
+    /// content member.
     RunDir,
 }
 
@@ -685,7 +687,7 @@ pub fn lay_out_project(dir: &Path, layout: &[u8], content: &[u8]) {
             }
             Entry::RunDir => {
                 std::fs::create_dir(&p).expect("scratch folder made");
-                put(&p.join(".cloudcontrol-output"), content);
+                put(&p.join(MARKER), content);
             }
             Entry::LinkToFile => link(&dir.join("content"), &p),
             Entry::LinkLoop => link(&p, &p),
@@ -706,7 +708,8 @@ fn link(target: &Path, at: &Path) {
 }
 
 /// A project file through the checks `cloudcontrol run --check` makes (src/bin/cloudcontrol/
-/// run.rs: `Project::load`, its parse, paths and validation), in a folder where each path the project may name
+/// run.rs: `Project::load`, its parse, paths and validation, then `check_output`, whether
+/// a run may write its output folder), in a folder where each path the project may name
 /// is present or not, a file, a folder, a link, a FIFO or a run's output folder:
 /// project.toml, the layout and the files' content by [`members`] ([`lay_out_project`]).
 /// tests/fuzz_replay.rs checks that the CLI accepts exactly the seeds this target does.
@@ -723,7 +726,10 @@ fn project_check_reads(data: &[u8]) -> bool {
     };
     let path = dir.join("project.toml");
     put(&path, toml);
-    Project::load(&path).is_ok()
+    match Project::load(&path) {
+        Ok(project) => check_output(&project).is_ok(),
+        Err(_) => false,
+    }
 }
 
 /// An image header (PNG, TIFF, JPEG): the size query DCP chips and photos go through.
