@@ -36,6 +36,11 @@ typedef enum CcpStatus {
   // `ccp_project_plan`) is writing the same output folder, in this process or another.
   // Nothing was done; call again once it ended, or give another output.
   CCP_STATUS_BUSY = 11,
+  // The call did its work, but its result is incomplete: a run in which an epoch
+  // oriented fewer photos than it has. Its outputs are set as on success (the summary
+  // JSON, whose `partial` lists each such epoch with its photos and reasons; release it
+  // as usual) and the last error says which epoch, how many and why.
+  CCP_STATUS_PARTIAL = 12,
   CCP_STATUS_PANIC = 99,
 } CcpStatus;
 
@@ -681,8 +686,12 @@ enum CcpStatus ccp_photo_orientation_free(struct CcpPhotoOrientation *orientatio
 
 // Runs the project file `project_path` (TOML, formats/project/) — restartable: finished
 // stages whose inputs did not change are skipped — and returns in `*out_json` a
-// NUL-terminated JSON object `{"output", "ran", "skipped", "products", "report"}`, owned by
-// the library: release it with `ccp_string_free`. An invalid project file fails before
+// NUL-terminated JSON object `{"output", "ran", "skipped", "products", "partial",
+// "report"}`, owned by the library: release it with `ccp_string_free`. A run in which an
+// epoch oriented fewer photos than it has returns `CCP_STATUS_PARTIAL` with `*out_json`
+// set all the same (its `partial` lists each such epoch: `epoch`, `oriented`, `total`,
+// `not_oriented` photos with their reasons) and the last error saying so. An invalid
+// project file fails before
 // any work with `CCP_STATUS_INVALID_ARGUMENT` and a message naming the key, and so does an
 // `output` a run may not write (`/`, the home folder, a file, a folder cloudcontrol did
 // not make, an input's folder; formats/project/README.md, "The output folder"). While
@@ -695,8 +704,9 @@ enum CcpStatus ccp_project_run(const char *project_path, char **out_json);
 // with unfinished tasks and `*out_json` is `{"pending": {"stage": S, "tasks": [T, ...]}}`.
 // Run every task with `ccp_task_run` (in any process that sees the output folder), then
 // call again; when nothing is pending, `*out_json` is the summary `ccp_project_run`
-// gives. Release the string with `ccp_string_free`. It fails as `ccp_project_run` does
-// (`CCP_STATUS_BUSY` while another run writes the output folder).
+// gives (with the status `CCP_STATUS_PARTIAL` when it is partial). Release the string
+// with `ccp_string_free`. It fails as `ccp_project_run` does (`CCP_STATUS_BUSY` while
+// another run writes the output folder).
 enum CcpStatus ccp_project_plan(const char *project_path, char **out_json);
 
 // Runs one task that `ccp_project_plan` returned (`task_json`: the task object as given)

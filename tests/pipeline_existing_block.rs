@@ -14,7 +14,7 @@ use std::path::{Path, PathBuf};
 use std::process::Command;
 
 mod common;
-use common::{block_copy, epoch, exe, px};
+use common::{block_copy, epoch, exe, finished, px};
 
 /// The synthetic block's project with its reference replaced by `block` (a table body),
 /// writing into `output`.
@@ -88,7 +88,7 @@ fn an_existing_block_controls_the_archive_epochs_as_our_own_reference_does() {
         .arg(blk.join("project.toml"))
         .output()
         .unwrap();
-    assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+    assert!(finished(&o), "{}", String::from_utf8_lossy(&o.stderr));
     let run = tmp.path().join("run");
     let ours = report_of(&run);
     let xml = run.join("outputs-reference_2024/blocks_exchange.xml");
@@ -105,7 +105,7 @@ fn an_existing_block_controls_the_archive_epochs_as_our_own_reference_does() {
         .arg(&project)
         .output()
         .unwrap();
-    assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+    assert!(finished(&o), "{}", String::from_utf8_lossy(&o.stderr));
     let run_bx = blk.join("run_bx");
     let theirs = report_of(&run_bx);
     let existing: Value = serde_json::from_slice(

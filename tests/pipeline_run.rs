@@ -298,7 +298,15 @@ fn an_epoch_without_an_oriented_photo_does_not_stop_the_run() {
         .arg(blk.join("project.toml"))
         .output()
         .unwrap();
-    assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+    // The run finishes partial (exit 3), saying which epoch, how many and why.
+    let err = String::from_utf8_lossy(&o.stderr);
+    assert_eq!(o.status.code(), Some(common::EXIT_PARTIAL), "{err}");
+    assert!(
+        err.contains("epoch film_1978: 0 of ") && err.contains(": image "),
+        "{err}"
+    );
+    let summary = json_of(&o);
+    assert_eq!(summary["partial"][0]["epoch"], "film_1978", "{summary}");
     let run = tmp.path().join("run");
     let film: Value =
         serde_json::from_slice(&std::fs::read(run.join("epoch-film_1978/result.json")).unwrap())
@@ -313,6 +321,16 @@ fn an_epoch_without_an_oriented_photo_does_not_stop_the_run() {
     let skipped: Value =
         serde_json::from_slice(&std::fs::read(out.join("skipped.json")).unwrap()).unwrap();
     assert_eq!(skipped["orthophoto"], "no photo of the epoch was oriented");
+    // No empty model is written, nor listed among the products.
+    for model in ["colmap", "blocks_exchange"] {
+        assert_eq!(skipped[model], "no photo of the epoch was oriented");
+    }
+    assert!(!out.join("colmap").exists() && !out.join("blocks_exchange.xml").exists());
+    let listed = summary["products"]["film_1978"].to_string();
+    assert!(
+        !listed.contains("colmap") && !listed.contains("blocks_exchange"),
+        "{listed}"
+    );
     assert!(!out.join("orthophoto.tif").exists() && out.join("lidar_dem.tif").is_file());
     assert!(run.join("report/report.html").is_file());
     assert!(run.join("outputs-reference_2024/orthophoto.tif").is_file());

@@ -200,7 +200,8 @@ pub struct EpochInput {
 impl EpochInput {
     /// The one way from an epoch's specification to its input: photos of the folder,
     /// camera file, navigation file; every photo named in the navigation must be a photo
-    /// of the folder (by file name or stem), and at least one photo must be navigated.
+    /// of the folder (by file name or stem), and every photo of the folder must have its
+    /// row in the navigation.
     pub fn build(spec: &EpochSpec, crs: &str, origin: [f64; 3]) -> Result<Self, EpochError> {
         let photos = PhotoInput::from_folder(&spec.photos)?;
         let camera = EpochCamera::load(&spec.camera)?;
@@ -225,6 +226,28 @@ impl EpochInput {
                 nav_file,
                 format!(
                     "photo {n:?} is not in {} (photos are matched by file name or stem)",
+                    spec.photos.display()
+                ),
+            ));
+        }
+        // A photo without a row would be left out of the epoch without its
+        // approximate orientation: refused here, before any work, naming it (a photo not to
+        // orient is moved out of the folder; formats/pos/README.md).
+        let listed: std::collections::BTreeSet<&str> =
+            navigation.names().into_iter().map(pos::photo_key).collect();
+        if let Some(p) = photos.iter().find(|p| !listed.contains(p.name.as_str())) {
+            return Err(input_err(
+                nav_file,
+                format!(
+                    "photo {} ({}) has no row: every photo of the folder needs its {} (add \
+                     the row, or move the photo out of {})",
+                    p.name,
+                    p.image.display(),
+                    if spec.pos.is_some() {
+                        "POS row"
+                    } else {
+                        "strip row"
+                    },
                     spec.photos.display()
                 ),
             ));

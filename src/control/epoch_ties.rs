@@ -342,6 +342,55 @@ impl Round for CutRound {
                 .collect(),
         }
     }
+
+    fn check_file(&self, photos: usize) -> Result<(), String> {
+        use super::task_checks as c;
+        c::at_most("chip half size", self.half, MAX_CUT_HALF)?;
+        if let Some(i) = &self.interest {
+            if !(i.cell.is_finite() && i.cell > 0.0) {
+                return Err(format!("interest cell = {} px is not a cell size", i.cell));
+            }
+            for (cam, pose) in i.footprints.iter().flatten() {
+                c::camera("footprint camera", cam)?;
+                c::pose("footprint pose", pose)?;
+            }
+        }
+        for j in &self.jobs {
+            c::index("photo", j.photo, photos)?;
+            c::camera("camera", &j.camera)?;
+            c::pose("pose", &j.pose)?;
+            for px in &j.at {
+                c::finite("chip pixel", px)?;
+            }
+        }
+        Ok(())
+    }
+
+    fn check_output(&self, k: usize, o: &CutOutput) -> Result<(), String> {
+        use super::task_checks as c;
+        let asked = self.jobs.get(k).map_or(0, |j| j.at.len());
+        // An image that could not be read gives nothing at all.
+        if o.at.len() != asked && !(o.at.is_empty() && o.points.is_empty()) {
+            return Err(format!("{} chips for {asked} pixels asked", o.at.len()));
+        }
+        for v in o.at.iter().flatten() {
+            c::chip_view("chip", v)?;
+        }
+        for p in o.points.on_dem.iter().chain(&o.points.beyond) {
+            c::control_point("tie point", p)?;
+        }
+        Ok(())
+    }
+}
+
+/// Largest chip half size a cut round may ask for (px): chips are 2·half + 1 a side, the
+/// patches and tie windows of the workflow a few hundred pixels at most.
+const MAX_CUT_HALF: usize = 2048;
+
+impl PhotoPoints {
+    fn is_empty(&self) -> bool {
+        self.on_dem.is_empty() && self.beyond.is_empty()
+    }
 }
 
 /// Tie points beyond the DEM, intersected: each point is searched in the other oriented
@@ -706,6 +755,50 @@ impl Round for MatchRound {
             }
         }
         out
+    }
+
+    fn check_file(&self, photos: usize) -> Result<(), String> {
+        use super::task_checks as c;
+        self.check()?;
+        for &b in &self.photos {
+            c::index("photo", b, photos)?;
+        }
+        for (cam, pose) in self.views.iter().flatten() {
+            c::camera("view camera", cam)?;
+            c::pose("view pose", pose)?;
+        }
+        if let Some(b) = self.band {
+            c::finite("band", &[b.lo, b.hi])?;
+            if b.lo > b.hi {
+                return Err(format!("band [{}, {}] is empty", b.lo, b.hi));
+            }
+        }
+        for p in &self.store.points {
+            c::control_point("store point", p)?;
+        }
+        for (_, (x, obs)) in &self.tracks {
+            c::point("track position", x)?;
+            for o in obs {
+                c::finite("track observation pixel", &o.pixel)?;
+                c::sigma("track observation σ", o.sigma_px)?;
+            }
+        }
+        Ok(())
+    }
+
+    fn check_output(&self, _k: usize, v: &Self::Output) -> Result<(), String> {
+        use super::task_checks as c;
+        for (t, px, s) in v {
+            if self.ids.is_empty() {
+                c::index("track", *t, self.tracks.len())?;
+            } else if !self.ids.contains(t) {
+                return Err(format!("track {t} is not a track of the round's part"));
+            }
+            c::pixel("track pixel", px)?;
+            c::finite("track σ", &[*s])?;
+            c::sigma("track σ", *s)?;
+        }
+        Ok(())
     }
 }
 

@@ -34,6 +34,7 @@ pub mod reference;
 pub mod rounds;
 pub mod scan_cameras;
 pub mod strips;
+pub mod task_checks;
 
 pub use dcp::{DcpError, DcpIndex, DcpPackage, Manifest};
 pub use epoch::{EpochError, EpochInput, EpochSpec};

@@ -103,7 +103,8 @@ pub struct PhotoReport {
     pub tie_pass: bool,
 }
 
-/// A film scan's fiducial interior orientation, as reported.
+/// A film scan's fiducial interior orientation, as reported (`matching::IoResult` without
+/// the marks; the fields after `pixel_source` are absent, 0 or `null`, in older files).
 #[derive(Debug, Clone, Serialize, Deserialize)]
 pub struct ScanIo {
     /// RMS of the fiducial marks after the affine fit (µm).
@@ -112,6 +113,30 @@ pub struct ScanIo {
     pub pixel_um: f64,
     /// Where it came from: given in the epoch, or estimated (and from what).
     pub pixel_source: String,
+    /// Pixel size the fitted transform measures (µm): the marks' own scale.
+    #[serde(default)]
+    pub measured_pixel_um: Option<f64>,
+    /// Marks measured and used in the transform, of the camera's marks.
+    #[serde(default)]
+    pub marks_used: usize,
+    #[serde(default)]
+    pub marks_total: usize,
+    /// Largest residual of a used mark (µm).
+    #[serde(default)]
+    pub max_residual_um: Option<f64>,
+    /// The scan orientation taken, how it was decided, and its margin (cost of the best
+    /// other orientation over this one's).
+    #[serde(default)]
+    pub orientation: Option<crate::matching::ScanOrientation>,
+    #[serde(default)]
+    pub orientation_source: String,
+    #[serde(default)]
+    pub orientation_margin: Option<f64>,
+    #[serde(default)]
+    pub orientation_ambiguous: bool,
+    /// The interior orientation's warnings (`matching::IoResult::warnings`).
+    #[serde(default)]
+    pub warnings: Vec<String>,
 }
 
 /// The orientation of one photo: the resected pose with its covariance and the matches
@@ -154,6 +179,43 @@ impl PhotoReport {
 }
 
 impl PhotoOrientation {
+    /// Checks an orientation read back from a task file ([`super::task_checks`]): pose,
+    /// camera and numbers sane, covariance finite when oriented, and every match's point
+    /// index below `points` (the store it indexes).
+    pub fn check(&self, points: usize) -> Result<(), String> {
+        use super::task_checks as c;
+        let r = &self.report;
+        c::sigma("sigma_px", r.sigma_px)?;
+        if let Some(io) = &r.io {
+            c::sigma("io.rmse_um", io.rmse_um)?;
+            if !(io.pixel_um.is_finite() && io.pixel_um > 0.0) {
+                return Err(format!("io.pixel_um = {} is not a pixel size", io.pixel_um));
+            }
+        }
+        for it in &r.iterations {
+            c::sigma("iterations[].success_ratio", it.success_ratio)?;
+            c::sigma("iterations[].mean_window_px", it.mean_window_px)?;
+        }
+        if let Some(cam) = &self.camera {
+            c::camera("camera", cam)?;
+        }
+        c::pose("pose", &self.pose)?;
+        if r.oriented {
+            c::covariance("covariance", &self.covariance)?;
+        }
+        for (i, px, s) in &self.matches {
+            c::index("match of point", *i, points)?;
+            c::pixel("match pixel", px)?;
+            c::finite("match σ", &[*s])?;
+            c::sigma("match σ", *s)?;
+        }
+        for (a, b) in &self.first_round {
+            c::pixel("first-round prediction", a)?;
+            c::pixel("first-round match", b)?;
+        }
+        Ok(())
+    }
+
     fn failed(name: &str, pose: Pose, reason: PhotoFailure) -> Self {
         Self {
             report: PhotoReport::without_patches(name, Some(reason), f64::NAN),

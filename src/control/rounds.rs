@@ -92,6 +92,13 @@ pub trait Round: Serialize + DeserializeOwned + Sync {
     fn failure(_output: &Self::Output) -> Option<String> {
         None
     }
+    /// Checks the round as a process read it from its task file, for an epoch of
+    /// `photos` photos: photo indices in range, cameras, poses and sizes sane
+    /// ([`super::task_checks`]). Says what is wrong; the reader names the file.
+    fn check_file(&self, photos: usize) -> Result<(), String>;
+    /// Checks the output of the round's `k`-th photo as read back from its task file:
+    /// what the epoch indexes with it in range, its numbers finite.
+    fn check_output(&self, k: usize, output: &Self::Output) -> Result<(), String>;
 }
 
 /// Where an epoch's rounds run.
@@ -180,5 +187,26 @@ impl Round for OrientRound {
 
     fn failure(o: &PhotoOrientation) -> Option<String> {
         o.report.reason.as_ref().map(|r| r.to_string())
+    }
+
+    fn check_file(&self, photos: usize) -> Result<(), String> {
+        use super::task_checks as c;
+        for &n in &self.photos {
+            c::index("photo", n, photos)?;
+        }
+        c::at_most("known poses", self.known.len(), self.photos.len())?;
+        for k in &self.known {
+            c::camera("known camera", &k.camera)?;
+            c::pose("known pose", &k.pose)?;
+            c::covariance("known covariance", &k.covariance)?;
+        }
+        for p in &self.store.points {
+            c::control_point("store point", p)?;
+        }
+        Ok(())
+    }
+
+    fn check_output(&self, _k: usize, o: &PhotoOrientation) -> Result<(), String> {
+        o.check(self.store.points.len())
     }
 }

@@ -172,10 +172,24 @@ fn candidates(
 }
 
 fn scan_io(r: &IoResult) -> ScanIo {
+    let finite = |v: f64| v.is_finite().then_some(v);
+    let used = r.marks.iter().filter(|m| m.used);
     ScanIo {
         rmse_um: r.rmse_um,
         pixel_um: r.pixel_um,
         pixel_source: r.pixel_source.clone(),
+        measured_pixel_um: finite(r.pixel_mm * 1000.0),
+        marks_used: used.clone().count(),
+        marks_total: r.marks.len(),
+        max_residual_um: used
+            .map(|m| m.residual_norm_um)
+            .filter(|v| v.is_finite())
+            .reduce(f64::max),
+        orientation: Some(r.orientation),
+        orientation_source: r.orientation_source.clone(),
+        orientation_margin: finite(r.orientation_margin),
+        orientation_ambiguous: r.orientation_ambiguous,
+        warnings: r.warnings.clone(),
     }
 }
 

@@ -71,6 +71,11 @@ pub enum CcpStatus {
     /// `ccp_project_plan`) is writing the same output folder, in this process or another.
     /// Nothing was done; call again once it ended, or give another output.
     Busy = 11,
+    /// The call did its work, but its result is incomplete: a run in which an epoch
+    /// oriented fewer photos than it has. Its outputs are set as on success (the summary
+    /// JSON, whose `partial` lists each such epoch with its photos and reasons; release it
+    /// as usual) and the last error says which epoch, how many and why.
+    Partial = 12,
     Panic = 99,
 }
 

@@ -20,11 +20,8 @@ impl From<RunError> for FfiError {
             // The output folder is not a run's to write (the project's `output`).
             RunError::Stage(StageError::Output { .. }) => CcpStatus::InvalidArgument,
             RunError::Stage(StageError::Format(f)) => FfiError::from(f).status,
-            RunError::Stage(StageError::Failed { source, .. }) => match *source {
-                WorkError::Format(f) => FfiError::from(f).status,
-                WorkError::Inconsistent(_) => CcpStatus::InvalidArgument,
-                _ => CcpStatus::Numeric,
-            },
+            // The status of the module error the stage failed on.
+            RunError::Stage(StageError::Failed { source, .. }) => FfiError::from(*source).status,
             // Not reached through the C ABI: it never stops a run early, and a planning
             // run returns its pending tasks instead.
             RunError::Stopped(_) | RunError::Pending { .. } => CcpStatus::Numeric,
@@ -33,10 +30,42 @@ impl From<RunError> for FfiError {
     }
 }
 
+/// A stage's error by the module that failed: a file not there is NOT_FOUND, unreadable
+/// IO, malformed FORMAT, inputs that do not fit together INVALID_ARGUMENT, and only a
+/// numeric failure (an adjustment that did not converge) NUMERIC.
+impl From<WorkError> for FfiError {
+    fn from(e: WorkError) -> Self {
+        use crate::control::checkpoints::EvaluationError as Eval;
+        match e {
+            WorkError::Epoch(e) => e.into(),
+            WorkError::Lidar(e) => e.into(),
+            WorkError::Format(e) => e.into(),
+            WorkError::Dcp(e) => e.into(),
+            WorkError::Checkpoints(e) => {
+                let status = match &e {
+                    Eval::UnknownPhoto { .. } | Eval::UnknownPoint { .. } => {
+                        CcpStatus::InvalidArgument
+                    }
+                    Eval::Gsd(_) | Eval::TooFewRays => CcpStatus::Numeric,
+                };
+                FfiError::new(status, e.to_string())
+            }
+            WorkError::Inconsistent(m) => FfiError::invalid(m),
+            // A planning run's tasks are returned, not failed on; a task that needs tasks
+            // of its own is not one `ccp_project_plan` gave.
+            e @ WorkError::Pending(_) => FfiError::invalid(e.to_string()),
+        }
+    }
+}
+
 /// Runs the project file `project_path` (TOML, formats/project/) — restartable: finished
 /// stages whose inputs did not change are skipped — and returns in `*out_json` a
-/// NUL-terminated JSON object `{"output", "ran", "skipped", "products", "report"}`, owned by
-/// the library: release it with `ccp_string_free`. An invalid project file fails before
+/// NUL-terminated JSON object `{"output", "ran", "skipped", "products", "partial",
+/// "report"}`, owned by the library: release it with `ccp_string_free`. A run in which an
+/// epoch oriented fewer photos than it has returns `CCP_STATUS_PARTIAL` with `*out_json`
+/// set all the same (its `partial` lists each such epoch: `epoch`, `oriented`, `total`,
+/// `not_oriented` photos with their reasons) and the last error saying so. An invalid
+/// project file fails before
 /// any work with `CCP_STATUS_INVALID_ARGUMENT` and a message naming the key, and so does an
 /// `output` a run may not write (`/`, the home folder, a file, a folder cloudcontrol did
 /// not make, an input's folder; formats/project/README.md, "The output folder"). While
@@ -51,8 +80,25 @@ pub unsafe extern "C" fn ccp_project_run(
         let path = super::control::path_arg(project_path, "project_path")?;
         let project = Project::load(&PathBuf::from(path)).map_err(RunError::from)?;
         let s = run_project(&project, &mut |_| {}, None)?;
-        hand_out_json(&s.to_json(), out_json)
+        hand_out_json(&s.to_json(), out_json)?;
+        partial(&s.partial)
     })
+}
+
+/// `CCP_STATUS_PARTIAL`, the summary already handed out, when an epoch oriented fewer
+/// photos than it has; the message says which, how many and why.
+fn partial(p: &[crate::pipeline::partial::PartialEpoch]) -> Result<(), FfiError> {
+    if p.is_empty() {
+        return Ok(());
+    }
+    Err(FfiError::new(
+        CcpStatus::Partial,
+        format!(
+            "partial run: {} epoch(s) oriented fewer photos than they have\n{}",
+            p.len(),
+            crate::pipeline::partial::describe_all(p)
+        ),
+    ))
 }
 
 /// Refuses a null `out_json` and clears `*out_json`, so a failed call leaves NULL there.
@@ -80,8 +126,9 @@ unsafe fn hand_out_json(v: &serde_json::Value, out_json: *mut *mut c_char) -> Re
 /// with unfinished tasks and `*out_json` is `{"pending": {"stage": S, "tasks": [T, ...]}}`.
 /// Run every task with `ccp_task_run` (in any process that sees the output folder), then
 /// call again; when nothing is pending, `*out_json` is the summary `ccp_project_run`
-/// gives. Release the string with `ccp_string_free`. It fails as `ccp_project_run` does
-/// (`CCP_STATUS_BUSY` while another run writes the output folder).
+/// gives (with the status `CCP_STATUS_PARTIAL` when it is partial). Release the string
+/// with `ccp_string_free`. It fails as `ccp_project_run` does (`CCP_STATUS_BUSY` while
+/// another run writes the output folder).
 #[no_mangle]
 pub unsafe extern "C" fn ccp_project_plan(
     project_path: *const c_char,
@@ -91,14 +138,17 @@ pub unsafe extern "C" fn ccp_project_plan(
         clear_out_json(out_json)?;
         let path = super::control::path_arg(project_path, "project_path")?;
         let project = Project::load(&PathBuf::from(path)).map_err(RunError::from)?;
-        let v = match run_project_with(&project, &mut |_| {}, None, TaskMode::Plan) {
-            Ok(s) => s.to_json(),
-            Err(RunError::Pending { stage, tasks }) => {
-                serde_json::json!({ "pending": { "stage": stage, "tasks": tasks } })
-            }
-            Err(e) => return Err(e.into()),
-        };
-        hand_out_json(&v, out_json)
+        let (v, partial_epochs) =
+            match run_project_with(&project, &mut |_| {}, None, TaskMode::Plan) {
+                Ok(s) => (s.to_json(), s.partial),
+                Err(RunError::Pending { stage, tasks }) => (
+                    serde_json::json!({ "pending": { "stage": stage, "tasks": tasks } }),
+                    Vec::new(),
+                ),
+                Err(e) => return Err(e.into()),
+            };
+        hand_out_json(&v, out_json)?;
+        partial(&partial_epochs)
     })
 }
 
@@ -121,13 +171,8 @@ pub unsafe extern "C" fn ccp_task_run(
         let task: Task =
             serde_json::from_str(text).map_err(|e| FfiError::invalid(format!("task_json: {e}")))?;
         let summary = tasks::run_task(&task).map_err(|e| {
-            let status = match &e {
-                WorkError::Format(crate::formats::FormatError::Io { .. }) => CcpStatus::Io,
-                WorkError::Format(_) => CcpStatus::Format,
-                WorkError::Inconsistent(_) => CcpStatus::InvalidArgument,
-                _ => CcpStatus::Numeric,
-            };
-            FfiError::new(status, format!("task {}: {e}", task.name()))
+            let message = format!("task {}: {e}", task.name());
+            FfiError::new(FfiError::from(e).status, message)
         })?;
         let v = serde_json::to_value(&summary)
             .map_err(|e| FfiError::invalid(format!("task summary: {e}")))?;

@@ -8,6 +8,41 @@ use serde::{Deserialize, Serialize};
 /// Largest number of interior parameters of any model (frame: fx, fy, cx, cy, k1, k2, k3, p1, p2).
 pub const MAX_INTRINSICS: usize = 9;
 
+/// Largest image (or scan) side a camera may have, px: a 500 mm film side scanned at
+/// 2.5 µm. A camera JSON claiming more is refused when read (formats/cameras/README.md).
+pub const MAX_IMAGE_SIDE_PX: u32 = 200_000;
+
+/// A frame camera's focal length in pixels, as multiples of its longer image side: from a
+/// field of view of 168° (0.05) to the near-orthographic view of an orthophoto's control
+/// points (`control::ortho_source`: a camera thousands of kilometres up, fx/side up to
+/// about 1e8).
+pub const FOCAL_PX_PER_SIDE: [f64; 2] = [0.05, 1e9];
+
+/// A frame camera's pixel aspect `fy / fx`.
+pub const PIXEL_ASPECT: [f64; 2] = [0.1, 10.0];
+
+/// Largest magnitude of a distortion coefficient (k1, k2, k3, p1, p2; normalised
+/// coordinates: real lenses stay below 10).
+pub const MAX_DISTORTION: f64 = 1000.0;
+
+/// A film camera's calibrated focal length, mm (aerial cameras: 88–610 mm; the range
+/// leaves room for any metric camera).
+pub const FOCAL_MM: [f64; 2] = [1.0, 5000.0];
+
+/// Largest distance of a film camera's principal point from the fiducial centre, mm (the
+/// largest film format's side).
+pub const MAX_PRINCIPAL_POINT_MM: f64 = 500.0;
+
+/// A number as a message shows it: in scientific notation when far from 1 (`1e-300`,
+/// not three hundred zeros).
+fn num(v: f64) -> String {
+    if v != 0.0 && v.is_finite() && !(1e-4..1e9).contains(&v.abs()) {
+        format!("{v:e}")
+    } else {
+        format!("{v}")
+    }
+}
+
 /// Jacobian of a pixel with respect to the interior parameters; unused columns are zero.
 pub type IntrinsicsJacobian = SMatrix<f64, 2, MAX_INTRINSICS>;
 
@@ -265,35 +300,94 @@ impl Camera {
         Ok(())
     }
 
-    /// Checks the camera is physically meaningful.
+    /// Checks the camera is physically meaningful: sizes, finite numbers and the plausible
+    /// ranges of formats/cameras/README.md ([`MAX_IMAGE_SIDE_PX`], [`FOCAL_PX_PER_SIDE`],
+    /// [`PIXEL_ASPECT`], [`MAX_DISTORTION`], [`FOCAL_MM`], [`MAX_PRINCIPAL_POINT_MM`]). The
+    /// message names the field and the range.
     pub fn validate(&self) -> Result<()> {
+        let bad = |m: String| Err(GeometryError::InvalidCamera(m));
         let (w, h) = self.image_size();
         if w == 0 || h == 0 {
-            return Err(GeometryError::InvalidCamera(format!(
-                "image size {w}×{h} is empty"
-            )));
+            return bad(format!("image size {w}×{h} is empty"));
         }
-        let p = self.params();
-        if p.iter().any(|v| !v.is_finite()) {
-            return Err(GeometryError::InvalidCamera(
-                "a parameter is not finite".into(),
+        if w.max(h) > MAX_IMAGE_SIDE_PX {
+            return bad(format!(
+                "image size {w}×{h}: a side is at most {MAX_IMAGE_SIDE_PX} px (a 500 mm film \
+                 side at 2.5 µm)"
             ));
+        }
+        for (name, v) in self.param_names().iter().zip(self.params()) {
+            if !v.is_finite() {
+                return bad(format!("{name} = {} is not finite", num(v)));
+            }
+        }
+        for (name, v) in ["k1", "k2", "k3", "p1", "p2"]
+            .iter()
+            .zip(self.distortion().as_array())
+        {
+            if v.abs() > MAX_DISTORTION {
+                return bad(format!(
+                    "distortion {name} = {}: at most {MAX_DISTORTION} in magnitude",
+                    num(v)
+                ));
+            }
         }
         match self {
             Camera::Frame(c) => {
-                if c.fx <= 0.0 || c.fy <= 0.0 {
-                    return Err(GeometryError::InvalidCamera(format!(
-                        "focal length must be positive (fx = {}, fy = {})",
-                        c.fx, c.fy
-                    )));
+                let side = f64::from(w.max(h));
+                let [lo, hi] = FOCAL_PX_PER_SIDE.map(|f| f * side);
+                for (name, f) in [("fx", c.fx), ("fy", c.fy)] {
+                    if !(lo..=hi).contains(&f) {
+                        return bad(format!(
+                            "{name} = {} px is not a focal length for a {w}×{h} image: \
+                             {} to {} px ({} to {} times the longer side)",
+                            num(f),
+                            num(lo),
+                            num(hi),
+                            FOCAL_PX_PER_SIDE[0],
+                            num(FOCAL_PX_PER_SIDE[1])
+                        ));
+                    }
+                }
+                if !(PIXEL_ASPECT[0]..=PIXEL_ASPECT[1]).contains(&(c.fy / c.fx)) {
+                    return bad(format!(
+                        "fy / fx = {} / {}: the pixel aspect is {} to {}",
+                        num(c.fy),
+                        num(c.fx),
+                        PIXEL_ASPECT[0],
+                        PIXEL_ASPECT[1]
+                    ));
+                }
+                for (name, v, size) in [("cx", c.cx, w), ("cy", c.cy, h)] {
+                    let size = f64::from(size);
+                    if !(-size..=2.0 * size).contains(&v) {
+                        return bad(format!(
+                            "{name} = {} px lies beyond the image ({} to {} px: one image \
+                             size either side of it)",
+                            num(v),
+                            -size,
+                            2.0 * size
+                        ));
+                    }
                 }
             }
             Camera::Film(c) => {
-                if c.focal_mm <= 0.0 {
-                    return Err(GeometryError::InvalidCamera(format!(
-                        "focal length must be positive ({} mm)",
-                        c.focal_mm
-                    )));
+                if !(FOCAL_MM[0]..=FOCAL_MM[1]).contains(&c.focal_mm) {
+                    return bad(format!(
+                        "focal_mm = {} is not a film camera's focal length ({} to {} mm)",
+                        num(c.focal_mm),
+                        FOCAL_MM[0],
+                        FOCAL_MM[1]
+                    ));
+                }
+                for (name, v) in ["x0_mm", "y0_mm"].iter().zip(c.principal_point_mm) {
+                    if v.abs() > MAX_PRINCIPAL_POINT_MM {
+                        return bad(format!(
+                            "principal point {name} = {}: at most {MAX_PRINCIPAL_POINT_MM} mm \
+                             from the fiducial centre",
+                            num(v)
+                        ));
+                    }
                 }
                 c.interior.validate()?;
             }

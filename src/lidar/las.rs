@@ -275,6 +275,52 @@ fn header_crs(path: &Path, header: &las::Header) -> Result<Option<Crs>> {
         .map_err(to_las)
 }
 
+/// Scale factors a LAS header may give: a point's coordinate is its 32-bit integer times
+/// the scale plus the offset, so a scale outside this range puts every point of the tile
+/// on one spot (0, 1e-300) or beyond any survey (formats/lidar/README.md).
+pub const SCALE_RANGE: [f64; 2] = [1e-9, 1e3];
+/// Largest offset magnitude (m or ft) a LAS header may give: far beyond any projected or
+/// geocentric coordinate.
+pub const MAX_OFFSET: f64 = 1e9;
+
+/// A number as a message shows it: in scientific notation when far from 1.
+fn num(v: f64) -> String {
+    if v != 0.0 && v.is_finite() && !(1e-4..1e9).contains(&v.abs()) {
+        format!("{v:e}")
+    } else {
+        format!("{v}")
+    }
+}
+
+/// Refuses a header whose scale factors or offsets are not finite or not plausible
+/// ([`SCALE_RANGE`], [`MAX_OFFSET`]): NaN or 0 would make every coordinate NaN or the
+/// offset, a tile no selection would ever find, dropped without a word.
+fn check_transforms(path: &Path, t: &las::Vector<las::Transform>) -> Result<()> {
+    for (axis, tr) in [("x", t.x), ("y", t.y), ("z", t.z)] {
+        let message = if !(SCALE_RANGE[0]..=SCALE_RANGE[1]).contains(&tr.scale) {
+            format!(
+                "header: {axis} scale factor {} is not a coordinate scale ({:e} to {:e})",
+                num(tr.scale),
+                SCALE_RANGE[0],
+                SCALE_RANGE[1]
+            )
+        } else if !tr.offset.is_finite() || tr.offset.abs() > MAX_OFFSET {
+            format!(
+                "header: {axis} offset {} is not a coordinate offset (at most {MAX_OFFSET:e} in \
+                 magnitude)",
+                num(tr.offset)
+            )
+        } else {
+            continue;
+        };
+        return Err(LidarError::Las {
+            path: path.to_path_buf(),
+            message,
+        });
+    }
+    Ok(())
+}
+
 /// The record layout and start of the point data of an uncompressed file, after checking
 /// that the records the header declares are all present, and no more: the count never
 /// sizes anything before it is known to fit in the file.
@@ -345,6 +391,7 @@ impl LasStream {
         let fmt = header.point_format();
         let b = header.bounds();
         let t = header.transforms();
+        check_transforms(path, t)?;
         let info = LasInfo {
             file: path.to_path_buf(),
             version: format!("{}.{}", header.version().major, header.version().minor),
@@ -594,7 +641,9 @@ pub fn date_of_standard_gps_time(t: f64) -> Option<String> {
 
 /// Rewrites a LAS/LAZ file point by point: `edit` returns the point to write (changed or
 /// not) or None to drop it. Header, VLRs, point format and compression are kept; bounds and
-/// counts are recomputed. The output appears atomically.
+/// counts are recomputed. The output appears atomically; a failure leaves nothing, not even
+/// the temporary file (a point the header's scale and offset cannot hold is an error naming
+/// it, and a panic in the writer is caught and reported as one).
 pub fn rewrite_las(
     input: &Path,
     output: &Path,
@@ -610,27 +659,58 @@ pub fn rewrite_las(
     f.seek(SeekFrom::Start(0))
         .map_err(|e| LidarError::io(input, e))?;
     let mut reader = las::Reader::new(BufReader::new(f)).map_err(|e| las_err(input, e))?;
+    check_transforms(input, reader.header().transforms())?;
+    let transforms = *reader.header().transforms();
     let mut builder = las::Builder::from(reader.header().clone());
     // The LAZ writer adds its own laszip VLR.
     builder.vlrs.retain(|v| v.user_id != "laszip encoded");
     let header = builder.into_header().map_err(|e| las_err(input, e))?;
     let written = crate::formats::write_atomically(output, |tmp| {
         let fail = |m: String| crate::formats::FormatError::invalid(output, m);
-        let out = File::create(tmp).map_err(|e| crate::formats::FormatError::io(output, e))?;
-        let mut w = las::Writer::new(std::io::BufWriter::new(out), header)
-            .map_err(|e| fail(format!("cannot write LAS: {e}")))?;
-        let mut n = 0u64;
-        for (i, p) in reader.points().enumerate() {
-            let p = p.map_err(|e| fail(format!("reading {}: point {i}: {e}", input.display())))?;
-            if let Some(q) = edit(i as u64, p) {
-                w.write_point(q)
-                    .map_err(|e| fail(format!("cannot write point {i}: {e}")))?;
-                n += 1;
+        // The writer closes itself when dropped and panics if that fails (after a failed
+        // point, say): caught here, so that the temporary file is removed like after any
+        // other failure and the caller gets an error, not a panic.
+        let write = std::panic::AssertUnwindSafe(|| {
+            let out = File::create(tmp).map_err(|e| crate::formats::FormatError::io(output, e))?;
+            let mut w = las::Writer::new(std::io::BufWriter::new(out), header)
+                .map_err(|e| fail(format!("cannot write LAS: {e}")))?;
+            let mut n = 0u64;
+            for (i, p) in reader.points().enumerate() {
+                let p =
+                    p.map_err(|e| fail(format!("reading {}: point {i}: {e}", input.display())))?;
+                if let Some(q) = edit(i as u64, p) {
+                    for (axis, v, t) in [
+                        ("x", q.x, transforms.x),
+                        ("y", q.y, transforms.y),
+                        ("z", q.z, transforms.z),
+                    ] {
+                        if t.inverse(v).is_err() || !v.is_finite() {
+                            return Err(fail(format!(
+                                "point {i} of {}: {axis} = {v} cannot be written with the \
+                                 header's scale {} and offset {}",
+                                input.display(),
+                                t.scale,
+                                t.offset
+                            )));
+                        }
+                    }
+                    w.write_point(q)
+                        .map_err(|e| fail(format!("cannot write point {i}: {e}")))?;
+                    n += 1;
+                }
             }
-        }
-        w.close()
-            .map_err(|e| fail(format!("cannot finish LAS: {e}")))?;
-        Ok(n)
+            w.close()
+                .map_err(|e| fail(format!("cannot finish LAS: {e}")))?;
+            Ok(n)
+        });
+        std::panic::catch_unwind(write).unwrap_or_else(|panic| {
+            let what = panic
+                .downcast_ref::<&str>()
+                .map(|s| s.to_string())
+                .or_else(|| panic.downcast_ref::<String>().cloned())
+                .unwrap_or_default();
+            Err(fail(format!("the LAS writer failed: {what}")))
+        })
     })?;
     Ok(written)
 }

@@ -1,9 +1,10 @@
 //! The files of an epoch stage (`epoch-<name>/`, formats/workflow/): `block.json` (the
 //! epoch's [`Block`], every photo with its status and image), `images.json` (photo id →
 //! image), `result.json` (per-photo results and the adjustment report), `epoch.json` (the
-//! report rows) and `checkpoints.json`; and the report rows made from an epoch's result.
+//! report rows) and `checkpoints.json`; and the report rows made from an epoch's result,
+//! with its film scans and warnings.
 
-use super::report::{CheckpointError, EpochReport, IcpIteration, PhotoSummary};
+use super::report::{gather, CheckpointError, EpochReport, IcpIteration, PhotoSummary};
 use super::tie_statistics::tie_statistics;
 use crate::adjust::ObservationRef;
 use crate::block::{Block, PhotoId};
@@ -94,6 +95,7 @@ pub fn epoch_report(
                 x: p.pose.center.x + origin[0],
                 y: p.pose.center.y + origin[1],
                 oriented: p.is_oriented(),
+                reason: rep.and_then(|r| r.reason.as_ref()).map(|f| f.to_string()),
                 mean_residual_px: [sum[0] / n, sum[1] / n],
                 rmse_px: rep.map_or(f64::NAN, |r| r.sigma_px),
                 patches_predicted: rep.map_or(0, |r| r.predicted),
@@ -146,6 +148,7 @@ pub fn epoch_report(
             .map(|e| e.rejected.clone())
             .unwrap_or_default(),
         photos,
+        scans: gather::scan_rows(result),
         icp,
         control: Vec::new(),
         ties,
@@ -154,7 +157,9 @@ pub fn epoch_report(
             .as_ref()
             .map(|a| a.variance_components.clone())
             .unwrap_or_default(),
+        warnings: Vec::new(),
     };
     rep.set_check_statistics();
+    rep.warnings = gather::epoch_warnings(result, &rep);
     rep
 }

@@ -6,6 +6,7 @@ pub mod demo;
 pub mod epoch_files;
 pub mod film_frames;
 pub(crate) mod ground;
+pub mod partial;
 pub mod products;
 pub mod project;
 pub mod report;

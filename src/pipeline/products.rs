@@ -226,7 +226,15 @@ pub(crate) fn write_products(
     // Reasons name files relative to the stage folder (its temporary name is per process).
     let reason =
         |e: &dyn std::fmt::Display| e.to_string().replace(&format!("{}/", dir.display()), "");
-    if o.colmap {
+    // An epoch that oriented no photo has no model to give: none is written (nor listed),
+    // the reason is (the run then ends partial, naming the epoch).
+    let nothing = named.photos.is_empty();
+    for (product, wanted) in [("colmap", o.colmap), ("blocks_exchange", o.blocks_exchange)] {
+        if wanted && nothing {
+            skipped.insert(product, "no photo of the epoch was oriented".into());
+        }
+    }
+    if o.colmap && !nothing {
         if let Err(e) = formats::colmap::write(
             &dir.join("colmap"),
             &named,
@@ -237,7 +245,7 @@ pub(crate) fn write_products(
             skipped.insert("colmap", reason(&e));
         }
     }
-    if o.blocks_exchange {
+    if o.blocks_exchange && !nothing {
         let mut bx = named.clone();
         // Every ImagePath is relative to the XML's folder, as the format defaults when no
         // BaseImagePath is given: frame images lie beside it, photos where they are. An

@@ -286,6 +286,9 @@ pub struct Project {
     pub thresholds: Thresholds,
     #[serde(default)]
     pub outputs: Outputs,
+    /// SHA-256 (hex) of the project file [`Project::load`] read; the run's report names it.
+    #[serde(skip)]
+    pub file_sha256: Option<String>,
 }
 
 impl Project {
@@ -324,6 +327,9 @@ impl Project {
         })?;
         p.resolve(&base);
         p.validate(path)?;
+        use sha2::Digest;
+        let digest = sha2::Sha256::digest(text.as_bytes());
+        p.file_sha256 = Some(digest.iter().map(|b| format!("{b:02x}")).collect());
         Ok(p)
     }
 

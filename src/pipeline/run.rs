@@ -18,7 +18,7 @@
 use super::epoch_files::{epoch_report, load_block, read_json, save_epoch, write_json};
 use super::ground::{control_dem, ControlGround};
 use super::project::{Epoch, Project, ProjectError};
-use super::report::{self, EpochReport, IcpIteration, OrthoPreview};
+use super::report::{self, EpochReport, IcpIteration, OrthoPreview, Warning, WarningKind};
 use super::stages::{resolved_path, Inputs, OutputFolder, Runner, StageError, WorkError};
 use super::tasks::dcp::cut_chips;
 use super::tasks::lidar::{clean_sources, LidarPlan};
@@ -84,11 +84,14 @@ pub struct RunSummary {
     pub products: BTreeMap<String, Vec<PathBuf>>,
     /// Wall time of each stage of this run (s; a skipped stage's is the check's).
     pub stage_seconds: Vec<(String, f64)>,
+    /// The epochs that oriented fewer photos than they have, with why: a partial run
+    /// ([`super::partial`]); empty when every photo was oriented.
+    pub partial: Vec<super::partial::PartialEpoch>,
 }
 
 impl RunSummary {
     /// The machine-readable outcome (CLI `--json`, C ABI, Python): output folder, stages
-    /// run and skipped, products per epoch, and the report.
+    /// run and skipped, products per epoch, the partial epochs, and the report.
     pub fn to_json(&self) -> serde_json::Value {
         serde_json::json!({
             "output": self.output,
@@ -96,6 +99,7 @@ impl RunSummary {
             "skipped": self.skipped,
             "products": self.products,
             "stage_seconds": self.stage_seconds,
+            "partial": self.partial,
             "report": self.report,
         })
     }
@@ -231,10 +235,16 @@ pub(crate) fn read_checkpoints(project: &Project) -> Result<Option<Checkpoints>,
         None => crs.clone(),
     };
     let t = Transformer::new(&source, &crs)?;
-    let surveyed = points
+    let surveyed: Vec<(String, [f64; 3])> = points
         .iter()
         .map(|p| Ok((p.id.clone(), t.transform_point(p.xyz)?)))
         .collect::<Result<_, crate::formats::FormatError>>()?;
+    // A measurement of a checkpoint the survey does not hold is refused now, naming its
+    // line, not dropped from an epoch's evaluation after hours of work.
+    for e in project.epochs() {
+        let measured = control_points::read_checkpoint_measurements(i, &e.name)?;
+        checkpoints::check_measured_points(i, &measured, &surveyed)?;
+    }
     Ok(Some(Checkpoints {
         surveyed,
         sigma: points
@@ -255,6 +265,19 @@ pub(crate) fn evaluate(
     gsd_m: f64,
     left_out: &[&str],
 ) -> Result<Option<CheckpointEvaluation>, WorkError> {
+    evaluate_noting(cps, block, epoch, gsd_m, left_out, &mut Vec::new())
+}
+
+/// [`evaluate`], the reason the checkpoints were not evaluated added to `notes` (the
+/// epoch's warnings in the report).
+fn evaluate_noting(
+    cps: &Option<Checkpoints>,
+    block: &Block,
+    epoch: &str,
+    gsd_m: f64,
+    left_out: &[&str],
+    notes: &mut Vec<Warning>,
+) -> Result<Option<CheckpointEvaluation>, WorkError> {
     let Some(c) = cps else { return Ok(None) };
     let mut meas = control_points::read_checkpoint_measurements(&c.images, epoch)?;
     // A photo of the epoch that the block cannot hold (a scan that could not be read has
@@ -267,6 +290,10 @@ pub(crate) fn evaluate(
             .any(|n| crate::formats::pos::photo_key(n) == key)
     });
     if meas.is_empty() {
+        notes.push(Warning::new(
+            WarningKind::Checkpoints,
+            "no checkpoint is measured in the epoch's photos (checkpoint_images): its accuracy is not checked",
+        ));
         return Ok(None);
     }
     // An epoch that oriented no photo has no ground pixel either: a result, not an error
@@ -277,12 +304,20 @@ pub(crate) fn evaluate(
         .any(|p| p.status == crate::block::PhotoStatus::Oriented)
     {
         tracing::warn!(epoch, "checkpoints not evaluated: no photo oriented");
+        notes.push(Warning::new(
+            WarningKind::Checkpoints,
+            "checkpoints not evaluated: no photo oriented",
+        ));
         return Ok(None);
     }
     match checkpoints::evaluate_checkpoints(block, &meas, &c.surveyed, gsd_m) {
         Ok(e) => Ok(Some(e)),
         Err(EvaluationError::TooFewRays) => {
             tracing::warn!(epoch, "checkpoints not evaluated: too few rays");
+            notes.push(Warning::new(
+                WarningKind::Checkpoints,
+                "checkpoints not evaluated: no checkpoint is measured in two oriented photos",
+            ));
             Ok(None)
         }
         Err(e) => Err(WorkError::Inconsistent(format!(
@@ -558,6 +593,17 @@ fn run_stages(
         stage: "sources".into(),
         source: Box::new(source),
     })?;
+    // Every epoch's own inputs (photo folder, camera, POS or strips) are read and checked
+    // before the first stage: a photo without its row or an implausible camera fails the
+    // run now, naming the file, not after the epochs before it have run.
+    for e in project.epochs().filter(|e| e.block.is_none()) {
+        EpochInput::build(&e.spec(), &project.crs, [0.0; 3]).map_err(|source| {
+            StageError::Failed {
+                stage: format!("epoch-{}", e.name),
+                source: Box::new(source.into()),
+            }
+        })?;
+    }
     let sources = stage!(keyed "sources".to_string(), src_inputs, |dir: &Path, key: &str| {
         if !with_lidar {
             // The block origin: the one rule, over the DEM.
@@ -727,6 +773,7 @@ fn run_stages(
         let is_reference = has_reference && k == 0;
         let stage_name = format!("epoch-{}", e.name);
         let edir = stage!(keyed stage_name.clone(), inputs, |dir: &Path, key: &str| {
+            let mut notes = Vec::new();
             let (result, icp) = if let Some(b) = &e.block {
                 // An existing oriented block: taken as it is, checked against the LiDAR.
                 let block = b.read()?;
@@ -756,6 +803,7 @@ fn run_stages(
                     &opts,
                 )?;
                 write_json(&dir.join("existing.json"), &rep)?;
+                notes.extend(report::gather::existing_warnings(&rep));
                 let icp = rep
                     .lidar
                     .as_ref()
@@ -840,10 +888,18 @@ fn run_stages(
                 .map(|p| p.name.as_str())
                 .filter(|n| !result.block.photos.values().any(|p| p.name == *n))
                 .collect();
-            let eval = evaluate(&checkpoints, &result.block, &e.name, result.gsd_m, &left_out)?;
+            let eval = evaluate_noting(
+                &checkpoints,
+                &result.block,
+                &e.name,
+                result.gsd_m,
+                &left_out,
+                &mut notes,
+            )?;
             let surveyed = checkpoints.as_ref().map_or(&[][..], |c| &c.surveyed[..]);
             let mut rep = epoch_report(&result, &e.date, &eval, surveyed, icp);
             rep.control = control_of(project, e, is_reference, &dcp_dirs);
+            rep.warnings.extend(notes);
             Ok(save_epoch(dir, &result, &rep, &eval)?)
         });
         let rep: EpochReport =
@@ -1002,22 +1058,23 @@ fn run_stages(
     }
 
     // Report.
-    let mut rinputs = Inputs::new().param("name", &project.name);
-    for d in &epoch_dirs {
-        rinputs = rinputs.file(d.join("epoch.json"));
-    }
+    let folders = report::gather::RunFolders {
+        sources: sources.clone(),
+        epochs: epochs
+            .iter()
+            .zip(&epoch_dirs)
+            .map(|(e, d)| report::gather::EpochFolders {
+                name: e.name.clone(),
+                epoch: d.clone(),
+                dcp: runner.dir(&format!("dcp-{}", e.name)),
+                outputs: runner.dir(&format!("outputs-{}", e.name)),
+            })
+            .collect(),
+    };
+    let rinputs = report::gather::report_inputs(project, &folders);
     let preview = ortho_preview.clone();
     let rdir = stage!("report".to_string(), rinputs, |dir: &Path| {
-        let mut epochs_rep = Vec::new();
-        for d in &epoch_dirs {
-            epochs_rep.push(read_json::<EpochReport>(&d.join("epoch.json"))?);
-        }
-        let rep = report::Report {
-            project: project.name.clone(),
-            crs: project.crs.clone(),
-            epochs: epochs_rep,
-            ortho: preview,
-        };
+        let rep = report::gather::make_report(project, &folders, preview)?;
         if project.outputs.html_report {
             Ok(report::write(&rep, dir)?)
         } else {
@@ -1037,5 +1094,9 @@ fn run_stages(
         skipped: runner.skipped.clone(),
         products,
         stage_seconds,
+        partial: super::partial::partial_epochs(&epoch_dirs).map_err(|x| StageError::Failed {
+            stage: "report".into(),
+            source: Box::new(x.into()),
+        })?,
     })
 }

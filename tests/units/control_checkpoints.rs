@@ -28,14 +28,26 @@ mod tests {
             pixel: [10.0, 20.0],
         };
         let known = [m(3, "ref_s01_003.tif"), m(5, "ref_s01_004")];
+        let surveyed = [("CP002".to_string(), [0.0, 0.0, 0.0])];
         assert_eq!(
-            evaluate_checkpoints(&block, &known, &[], 0.1),
+            evaluate_checkpoints(&block, &known, &surveyed, 0.1),
             Err(EvaluationError::TooFewRays)
         );
+        // A measurement of a point the survey does not hold is named, not dropped.
+        let e = evaluate_checkpoints(&block, &known, &[], 0.1).unwrap_err();
+        assert_eq!(
+            e,
+            EvaluationError::UnknownPoint {
+                line: 3,
+                point: "CP002".into(),
+                photo: "ref_s01_003.tif".into()
+            }
+        );
+        assert!(e.to_string().contains("line 3"), "{e}");
         let e = evaluate_checkpoints(
             &block,
             &[known[0].clone(), m(6, "ref_s09_001.tif")],
-            &[],
+            &surveyed,
             0.1,
         )
         .unwrap_err();

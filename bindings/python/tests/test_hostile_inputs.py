@@ -558,3 +558,177 @@ def test_dcp_chip_that_is_a_fifo(tmp_path):
 def test_the_binding_under_test_is_this_one():
     """The children import the binding next to this file, as conftest.py does here."""
     assert pathlib.Path(cloudcontrol.__file__).resolve().parents[1] == pathlib.Path(__file__).resolve().parents[1]
+
+
+# ---------------------------------------------------------------------------------------
+# Panics, silent acceptance and partial runs (issue 51 item 8, issue 52 item 3)
+# ---------------------------------------------------------------------------------------
+
+PARTIAL = 12  # CCP_STATUS_PARTIAL
+
+
+def msgpack(v) -> bytes:
+    """MessagePack (msgpack.org spec) of None, bools, ints, floats, strings, lists and
+    dicts: what rmp-serde reads as the task files' structs (field names kept)."""
+    if v is None:
+        return b"\xc0"
+    if isinstance(v, bool):
+        return b"\xc3" if v else b"\xc2"
+    if isinstance(v, int):
+        return struct.pack(">Bq", 0xd3, v) if v < 0 else struct.pack(">BQ", 0xcf, v)
+    if isinstance(v, float):
+        return struct.pack(">Bd", 0xcb, v)
+    if isinstance(v, str):
+        b = v.encode()
+        return struct.pack(">BI", 0xdb, len(b)) + b
+    if isinstance(v, (list, tuple)):
+        return struct.pack(">BI", 0xdd, len(v)) + b"".join(msgpack(x) for x in v)
+    if isinstance(v, dict):
+        return struct.pack(">BI", 0xdf, len(v)) + b"".join(msgpack(k) + msgpack(x) for k, x in v.items())
+    raise TypeError(type(v))
+
+
+def las_points(scale=(0.01, 0.01, 0.01), offset=(500000.0, 4400000.0, 0.0), n: int = 100) -> bytes:
+    """A LAS 1.2 file (227-byte header, format 0) of ``n`` ground points of strip 1 on a
+    1 m grid, with the given scale factors and offsets (header bytes 131 and 155)."""
+    h = bytearray(227)
+    h[0:4] = b"LASF"
+    h[24:26] = bytes([1, 2])
+    struct.pack_into("<HII", h, 94, 227, 227, 0)
+    struct.pack_into("<BHII", h, 104, 0, 20, n, n)
+    struct.pack_into("<3d", h, 131, *scale)
+    struct.pack_into("<3d", h, 155, *offset)
+    struct.pack_into("<6d", h, 179, 500009.0, 500000.0, 4400009.0, 4400000.0, 120.0, 120.0)
+    for i in range(n):
+        h += struct.pack("<iiiHBBbBH", 100 * (i % 10), 100 * (i // 10), 12000, 100, 9, 2, 0, 0, 1)
+    return bytes(h)
+
+
+def sources_task(root: pathlib.Path, offset_m) -> tuple[pathlib.Path, dict]:
+    """A `sources` stage's task folder (formats/workflow/README.md, "Tasks") for one tile:
+    plan.json, screen-00000.msgpack, strip_offsets.msgpack giving strip 1 ``offset_m``;
+    returns it and the tile's `clean` task."""
+    tile = root / "t.las"
+    root.mkdir(parents=True)
+    tile.write_bytes(las_points())
+    folder = root / "run" / "tasks" / "sources" / "0123456789abcdef"
+    folder.mkdir(parents=True)
+    (folder / "plan.json").write_text(json.dumps({"stride": 1, "tiles": [{
+        "file": str(tile), "version": "1.2", "point_format": 0, "compressed": False,
+        "point_count": 100, "bounds": [500000.0, 4400000.0, 120.0, 500009.0, 4400009.0, 120.0],
+        "area_m2": 81.0, "density_pts_m2": 1.23, "classes": {"2": 100}, "point_sources": {"1": 100},
+        "gps_time_range": None, "gps_time_type": "week", "acquisition_dates": None,
+        "creation_date": None, "crs": "EPSG:4547", "crs_source": "assumed", "vertical_crs": None}]}))
+    (folder / "screen-00000.msgpack").write_bytes(msgpack({"tile": "t.las", "screen": {
+        "noise": [], "outliers": None, "sample_xyz": [], "sample_src": []}}))
+    (folder / "strip_offsets.msgpack").write_bytes(msgpack({
+        "model": "vertical", "reference": None, "sigma0_m": 0.02, "pairs": [],
+        "strips": [{"source_id": 1, "points": 100, "offset_m": list(offset_m), "sigma_m": [0.01] * 3}]}))
+    return folder, {"kind": "clean", "stage": "sources", "folder": str(folder), "index": 0, "item": "t.las"}
+
+
+def call_task_run(task):
+    cloudcontrol.pipeline.run_task(task)
+
+
+def call_camera(width, height, fx):
+    cloudcontrol.Camera(width, height, fx, fx, width / 2, height / 2)
+
+
+def call_project_run(project):
+    cloudcontrol.run(project)
+
+
+def call_project_run_partial_ok(project):
+    """The summary of a partial run is returned when asked for: it names the epoch."""
+    res = cloudcontrol.run(project, partial_ok=True)
+    p = res["partial"]
+    assert [(e["epoch"], e["oriented"], e["total"]) for e in p] == [("digital_2012", 0, 2)], p
+
+
+def test_task_file_with_nan_strip_offsets(tmp_path):
+    """formats/workflow/README.md, "Tasks": every value read from a task file is checked
+    where it is decoded. NaN (and absurd) strip offsets used to panic (status PANIC) and
+    leave a `.part.las`; now FORMAT naming the file and the field, nothing written."""
+    folder, task = sources_task(tmp_path / "sane", [0.0, 0.0, 0.05])
+    assert run_in_child("call_task_run", task).status == 0
+    assert (folder / "lidar" / "t.las").is_file()
+    for name, offset, words in [
+        ("nan", [0.0, 0.0, float("nan")], ["strip 1 offset_m[2] = NaN is not finite"]),
+        ("far", [0.0, 1e6, 0.0], ["strip 1 offset_m 1000000 is beyond 100 m"]),
+    ]:
+        folder, task = sources_task(tmp_path / name, offset)
+        refused("call_task_run", task, status=FORMAT,
+                words=[folder / "strip_offsets.msgpack", "task file", *words])
+        assert not (folder / "lidar" / "t.las").exists()
+        assert [p for p in tmp_path.rglob("*") if ".part" in p.name] == []
+
+
+@pytest.mark.parametrize("scale,offset,words", [
+    ((float("nan"), 0.01, 0.01), (500000.0, 4400000.0, 0.0), "x scale factor NaN"),
+    ((0.01, 0.0, 0.01), (500000.0, 4400000.0, 0.0), "y scale factor 0"),
+    ((0.01, 0.01, 0.01), (500000.0, float("nan"), 0.0), "y offset NaN"),
+])
+def test_las_header_with_a_nan_or_zero_scale_or_offset(tmp_path, scale, offset, words):
+    """formats/lidar/README.md, "Limits": a NaN or 0 scale or a NaN offset is refused when
+    the file is opened, naming the field (the tile used to be read with every point at NaN
+    and then dropped from a run)."""
+    f = tmp_path / "t.las"
+    f.write_bytes(las_points(scale, offset))
+    for call in LIDAR_CALLS:
+        refused(call, f, status=FORMAT, words=[f, words])
+
+
+def test_implausible_cameras(tmp_path):
+    """formats/cameras/README.md: a camera outside the plausible ranges is refused when it
+    is made (ccp_camera_new_frame), naming the field."""
+    refused("call_camera", 4000, 3000, 1e-300, status=INVALID_ARGUMENT,
+            words=["fx = 1e-300 px is not a focal length", "200 to 4e12 px"])
+    refused("call_camera", 300000, 200000, 3000.0, status=INVALID_ARGUMENT,
+            words=["image size 300000×200000", "at most 200000 px"])
+
+
+def digital_project(blk: pathlib.Path, camera: str) -> pathlib.Path:
+    """The tiny block's digital epoch controlled by its orthophoto and DEM (a second's run)."""
+    p = blk / "project_digital.toml"
+    p.write_text(f"""name = "hostile-status"
+crs = "EPSG:4547"
+output = "run"
+[control]
+orthophoto = "orthophoto/orthophoto.tif"
+dem = "orthophoto/dem.tif"
+dem_sigma_m = 0.1
+[[archive]]
+name = "digital_2012"
+date = "2012-08-14"
+photos = "epochs/digital_2012/images"
+camera = "{camera}"
+pos = "epochs/digital_2012/pos.csv"
+[thresholds]
+control_interval_px = 60
+chip_size_px = 193
+""")
+    return p
+
+
+def test_a_run_whose_epoch_orients_nothing_is_partial(tmp_path, shared_block):
+    """formats/project/README.md, "Exit statuses": a camera of 1500 × 1000 for 400 × 266
+    photos orients none of them; ccp_project_run returns PARTIAL (12) with the epoch, the
+    count and the reason, and Python raises PartialRunError carrying the summary (or
+    returns it with partial_ok)."""
+    blk = shared_block("tiny", 2, "good", tmp_path / "block")
+    (blk / "camera_1500.json").write_text(json.dumps(
+        {"kind": "frame", "width": 1500, "height": 1000, "fx": 1800.0, "fy": 1800.0, "cx": 750.0, "cy": 500.0}))
+    project = digital_project(blk, "camera_1500.json")
+    r = refused("call_project_run", project, status=PARTIAL,
+                words=["partial run", "epoch digital_2012: 0 of 2 photos oriented",
+                       "is 400×266 px, the camera 1500×1000"])
+    assert r.message.startswith("[PARTIAL]")
+    assert run_in_child("call_project_run_partial_ok", project).status == 0
+    try:
+        cloudcontrol.run(project)
+    except cloudcontrol.PartialRunError as e:
+        assert e.status == PARTIAL and e.partial[0]["epoch"] == "digital_2012"
+        assert "colmap" not in json.dumps(e.summary["products"].get("digital_2012", []))
+    else:
+        pytest.fail("a partial run did not raise")

@@ -135,6 +135,9 @@ pub struct IoResult {
     pub transform: InteriorOrientation,
     pub marks: Vec<MarkResult>,
     pub rmse_um: f64,
+    /// What a user should know (a given orientation that fits worse than another, a given
+    /// pixel size the marks contradict), in words; also logged.
+    pub warnings: Vec<String>,
 }
 
 /// Fiducial interior orientation of a scan file.
@@ -394,14 +397,18 @@ pub fn interior_orientation(
         .map(|(_, h)| h.score.cost)
         .fold(f64::INFINITY, f64::min);
     let margin = (other / hyps[chosen].score.cost).min(ORIENTATION_MARGIN_CAP);
+    // What a user should know about this scan's orientation, kept with the result (the
+    // run's report lists it) as well as logged.
+    let mut warnings = Vec::new();
     if margin < 1.0 {
-        tracing::warn!(
-            scan = name,
+        let w = format!(
             "scan orientation {} ({source}) fits the fiducial marks {:.2}× worse than {}",
             hyps[chosen].orientation,
             1.0 / margin,
             hyps[0].orientation
         );
+        tracing::warn!(scan = name, "{w}");
+        warnings.push(w);
     }
     let mut h = hyps.swap_remove(chosen);
     // The templates were drawn through the similarity of two marks; drawn again through
@@ -437,11 +444,12 @@ pub fn interior_orientation(
             let given_um = given * 1000.0;
             // Film and scanner scale stay well within 1 %; more is a wrong value.
             if (measured_um / given_um - 1.0).abs() > 0.02 {
-                tracing::warn!(
-                    scan = name,
+                let w = format!(
                     "given scan pixel size {given_um:.3} µm, but the fiducial marks measure \
                      {measured_um:.3} µm"
                 );
+                tracing::warn!(scan = name, "{w}");
+                warnings.push(w);
             }
             (given_um, "given".to_string())
         }
@@ -468,6 +476,7 @@ pub fn interior_orientation(
         transform: io,
         marks: h.marks,
         rmse_um: h.rmse_plain,
+        warnings,
     })
 }
 
@@ -579,6 +588,7 @@ impl IoResult {
             "pixel_um": self.pixel_um,
             "pixel_source": self.pixel_source,
             "rmse_um": self.rmse_um,
+            "warnings": self.warnings,
             "transform": {
                 "type": self.transform.kind,
                 "pixel_to_mm": rows(m),

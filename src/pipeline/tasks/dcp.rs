@@ -3,8 +3,8 @@
 //! written from the chips after are the stage's global parts.
 
 use super::{
-    has_item, read_result, write_result, ContextCache, StageTasks, Task, TaskKind, TaskMode,
-    TaskSummary,
+    bad_task_file, has_item, read_result, write_result, ContextCache, StageTasks, Task, TaskData,
+    TaskKind, TaskMode, TaskSummary,
 };
 use crate::block::Block;
 use crate::control::cloud::{CutChip, ExportPlan, PhotoChips};
@@ -33,6 +33,49 @@ struct ChipsResult {
 }
 
 has_item!(ChipsResult => photo);
+
+impl TaskData for ChipsResult {
+    fn check(&self) -> Result<(), String> {
+        // What each chip is of is checked against the plan where it is at hand
+        // ([`check_chips`]).
+        for c in self.chips.iter().flatten() {
+            crate::control::task_checks::finite("chip pixel", &c.meas.pixel)?;
+        }
+        Ok(())
+    }
+}
+
+/// A photo's chips against what the plan wanted of it: each chip one of its wanted
+/// measurements, with the file name, photo, pixel and size the export gives it (a chip's
+/// file is written into the package under that name).
+fn check_chips(job: &PhotoChips, chip_size: u32, chips: &[CutChip<ByteBuf>]) -> Result<(), String> {
+    for c in chips {
+        let Some(&(_, _, id, pixel)) = job
+            .wanted
+            .iter()
+            .find(|w| (w.0, w.1) == (c.point, c.measurement))
+        else {
+            return Err(format!(
+                "a chip of point {} measurement {}, which photo {} was not asked for",
+                c.point, c.measurement, job.photo
+            ));
+        };
+        let file = format!("chips/{id}_{}.png", job.photo);
+        let m = &c.meas;
+        if c.file != file
+            || m.chip.file != file
+            || m.photo != job.photo
+            || m.pixel != pixel
+            || (m.chip.width, m.chip.height) != (chip_size, chip_size)
+        {
+            return Err(format!(
+                "chip {:?} of point {} measurement {} is not the chip {file} the plan asked for",
+                c.file, c.point, c.measurement
+            ));
+        }
+    }
+    Ok(())
+}
 
 /// A `chips` result file read as the stage reads it ([`super::read_task_file`]).
 pub(super) fn read_result_file(path: &Path) -> Result<(), WorkError> {
@@ -65,11 +108,12 @@ pub(crate) fn cut_chips(
     let tasks = st.tasks(TaskKind::Chips, names.iter().map(String::as_str), None);
     st.ensure(&tasks, mode, |t| execute(t, &dcp))?;
     let mut cuts = Vec::with_capacity(tasks.len());
-    for t in &tasks {
+    for (t, (_, job)) in tasks.iter().zip(&dcp.photos) {
         let r: ChipsResult = read_result(t)?;
         let chips = r
             .chips
             .map_err(|e| input_err(package, format!("photo {}: {e}", r.photo)))?;
+        check_chips(job, chip_size, &chips).map_err(|e| bad_task_file(&t.result(), e))?;
         cuts.push(
             chips
                 .into_iter()

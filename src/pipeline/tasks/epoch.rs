@@ -5,8 +5,8 @@
 //! block adjustment) then runs on the results.
 
 use super::{
-    epoch_of, has_item, not_of, read_result, write_result, ContextCache, StageTasks, Task,
-    TaskKind, TaskMode, TaskSummary,
+    bad_task_file, epoch_of, has_item, not_of, read_result, write_result, ContextCache, StageTasks,
+    Task, TaskData, TaskKind, TaskMode, TaskSummary,
 };
 use crate::control::archive::{ArchiveContext, ArchiveOptions, FirstPass};
 use crate::control::dcp::DcpPackage;
@@ -15,6 +15,8 @@ use crate::control::photo::PhotoOrientation;
 use crate::control::scan_cameras::{
     epoch_majority, measure_scan, resolve_scan, Candidates, ScanCameras, ScanMeasure,
 };
+use crate::control::task_checks as tc;
+use crate::geometry::Camera;
 use crate::lidar::GroundSurface;
 use crate::matching::ScanOrientation;
 use crate::pipeline::ground::ControlGround;
@@ -154,8 +156,12 @@ impl EpochTasks {
         self.ensure(&orients, ctx, archive, mode)?;
         let mut outcomes = Vec::with_capacity(orients.len());
         let mut by_photo = HashMap::new();
+        let points = archive.store.points.len();
         for t in &orients {
             let r: OrientResult = read_result(t)?;
+            r.orientation
+                .check(points)
+                .map_err(|e| bad_task_file(&t.result(), e))?;
             if let Some(c) = r.candidates {
                 by_photo.insert(r.photo.clone(), c);
             }
@@ -206,6 +212,39 @@ pub(super) fn own_scans(task: &Task, ctx: &EpochContext) -> Result<Option<ScanCa
 }
 
 has_item!(OrientResult => photo, ScanResult => photo);
+
+/// A scan's candidate cameras: film cameras and their fiducial fits sane.
+fn check_candidates(c: &Option<Candidates>) -> Result<(), String> {
+    for (cam, io) in c.iter().flat_map(|c| c.iter().flatten()) {
+        tc::camera("candidate camera", &Camera::Film(cam.clone()))?;
+        tc::sigma("candidate rmse_um", io.rmse_um)?;
+        if !(io.pixel_um.is_finite() && io.pixel_um > 0.0) {
+            return Err(format!(
+                "candidate pixel_um = {} is not a pixel size",
+                io.pixel_um
+            ));
+        }
+    }
+    Ok(())
+}
+
+impl TaskData for OrientResult {
+    fn check(&self) -> Result<(), String> {
+        // The match indices are checked against the epoch's store where it is at hand
+        // ([`EpochTasks::first_pass`]).
+        self.orientation.check(usize::MAX)?;
+        check_candidates(&self.candidates)
+    }
+}
+
+impl TaskData for ScanResult {
+    fn check(&self) -> Result<(), String> {
+        match &self.measure {
+            Some(m) => check_candidates(&m.candidates),
+            None => Ok(()),
+        }
+    }
+}
 
 /// A `scan` or `orient` result file read as the stage reads it ([`super::read_task_file`]).
 pub(super) fn read_result_file(kind: TaskKind, path: &Path) -> Result<(), WorkError> {

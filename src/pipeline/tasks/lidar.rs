@@ -6,9 +6,10 @@
 //! when every tile is done.
 
 use super::{
-    has_item, not_of, read_msgpack, read_result, write_msgpack, write_result, StageTasks, Task,
-    TaskKind, TaskMode, TaskSummary,
+    bad_task_file, has_item, not_of, read_msgpack, read_result, write_msgpack, write_result,
+    StageTasks, Task, TaskData, TaskKind, TaskMode, TaskSummary,
 };
+use crate::control::task_checks as c;
 use crate::formats::FormatError;
 use crate::lidar::catalogue::TileEntry;
 use crate::lidar::clean::{
@@ -44,6 +45,100 @@ struct CleanResult {
 
 has_item!(ScreenResult => tile, CleanResult => tile);
 
+/// Largest strip offset a task file may give (m): strips are matched where their points
+/// lie within metres of each other's planes, so an offset of more is no offset found
+/// (formats/workflow/README.md, "Tasks").
+pub const MAX_STRIP_OFFSET_M: f64 = 100.0;
+
+impl TaskData for ScreenResult {
+    fn check(&self) -> Result<(), String> {
+        let s = &self.screen;
+        if let Some(w) = s.noise.windows(2).find(|w| w[0] >= w[1]) {
+            return Err(format!(
+                "noise point indices are not ascending ({} before {})",
+                w[0], w[1]
+            ));
+        }
+        if s.sample_src.len() != s.sample_xyz.len() {
+            return Err(format!(
+                "{} strip ids for {} sample points",
+                s.sample_src.len(),
+                s.sample_xyz.len()
+            ));
+        }
+        for p in &s.sample_xyz {
+            c::finite("sample point", p)?;
+        }
+        if let Some(o) = &s.outliers {
+            c::at_most("outliers removed", o.removed, o.points)?;
+            for (what, v) in [
+                ("outliers n_sigma", o.n_sigma),
+                ("outliers mean_distance_m", o.mean_distance_m),
+                ("outliers std_distance_m", o.std_distance_m),
+                ("outliers threshold_m", o.threshold_m),
+            ] {
+                c::sigma(what, v)?;
+            }
+        }
+        Ok(())
+    }
+}
+
+impl TaskData for CleanResult {
+    fn check(&self) -> Result<(), String> {
+        let r = &self.report;
+        c::at_most("noise points", r.noise as usize, r.points as usize)?;
+        c::at_most("points written", r.written as usize, r.points as usize)
+    }
+}
+
+impl TaskData for Option<StripOffsetReport> {
+    fn check(&self) -> Result<(), String> {
+        let Some(r) = self else { return Ok(()) };
+        let mut seen = std::collections::BTreeSet::new();
+        for s in &r.strips {
+            if !seen.insert(s.source_id) {
+                return Err(format!("strip {} has two offsets", s.source_id));
+            }
+            c::finite(&format!("strip {} offset_m", s.source_id), &s.offset_m)?;
+            if let Some(v) = s.offset_m.iter().find(|v| v.abs() > MAX_STRIP_OFFSET_M) {
+                return Err(format!(
+                    "strip {} offset_m {v} is beyond {MAX_STRIP_OFFSET_M} m",
+                    s.source_id
+                ));
+            }
+            for v in s.sigma_m {
+                c::sigma(&format!("strip {} sigma_m", s.source_id), v)?;
+            }
+        }
+        for p in &r.pairs {
+            for (what, v) in [
+                ("median_distance_m", p.median_distance_m),
+                ("rms_after_m", p.rms_after_m),
+            ] {
+                if v.is_infinite() {
+                    return Err(format!("strip pair {}–{} {what} = {v}", p.a, p.b));
+                }
+            }
+        }
+        c::sigma("sigma0_m", r.sigma0_m)
+    }
+}
+
+/// A tile's screen against the tile it is of: its noise indices are points of the tile.
+fn check_screen(task: &Task, tile: &TileEntry, screen: &TileScreen) -> Result<(), WorkError> {
+    match screen.noise.last() {
+        Some(&i) if i >= tile.point_count => Err(bad_task_file(
+            &task.result(),
+            format!(
+                "noise point {i} of tile {}, which has {} points",
+                task.item, tile.point_count
+            ),
+        )),
+        _ => Ok(()),
+    }
+}
+
 const OFFSETS: &str = "strip_offsets.msgpack";
 const CLEANED: &str = "lidar";
 
@@ -71,8 +166,13 @@ pub(crate) fn clean_sources(
     st.ensure(&screens, mode, |t| execute(t, plan))?;
     let screened = screens
         .iter()
-        .map(|t| read_result::<ScreenResult>(t).map(|r| r.screen))
-        .collect::<Result<Vec<_>, _>>()?;
+        .zip(&plan.tiles)
+        .map(|(t, tile)| {
+            let r = read_result::<ScreenResult>(t)?;
+            check_screen(t, tile, &r.screen)?;
+            Ok(r.screen)
+        })
+        .collect::<Result<Vec<_>, WorkError>>()?;
     let offsets_file = st.folder().join(OFFSETS);
     if !offsets_file.is_file() {
         let offsets = strip_offsets(&screened, &opts)?;
@@ -148,10 +248,12 @@ fn execute(task: &Task, plan: &LidarPlan) -> Result<TaskSummary, WorkError> {
             )?;
         }
         TaskKind::Clean => {
-            let own: ScreenResult = read_result(&Task {
+            let screen_task = Task {
                 kind: TaskKind::Screen,
                 ..task.clone()
-            })?;
+            };
+            let own: ScreenResult = read_result(&screen_task)?;
+            check_screen(&screen_task, tile, &own.screen)?;
             let offsets = read_offsets(&task.folder.join(OFFSETS))?;
             let out = cleaned_file(task);
             if let Some(dir) = out.parent() {

@@ -327,7 +327,22 @@ macro_rules! has_item {
 }
 pub(crate) use has_item;
 
-pub(crate) fn read_result<T: for<'de> Deserialize<'de> + HasItem>(
+/// What a task file holds, checked where it is decoded ([`read_msgpack`]): numbers finite
+/// where the work needs them so, counts and sizes bounded, indices that need no context in
+/// range (`control::task_checks`). The stages add the checks that need their context
+/// (a point index against the store it indexes) where they read the results. A damaged or
+/// crafted task file is a format error naming it, never a panic.
+pub(crate) trait TaskData {
+    /// What is wrong, naming the field.
+    fn check(&self) -> Result<(), String>;
+}
+
+/// The error of a task file whose contents fail a check.
+pub(crate) fn bad_task_file(path: &Path, message: impl std::fmt::Display) -> WorkError {
+    FormatError::invalid(path, format!("task file: {message}")).into()
+}
+
+pub(crate) fn read_result<T: for<'de> Deserialize<'de> + HasItem + TaskData>(
     task: &Task,
 ) -> Result<T, WorkError> {
     let path = task.result();
@@ -350,7 +365,10 @@ pub(crate) fn read_result<T: for<'de> Deserialize<'de> + HasItem>(
 #[doc(hidden)]
 pub fn read_task_file(path: &Path) -> Result<(), WorkError> {
     let not_task = || WorkError::from(FormatError::invalid(path, "not a task file's name"));
-    let name = path.file_name().and_then(|n| n.to_str()).unwrap_or_default();
+    let name = path
+        .file_name()
+        .and_then(|n| n.to_str())
+        .unwrap_or_default();
     let stem = name.strip_suffix(".msgpack").ok_or_else(not_task)?;
     let kind = |label: &str| TaskKind::of_label(label).ok_or_else(not_task);
     match stem.split('-').collect::<Vec<_>>().as_slice() {
@@ -369,10 +387,14 @@ pub fn read_task_file(path: &Path) -> Result<(), WorkError> {
     }
 }
 
-pub(crate) fn read_msgpack<T: for<'de> Deserialize<'de>>(path: &Path) -> Result<T, WorkError> {
-    let bytes = std::fs::read(path).map_err(|e| FormatError::io(path, e))?;
-    Ok(rmp_serde::from_slice(&bytes)
-        .map_err(|e| FormatError::invalid(path, format!("task file: {e}")))?)
+/// Reads a task file and checks what it holds ([`TaskData`]).
+pub(crate) fn read_msgpack<T: for<'de> Deserialize<'de> + TaskData>(
+    path: &Path,
+) -> Result<T, WorkError> {
+    let bytes = crate::formats::input::read_bytes(path, crate::formats::input::Cap::document())?;
+    let v: T = rmp_serde::from_slice(&bytes).map_err(|e| bad_task_file(path, e))?;
+    v.check().map_err(|e| bad_task_file(path, e))?;
+    Ok(v)
 }
 
 pub(crate) fn write_msgpack<T: Serialize>(path: &Path, v: &T) -> Result<(), WorkError> {

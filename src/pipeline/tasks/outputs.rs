@@ -7,9 +7,10 @@
 
 use super::{
     epoch_of, has_item, not_of, read_result, write_result, ContextCache, StageTasks, Task,
-    TaskKind, TaskMode, TaskSummary,
+    TaskData, TaskKind, TaskMode, TaskSummary,
 };
 use crate::block::Block;
+use crate::control::task_checks as c;
 use crate::formats::ortho::{OrthoGrid, OrthoOptions, PhotoImages, RenderedTile, TileRenderer};
 use crate::geometry::Dem;
 use crate::matching::fiducial::FrameImageReport;
@@ -97,6 +98,51 @@ struct OrthoResult {
 }
 
 has_item!(ResampleResult => photo, OrthoResult => tiles_of);
+
+impl TaskData for ResampleResult {
+    fn check(&self) -> Result<(), String> {
+        let f = &self.report.frame;
+        if f.width == 0 || f.height == 0 || !(f.pixel_mm.is_finite() && f.pixel_mm > 0.0) {
+            return Err(format!(
+                "frame of {}×{} pixels of {} mm",
+                f.width, f.height, f.pixel_mm
+            ));
+        }
+        let pixels = u64::from(f.width) * u64::from(f.height);
+        c::at_most("masked pixels", self.report.masked_pixels, pixels as usize)?;
+        if !matches!(self.report.bits, 8 | 16) {
+            return Err(format!("{} bits per pixel (8 or 16)", self.report.bits));
+        }
+        Ok(())
+    }
+}
+
+impl TaskData for OrthoResult {
+    fn check(&self) -> Result<(), String> {
+        // Each tile's place and size are checked against the grid where it is written
+        // (`formats::ortho::write_tiles`).
+        for t in &self.tiles {
+            if t.bands.len() % 4 != 0 {
+                return Err(format!(
+                    "tile {:?}: {} bytes are not four bands",
+                    t.tile,
+                    t.bands.len()
+                ));
+            }
+            let pixels = t.bands.len() / 4;
+            c::at_most("filled cells", t.filled, pixels)?;
+            c::at_most("occluded cells", t.occluded, pixels)?;
+            c::at_most(
+                "cells of the photos",
+                t.per_photo
+                    .values()
+                    .fold(0usize, |a, &v| a.saturating_add(v)),
+                pixels,
+            )?;
+        }
+        Ok(())
+    }
+}
 
 /// A `resample` or `ortho` result file read as the stage reads it
 /// ([`super::read_task_file`]).

@@ -4,7 +4,10 @@
 //! photo, in photo order, and adjusts the block itself (ICP, LiDAR planes), as the epoch
 //! does in one process.
 
-use super::{epoch_of, has_item, read_result, write_result, ContextCache, StageTasks, Task};
+use super::{
+    bad_task_file, epoch_of, has_item, read_result, write_result, ContextCache, StageTasks, Task,
+    TaskData,
+};
 use super::{TaskKind, TaskMode, TaskSummary};
 use crate::block::{Block, PhotoId};
 use crate::control::epoch::EpochInput;
@@ -30,6 +33,38 @@ struct PairsResult {
 }
 
 has_item!(PairsResult => item);
+
+impl TaskData for PairsResult {
+    fn check(&self) -> Result<(), String> {
+        use crate::control::task_checks as c;
+        for m in self.matched.iter().flat_map(|m| &m.matches) {
+            if m.inliers.len() != m.candidates.len() {
+                return Err(format!(
+                    "pair {}–{}: {} inlier flags for {} candidates",
+                    m.a,
+                    m.b,
+                    m.inliers.len(),
+                    m.candidates.len()
+                ));
+            }
+            for t in &m.candidates {
+                c::finite("tie candidate pixel", &[t.a[0], t.a[1], t.b[0], t.b[1]])?;
+                c::finite("tie candidate ncc", &[t.ncc])?;
+                c::sigma("tie candidate σ", t.sigma_px)?;
+            }
+            if let Some(f) = &m.fundamental {
+                c::finite("fundamental matrix", f)?;
+            }
+            c::sigma("pair σ", m.sigma_px)?;
+        }
+        for r in self.matched.iter().flat_map(|m| &m.reports) {
+            c::sigma("pair report σ", r.sigma_px)?;
+            c::sigma("pair report overlap", r.overlap)?;
+            c::sigma("pair report search radius", r.search_radius_px)?;
+        }
+        Ok(())
+    }
+}
 
 /// A `pairs` result file read as the stage reads it ([`super::read_task_file`]).
 pub(super) fn read_result_file(path: &Path) -> Result<(), WorkError> {
@@ -105,6 +140,23 @@ impl PairMatching for ReferenceTasks {
                     ),
                 )
                 .into());
+            }
+            // The pairs' photo indices are indices into the epoch's photos.
+            if let Some(m) = r
+                .matched
+                .iter()
+                .flat_map(|m| &m.matches)
+                .find(|m| m.a >= photos.len() || m.b >= photos.len())
+            {
+                return Err(bad_task_file(
+                    &t.result(),
+                    format!(
+                        "pair of photos {} and {}, the epoch has {}",
+                        m.a,
+                        m.b,
+                        photos.len()
+                    ),
+                ));
             }
             for (&j, m) in run.iter().zip(r.matched) {
                 found[j] = Some(m);

@@ -7,7 +7,8 @@
 //! round `n` of one replay is round `n` of the next.
 
 use super::epoch::{own_scans, EpochContext};
-use super::{read_msgpack, read_result, write_msgpack, write_result, StageTasks, Task, TaskKind};
+use super::{bad_task_file, read_msgpack, read_result, write_msgpack, write_result};
+use super::{StageTasks, Task, TaskData, TaskKind};
 use super::{TaskMode, TaskSummary};
 use crate::control::archive::ArchiveContext;
 use crate::control::epoch_ties::{CutRound, MatchRound};
@@ -53,6 +54,27 @@ impl<T> super::HasItem for RoundResult<T> {
         &self.photo
     }
 }
+
+/// The output is checked by its round ([`Round::check_output`]) where the round is at
+/// hand ([`TaskRounds::run`]).
+impl<T> TaskData for RoundResult<T> {
+    fn check(&self) -> Result<(), String> {
+        Ok(())
+    }
+}
+
+/// Rounds read from their files: checked without the epoch here, with its photo count
+/// where a task runs them ([`run_task`]).
+macro_rules! round_data {
+    ($($t:ty),*) => {
+        $(impl TaskData for $t {
+            fn check(&self) -> Result<(), String> {
+                self.check_file(usize::MAX)
+            }
+        })*
+    };
+}
+round_data!(CutRound, MatchRound, OrientRound);
 
 /// An epoch's rounds as tasks of its stage (a planning run: [`TaskMode::Plan`]).
 pub(crate) struct TaskRounds<'a> {
@@ -120,7 +142,14 @@ impl EpochRounds for TaskRounds<'_> {
             .ensure(&tasks, self.mode, |t| run_from(t, round, env))?;
         tasks
             .iter()
-            .map(|t| read_result::<RoundResult<R::Output>>(t).map(|r| r.output))
+            .enumerate()
+            .map(|(k, t)| {
+                let r = read_result::<RoundResult<R::Output>>(t)?;
+                round
+                    .check_output(k, &r.output)
+                    .map_err(|e| bad_task_file(&t.result(), e))?;
+                Ok(r.output)
+            })
             .collect()
     }
 }
@@ -172,7 +201,10 @@ fn load(file: &Path, task: &Task) -> Result<Loaded, WorkError> {
     }
     // The last round's data is dropped before the next is read.
     *cache = None;
-    if !matches!(task.kind, TaskKind::Cut | TaskKind::Match | TaskKind::Reorient) {
+    if !matches!(
+        task.kind,
+        TaskKind::Cut | TaskKind::Match | TaskKind::Reorient
+    ) {
         return Err(super::not_of(task, "an epoch's rounds"));
     }
     let r = read_round(file, task.kind)?;
@@ -245,7 +277,15 @@ pub(super) fn run_task(
         &ctx.opts,
         scans.as_ref(),
     );
-    match load(&file, task)? {
+    let photos = ctx.input.photos.len();
+    let loaded = load(&file, task)?;
+    let checked = match &loaded {
+        Loaded::Cut(r) => r.check_file(photos),
+        Loaded::Match(r) => r.check_file(photos),
+        Loaded::Reorient(r) => r.check_file(photos),
+    };
+    checked.map_err(|e| bad_task_file(&file, e))?;
+    match loaded {
         Loaded::Cut(r) => run_from(task, &*r, &env),
         Loaded::Match(r) => run_from(task, &*r, &env),
         Loaded::Reorient(r) => run_from(task, &*r, &env),
