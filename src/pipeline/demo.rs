@@ -17,17 +17,28 @@ pub const DEMO_SEED: u64 = 7;
 pub enum DemoError {
     #[error("synthetic block: {0}")]
     Synth(String),
+    #[error(
+        "the {0:?} preset cannot run the demo: the demo runs on the small preset (the tiny \
+         one's 400 × 266 px digital photos have no room for the 193 px control chips, and \
+         its film scans at 200 µm are too coarse for the fiducial marks)"
+    )]
+    Preset(Preset),
     #[error(transparent)]
     Run(#[from] RunError),
 }
 
 /// Generates the demo block under `out/block` (kept when it is already there with the
-/// same configuration) and runs the workflow into `out/run`.
+/// same configuration) and runs the workflow into `out/run`. Only the small preset: the
+/// demo's epochs need what it has (see [`DemoError::Preset`]; larger presets are blocks
+/// for `cloudcontrol synth` and `run`, not a demonstration).
 pub fn run(
     out: &Path,
     preset: Preset,
     on_event: &mut dyn FnMut(&Event),
 ) -> Result<RunSummary, DemoError> {
+    if preset != Preset::Small {
+        return Err(DemoError::Preset(preset));
+    }
     let block = out.join("block");
     let cfg = SynthConfig {
         preset,

@@ -68,6 +68,7 @@ pub struct AdjustArgs {
     /// A-priori σ of image measurements (px).
     #[arg(long, default_value_t = 1.0)]
     pub sigma_px: f64,
+    /// Most Levenberg–Marquardt iterations per adjustment round.
     #[arg(long, default_value_t = 50)]
     pub max_iterations: usize,
     /// JSON report path.
@@ -86,13 +87,16 @@ pub struct ResectArgs {
     /// Camera: fx,fy,cx,cy[,k1,k2,k3,p1,p2] in pixels.
     #[arg(long, value_delimiter = ',')]
     pub camera: Vec<f64>,
+    /// Photo width (px).
     #[arg(long)]
     pub width: u32,
+    /// Photo height (px).
     #[arg(long)]
     pub height: u32,
     /// Control CSV: x,y,X,Y,Z (pixel, world), header line required.
     #[arg(long)]
     pub points: PathBuf,
+    /// A-priori σ of the image measurements (px).
     #[arg(long, default_value_t = 1.0)]
     pub sigma_px: f64,
     /// RANSAC inlier threshold (px).
@@ -509,14 +513,11 @@ pub fn print_result(
                     o.remove("residuals");
                     o.remove("photo_precision");
                 }
-                println!("{}", serde_json::to_string_pretty(&v).expect("json"));
+                outln!("{}", serde_json::to_string_pretty(&v).expect("json"));
             }
             std::process::ExitCode::SUCCESS
         }
-        Err(e) => {
-            eprintln!("cloudcontrol {what}: {e}");
-            std::process::ExitCode::from(1)
-        }
+        Err(e) => crate::console::fail(what, e, crate::EXIT_FAILED),
     }
 }
 

@@ -46,7 +46,7 @@ pub fn run(a: Args, json: bool, quiet: bool) -> ExitCode {
     match result {
         Ok(b) => {
             if json {
-                println!(
+                outln!(
                     "{}",
                     serde_json::json!({
                         "input": a.input, "output": a.output, "cameras": b.cameras.len(),
@@ -55,7 +55,7 @@ pub fn run(a: Args, json: bool, quiet: bool) -> ExitCode {
                     })
                 );
             } else if !quiet {
-                println!(
+                outln!(
                     "{} → {}: {} cameras, {} photos, {} points, {} observations",
                     a.input.display(),
                     a.output.display(),
@@ -67,9 +67,6 @@ pub fn run(a: Args, json: bool, quiet: bool) -> ExitCode {
             }
             ExitCode::SUCCESS
         }
-        Err(e) => {
-            eprintln!("cloudcontrol convert: {e}");
-            ExitCode::from(1)
-        }
+        Err(e) => crate::console::fail("convert", e, crate::EXIT_FAILED),
     }
 }

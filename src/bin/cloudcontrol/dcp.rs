@@ -23,7 +23,7 @@ pub enum DcpCommand {
     /// (block.json and images.json).
     ///
     /// Example:
-    ///   cloudcontrol dcp generate --block run/epoch-reference/block.json --images run/epoch-reference/images.json --lidar tiles/ --interval-px 250 --out points.json
+    ///   cloudcontrol dcp generate --block run/epoch-reference_2024/block.json --images run/epoch-reference_2024/images.json --lidar tiles/ --interval-px 250 --out points.json
     Generate {
         #[command(flatten)]
         select: SelectArgs,
@@ -34,7 +34,7 @@ pub enum DcpCommand {
     /// Write a DCP package from an oriented block: its cloud control points with chips.
     ///
     /// Example:
-    ///   cloudcontrol dcp export --block run/epoch-reference/block.json --images run/epoch-reference/images.json --lidar tiles/ --out reference.dcp --name reference_2024 --date 2024-05-29
+    ///   cloudcontrol dcp export --block run/epoch-reference_2024/block.json --images run/epoch-reference_2024/images.json --lidar tiles/ --out reference.dcp --name reference_2024 --date 2024-05-29
     Export {
         #[command(flatten)]
         select: SelectArgs,
@@ -58,8 +58,9 @@ pub enum DcpCommand {
     /// package leaves the store untouched.
     ///
     /// Example:
-    ///   cloudcontrol dcp import reference.dcp digital_2012.dcp --into dcp_store
+    ///   cloudcontrol dcp import reference.dcp ortho.dcp --into dcp_store
     Import {
+        /// Package folders to import.
         #[arg(required = true)]
         packages: Vec<PathBuf>,
         /// The store folder (created when missing).
@@ -68,13 +69,18 @@ pub enum DcpCommand {
     },
     /// Verify a package (manifest, CRS, every chip's checksum) and summarise it.
     ///
-    /// Example: cloudcontrol dcp info out/reference.dcp
-    Info { package: PathBuf },
+    /// Example: cloudcontrol dcp info reference.dcp
+    Info {
+        /// Package folder (manifest.json, chips/).
+        package: PathBuf,
+    },
     /// Merge packages of one CRS into a new package.
     ///
-    /// Example: cloudcontrol dcp merge a.dcp b.dcp --out ab.dcp
+    /// Example: cloudcontrol dcp merge reference.dcp ortho.dcp --out merged.dcp
     Merge {
+        /// Package folders to merge (one CRS).
         packages: Vec<PathBuf>,
+        /// Package folder to write (replaced atomically when it exists).
         #[arg(long)]
         out: PathBuf,
     },
@@ -86,8 +92,10 @@ pub enum DcpCommand {
     /// raster in another CRS than the package's is reprojected (GDAL's warper).
     ///
     /// Example:
-    ///   cloudcontrol dcp from-orthophoto --orthophoto autzen.jpg --orthophoto-crs-file autzen-srs.wkt --dem dem.tif --crs EPSG:4547 --out ortho.dcp
+    ///   cloudcontrol dcp from-orthophoto --orthophoto block/orthophoto/orthophoto.tif --dem block/orthophoto/dem.tif --crs EPSG:4547 --out ortho.dcp
     FromOrthophoto {
+        /// Orthophoto: a GeoTIFF, or an image with a world file (.jgw, .tfw, .wld; then
+        /// give --orthophoto-crs or --orthophoto-crs-file).
         #[arg(long)]
         orthophoto: PathBuf,
         /// CRS of the orthophoto when its file has none (EPSG:n or WKT).
@@ -96,6 +104,8 @@ pub enum DcpCommand {
         /// The same, read from a file (e.g. a .prj or .wkt beside a world file).
         #[arg(long)]
         orthophoto_crs_file: Option<PathBuf>,
+        /// DEM GeoTIFF of the orthophoto's area (heights in metres): the control points'
+        /// heights.
         #[arg(long)]
         dem: PathBuf,
         /// CRS of the DEM when its file has none.
@@ -107,10 +117,11 @@ pub enum DcpCommand {
         /// Package folder to write (replaced atomically when it exists).
         #[arg(long)]
         out: PathBuf,
-        /// Epoch name (default: the package folder's name without extension) and date of
-        /// the orthophoto's photos.
+        /// Epoch name (default: the package folder's name without extension).
         #[arg(long)]
         name: Option<String>,
+        /// Acquisition date of the orthophoto's photos (ISO 8601: YYYY, YYYY-MM or
+        /// YYYY-MM-DD).
         #[arg(long)]
         date: Option<String>,
         /// One control point per cell of this many orthophoto pixels at most.
@@ -213,7 +224,7 @@ fn summary(package: &Path, p: &DcpPackage) -> Value {
 }
 
 fn print_json(v: &Value) {
-    println!("{}", serde_json::to_string_pretty(v).expect("json"));
+    outln!("{}", serde_json::to_string_pretty(v).expect("json"));
 }
 
 fn points_summary(set: &ControlPointSet) -> (usize, usize) {
@@ -232,7 +243,7 @@ pub fn run(cmd: DcpCommand, json_out: bool) -> Result<(), String> {
             let set = b.select(&opts).map_err(|e| e.to_string())?;
             let text = serde_json::to_string_pretty(&set).map_err(|e| e.to_string())?;
             let Some(out) = out else {
-                println!("{text}");
+                outln!("{text}");
                 return Ok(());
             };
             write_bytes_atomically(&out, text.as_bytes()).map_err(|e| e.to_string())?;
@@ -242,7 +253,7 @@ pub fn run(cmd: DcpCommand, json_out: bool) -> Result<(), String> {
                     &json!({"out": out, "crs": set.crs, "points": points, "photos": photos}),
                 );
             } else {
-                println!(
+                outln!(
                     "{}: {points} control points in {photos} photos",
                     out.display()
                 );
@@ -269,7 +280,7 @@ pub fn run(cmd: DcpCommand, json_out: bool) -> Result<(), String> {
             if json_out {
                 print_json(&s);
             } else {
-                println!(
+                outln!(
                     "{}: {} control points, {} photos, {} chips",
                     out.display(),
                     s["points"],
@@ -334,7 +345,7 @@ pub fn run(cmd: DcpCommand, json_out: bool) -> Result<(), String> {
                     "selection": rep,
                 }));
             } else {
-                println!(
+                outln!(
                     "{}: {} control points from {} candidates ({} without DEM, {} not planar), ground pixel {:.3} m",
                     out.display(),
                     rep.points,
@@ -353,7 +364,7 @@ pub fn run(cmd: DcpCommand, json_out: bool) -> Result<(), String> {
                 print_json(&Value::from(v));
             } else {
                 for (src, p) in packages.iter().zip(&imported) {
-                    println!(
+                    outln!(
                         "{} → {}: {} control points, verified",
                         src.display(),
                         p.dir.display(),
@@ -370,23 +381,24 @@ pub fn run(cmd: DcpCommand, json_out: bool) -> Result<(), String> {
                 print_json(&summary(&package, &p));
             } else {
                 let measurements: usize = m.points.iter().map(|p| p.measurements.len()).sum();
-                println!("{}: verified ({} files)", package.display(), m.files.len());
-                println!(
+                outln!("{}: verified ({} files)", package.display(), m.files.len());
+                outln!(
                     "  epoch {} ({}), CRS {}, GSD {} m",
                     m.epoch.name,
                     m.epoch.date.as_deref().unwrap_or("undated"),
                     m.crs,
                     m.gsd_m
                 );
-                println!(
+                outln!(
                     "  {} photos, {} control points, {} chips",
                     m.photos.len(),
                     m.points.len(),
                     measurements
                 );
-                println!(
+                outln!(
                     "  accuracy ±{} m plan, ±{} m height",
-                    m.accuracy.plan_m, m.accuracy.height_m
+                    m.accuracy.plan_m,
+                    m.accuracy.height_m
                 );
             }
             Ok(())
@@ -401,12 +413,12 @@ pub fn run(cmd: DcpCommand, json_out: bool) -> Result<(), String> {
                 .collect::<Result<Vec<_>, _>>()?;
             let merged = DcpPackage::merge(&opened, &out).map_err(|e| e.to_string())?;
             if json_out {
-                println!(
+                outln!(
                     "{}",
                     json!({"package": out, "points": merged.manifest.points.len(), "photos": merged.manifest.photos.len()})
                 );
             } else {
-                println!(
+                outln!(
                     "{}: {} points from {} packages",
                     out.display(),
                     merged.manifest.points.len(),

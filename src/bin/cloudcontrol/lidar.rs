@@ -49,15 +49,16 @@ impl Source {
 pub enum LidarCommand {
     /// Header facts of LAS/LAZ files (version, format, count, bounds, CRS) without reading points.
     ///
-    /// Example: cloudcontrol lidar info tiles/*.laz
+    /// Example: cloudcontrol lidar info tiles/*.las
     Info {
+        /// LAS/LAZ files.
         #[arg(required = true)]
         files: Vec<PathBuf>,
     },
     /// Scan tiles into a source catalogue (bounds, counts, density, classes, strips,
     /// GPS time and dates, CRS); all tiles must share one CRS.
     ///
-    /// Example: cloudcontrol lidar catalogue tiles/ --out tiles/catalogue.json
+    /// Example: cloudcontrol lidar catalogue tiles/ --out catalogue.json
     #[command(alias = "catalog")]
     Catalogue {
         /// LAS/LAZ files or folders.
@@ -141,6 +142,8 @@ pub enum LidarCommand {
         /// Cell size (m).
         #[arg(long, default_value_t = 1.0)]
         cell: f64,
+        /// Height of a cell: the mean of its ground points, or inverse-distance weighted
+        /// (idw, with --power).
         #[arg(long, value_enum, default_value_t = DemArg::Mean)]
         method: DemArg,
         /// IDW power.
@@ -182,9 +185,9 @@ pub enum ModelArg {
 /// Register points (photogrammetric tie points, another cloud) onto the LiDAR surface by
 /// point-to-plane ICP; writes the 4×4 transform (source → LiDAR) with its statistics.
 ///
-/// Example: cloudcontrol icp --source ties.csv --target tiles/ --out transform.json
+/// Example: cloudcontrol icp --source tie_points.csv --target tiles/ --out transform.json
 ///
-/// Example: cloudcontrol --json icp --source pts.ply --target a.laz b.laz --rigid
+/// Example: cloudcontrol --json icp --source tie_points.ply --target tiles/tile_499900_4399900.las tiles/tile_500000_4399900.las --rigid
 #[derive(Args, Debug)]
 pub struct IcpArgs {
     /// Source points: CSV/text (X,Y,Z), PLY or LAS/LAZ.
@@ -196,6 +199,8 @@ pub struct IcpArgs {
     /// CRS for LiDAR files without one.
     #[arg(long)]
     pub crs: Option<String>,
+    /// Transform estimated: similarity (7 parameters: scale, rotation, shift) or rigid
+    /// (6: rotation, shift).
     #[arg(long, value_enum, default_value_t = ModelArg::Similarity)]
     pub model: ModelArg,
     /// Same as --model rigid.
@@ -216,6 +221,7 @@ pub struct IcpArgs {
     /// Final gate floor (m), 3–5× the LiDAR noise.
     #[arg(long, default_value_t = 0.3)]
     pub min_gate: f64,
+    /// Most ICP iterations.
     #[arg(long, default_value_t = 100)]
     pub max_iterations: usize,
     /// Bound on the LiDAR points loaded (the source's extent plus the gate).
@@ -283,11 +289,11 @@ pub fn run_lidar(cmd: LidarCommand, json_out: bool, quiet: bool) -> Result<(), S
                 infos.push(s.info().clone());
             }
             if json_out {
-                println!("{}", serde_json::to_string_pretty(&infos).unwrap());
+                outln!("{}", serde_json::to_string_pretty(&infos).unwrap());
             } else if !quiet {
                 for i in &infos {
                     let b = i.header_bounds;
-                    println!(
+                    outln!(
                         "{}: LAS {} format {}{}, {} points, x {:.2}..{:.2} y {:.2}..{:.2} z {:.2}..{:.2}, CRS {}",
                         i.file.display(),
                         i.version,
@@ -313,9 +319,9 @@ pub fn run_lidar(cmd: LidarCommand, json_out: bool, quiet: bool) -> Result<(), S
                 cat.save(o).map_err(|e| e.to_string())?;
             }
             if json_out {
-                println!("{}", cat.to_json());
+                outln!("{}", cat.to_json());
             } else if !quiet {
-                println!(
+                outln!(
                     "{} tiles, {} points, CRS {}, scanned in {:.2} s",
                     cat.tiles.len(),
                     cat.point_count,
@@ -323,7 +329,7 @@ pub fn run_lidar(cmd: LidarCommand, json_out: bool, quiet: bool) -> Result<(), S
                     secs(t)
                 );
                 for tile in &cat.tiles {
-                    println!(
+                    outln!(
                         "  {}: {} points, {:.2} pts/m², classes {:?}, strips {:?}, dates {}",
                         tile.file.display(),
                         tile.point_count,
@@ -337,7 +343,7 @@ pub fn run_lidar(cmd: LidarCommand, json_out: bool, quiet: bool) -> Result<(), S
                     );
                 }
                 if let Some(o) = &out {
-                    println!("catalogue written to {}", o.display());
+                    outln!("catalogue written to {}", o.display());
                 }
             }
         }
@@ -363,9 +369,9 @@ pub fn run_lidar(cmd: LidarCommand, json_out: bool, quiet: bool) -> Result<(), S
                 write_json(o, &v)?;
             }
             if json_out {
-                println!("{}", serde_json::to_string_pretty(&v).unwrap());
+                outln!("{}", serde_json::to_string_pretty(&v).unwrap());
             } else if !quiet {
-                print!("{}", rep.to_text());
+                out!("{}", rep.to_text());
             }
         }
         LidarCommand::Clean {
@@ -401,19 +407,20 @@ pub fn run_lidar(cmd: LidarCommand, json_out: bool, quiet: bool) -> Result<(), S
                 write_json(o, &v)?;
             }
             if json_out {
-                println!("{}", serde_json::to_string_pretty(&v).unwrap());
+                outln!("{}", serde_json::to_string_pretty(&v).unwrap());
             } else if !quiet {
                 if let Some(s) = &rep.strip_offsets {
                     let datum = match s.reference {
                         Some(r) => format!("strip {r} held"),
                         None => "zero mean over the strips".into(),
                     };
-                    println!(
+                    outln!(
                         "strip offsets ({:?} model, {datum}, σ0 {:.3} m):",
-                        s.model, s.sigma0_m
+                        s.model,
+                        s.sigma0_m
                     );
                     for st in &s.strips {
-                        println!(
+                        outln!(
                             "  strip {:>5}: dx {:+.3} dy {:+.3} dz {:+.3} m (σ {:.3} {:.3} {:.3}), {} points",
                             st.source_id,
                             st.offset_m[0],
@@ -427,7 +434,7 @@ pub fn run_lidar(cmd: LidarCommand, json_out: bool, quiet: bool) -> Result<(), S
                     }
                 }
                 for t in &rep.tiles {
-                    println!(
+                    outln!(
                         "  {} → {}: {} points, {} noise, {} written",
                         t.file.display(),
                         t.output.display(),
@@ -485,9 +492,9 @@ pub fn run_lidar(cmd: LidarCommand, json_out: bool, quiet: bool) -> Result<(), S
                 "points": n_points, "nodata_cells": nodata, "z_min": z0, "z_max": z1, "crs": crs.label(),
             });
             if json_out {
-                println!("{}", serde_json::to_string_pretty(&v).unwrap());
+                outln!("{}", serde_json::to_string_pretty(&v).unwrap());
             } else if !quiet {
-                println!(
+                outln!(
                     "DEM {}×{} at {} m from {} points, z {:.2}..{:.2}, {} nodata cells → {}",
                     dem.width,
                     dem.height,
@@ -616,9 +623,9 @@ pub fn run_icp(a: IcpArgs, json_out: bool, quiet: bool) -> Result<(), String> {
         write_json(o, &v)?;
     }
     if json_out {
-        println!("{}", serde_json::to_string_pretty(&v).unwrap());
+        outln!("{}", serde_json::to_string_pretty(&v).unwrap());
     } else if !quiet {
-        println!(
+        outln!(
             "ICP ({:?}) {} source points on {} LiDAR points: {} iterations{}, RMSE {:.3} m, {} inliers, scale {:.6}",
             model,
             src.len(),
@@ -630,13 +637,16 @@ pub fn run_icp(a: IcpArgs, json_out: bool, quiet: bool) -> Result<(), String> {
             r.transform.scale
         );
         for row in &matrix {
-            println!(
+            outln!(
                 "  [{:>14.6} {:>14.6} {:>14.6} {:>16.4}]",
-                row[0], row[1], row[2], row[3]
+                row[0],
+                row[1],
+                row[2],
+                row[3]
             );
         }
         if let Some(o) = &a.out {
-            println!("transform written to {}", o.display());
+            outln!("transform written to {}", o.display());
         }
     }
     Ok(())

@@ -44,11 +44,14 @@ pub struct IoArgs {
 /// Match a template image in an image (NCC over the pyramid, then LSM), for debugging.
 #[derive(Args)]
 pub struct MatchArgs {
+    /// Image to search in (PNG, TIFF, JPEG; grey or RGB).
     image: PathBuf,
+    /// Template to find in it (smaller than the window).
     template: PathBuf,
     /// Search window: col,row,width,height (default: the whole image).
     #[arg(long, value_delimiter = ',')]
     window: Option<Vec<usize>>,
+    /// Least normalised cross-correlation (NCC) of an accepted position.
     #[arg(long, default_value_t = 0.7)]
     ncc_threshold: f64,
 }
@@ -95,8 +98,7 @@ pub struct TiesArgs {
 }
 
 fn fail(cmd: &str, e: impl std::fmt::Display) -> ExitCode {
-    eprintln!("cloudcontrol {cmd}: {e}");
-    ExitCode::from(1)
+    crate::console::fail(cmd, e, crate::EXIT_FAILED)
 }
 
 pub fn io(a: IoArgs, quiet: bool) -> ExitCode {
@@ -135,7 +137,7 @@ pub fn io(a: IoArgs, quiet: bool) -> ExitCode {
             }
             if !quiet {
                 let used = io.marks.iter().filter(|m| m.used).count();
-                println!(
+                outln!(
                     "{}: {used}/{} marks, RMSE {:.1} µm, orientation {} ({}, margin {:.1}×{}) → {}",
                     a.scan.display(),
                     io.marks.len(),
@@ -152,7 +154,7 @@ pub fn io(a: IoArgs, quiet: bool) -> ExitCode {
                 );
             }
         }
-        None => println!("{text}"),
+        None => outln!("{text}"),
     }
     ExitCode::SUCCESS
 }
@@ -191,14 +193,15 @@ pub fn matching(a: MatchArgs) -> ExitCode {
     let pyr = Pyramid::from_image(img, 8, 16);
     match match_template(&pyr, &tpl, window, None, &opts) {
         Ok(m) => {
-            println!(
+            outln!(
                 "{}",
                 serde_json::to_string_pretty(&m).expect("match serialises")
             );
             if m.accepted {
                 ExitCode::SUCCESS
             } else {
-                ExitCode::from(2)
+                // No position accepted: a result, with its own exit status (README.md).
+                ExitCode::from(super::EXIT_NO_MATCH)
             }
         }
         Err(e) => fail("match", e),
@@ -286,7 +289,7 @@ pub fn ties(a: TiesArgs, quiet: bool) -> ExitCode {
     }
     if !quiet {
         let missing: usize = cov.iter().map(|c| c.missing(1).len()).sum();
-        println!(
+        outln!(
             "{} pairs, {} tracks, {missing} standard positions without points → {}",
             pairs.len(),
             tracks.len(),
@@ -371,7 +374,7 @@ fn ties_oriented(a: &TiesArgs, robust: RobustMethod, quiet: bool) -> ExitCode {
     if !quiet {
         let missing: usize = report.coverage.iter().map(|c| c.missing.len()).sum();
         let skipped = report.pairs.iter().filter(|p| p.skipped.is_some()).count();
-        println!(
+        outln!(
             "{} pairs ({skipped} skipped), {} tie points with {} observations, {missing} standard positions with fewer than {} points → {}",
             report.pairs.len(),
             report.points_added,

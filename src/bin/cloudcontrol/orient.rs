@@ -1,5 +1,6 @@
-//! `cloudcontrol orient` (an archive epoch from DCP packages) and `cloudcontrol
-//! bench-table13` (seed 001's table 1.3 on a synthetic block): argument handling and
+//! `cloudcontrol orient` (an archive epoch from DCP packages) and `cloudcontrol bench
+//! patches` (control patch success by EO group, after seed 001's table 1.3, on a
+//! synthetic block; `bench-table13` is its old, hidden name): argument handling and
 //! output; the work is `control::archive::orient_epoch`.
 
 use clap::Args;
@@ -12,25 +13,18 @@ use cloudcontrol::control::export::{self, DcpExportOptions};
 use cloudcontrol::formats::{self, control_points, write_bytes_atomically};
 use cloudcontrol::matching::ScanOrientation;
 use cloudcontrol::pipeline::film_frames;
+use cloudcontrol::pipeline::partial::PartialEpoch;
 use cloudcontrol::pipeline::project::Thresholds;
 use cloudcontrol::synth::reading::{perturbed_navigation, synth_truth_block};
 use serde_json::json;
 use std::path::{Path, PathBuf};
 use std::time::Instant;
 
-/// Orient an archive epoch (film scans or digital photos) from DCP packages.
-///
-/// Example (a synthetic block):
-///   cloudcontrol orient --dcp ref.dcp --synth block --epoch film_1978 --dem dem.tif --out film
-///
-/// Example (own data):
-///   cloudcontrol orient --dcp ref.dcp --camera rc10.json --images scans/ --pos pos.csv \
-///       --crs EPSG:4547 --dem dem.tif --out film
-///
-/// Writes OUT/block.json (the oriented block, world = local + origin), OUT/colmap/ and
-/// OUT/blocks_exchange.xml (film: of the scans resampled into OUT/resampled/), and
-/// OUT/report.json
-/// (per photo: oriented or why not, per-iteration success ratios; the adjustment report).
+/// The arguments of `cloudcontrol orient` (its help and examples: `Command::Orient` in
+/// main.rs). Writes OUT/block.json (the oriented block, world = local + origin),
+/// OUT/colmap/ and OUT/blocks_exchange.xml (film: of the scans resampled into
+/// OUT/resampled/), and OUT/report.json (per photo: oriented or why not, per-iteration
+/// success ratios; the adjustment report).
 #[derive(Args)]
 pub struct OrientArgs {
     /// DCP package folder(s); all are verified and used together (e.g. several epochs).
@@ -69,6 +63,8 @@ pub struct OrientArgs {
     /// Ground DEM GeoTIFF (world coordinates, the packages' CRS).
     #[arg(long)]
     dem: PathBuf,
+    /// Output folder: block.json, colmap/, blocks_exchange.xml, report.json (and
+    /// resampled/ for film scans).
     #[arg(long)]
     out: PathBuf,
     /// Rejection threshold of the block adjustment in σ0.
@@ -121,6 +117,14 @@ fn write_outputs(
     write_bytes_atomically(&out.join("block.json"), &block).map_err(|e| e.to_string())?;
     let mut exports = serde_json::Map::new();
     let mut oriented = r.block.oriented_only();
+    // An epoch that oriented no photo has no model to give: none is written (the command
+    // ends partial, exit status 3).
+    if oriented.photos.is_empty() {
+        let reason = "no photo of the epoch was oriented";
+        exports.insert("colmap".into(), json!({ "skipped": reason }));
+        exports.insert("blocks_exchange".into(), json!({ "skipped": reason }));
+        return finish_report(out, r, exports);
+    }
     let mut pixel_mm = Default::default();
     // Film: COLMAP and BlocksExchange of the scans resampled into their fiducial frames,
     // as `cloudcontrol run` writes them (formats/workflow, "Resampled film scans").
@@ -196,24 +200,29 @@ fn finish_report(
     Ok(report)
 }
 
-pub fn run_orient(a: &OrientArgs, json_out: bool, quiet: bool) -> Result<(), String> {
+/// Orients the epoch and writes its outputs; Ok: the epoch's shortfall when it oriented
+/// fewer photos than it has (the command then exits 3, saying why).
+pub fn run_orient(
+    a: &OrientArgs,
+    json_out: bool,
+    quiet: bool,
+) -> Result<Option<PartialEpoch>, String> {
     let t0 = Instant::now();
-    // Every package is verified (manifest, CRS, chip checksums) before anything is done.
+    // The epoch's own inputs first (camera, navigation, photos: cheap, and the usual
+    // mistakes), then every package is verified (manifest, CRS, chip checksums), all
+    // before anything is done.
+    let (dem, dem_crs) = formats::raster::read_dem(&a.dem).map_err(|e| e.to_string())?;
+    let input = match (&a.synth, &a.epoch) {
+        (Some(dir), Some(epoch)) => {
+            EpochInput::from_synth_epoch(dir, epoch).map_err(|e| e.to_string())?
+        }
+        _ => explicit_input(a, dem_crs.map(|c| c.label()))?,
+    };
     let packages: Vec<DcpPackage> = a
         .dcp
         .iter()
         .map(|p| DcpPackage::open(p).map_err(|e| e.to_string()))
         .collect::<Result<_, _>>()?;
-    let input = match (&a.synth, &a.epoch) {
-        (Some(dir), Some(epoch)) => {
-            EpochInput::from_synth_epoch(dir, epoch).map_err(|e| e.to_string())?
-        }
-        _ => {
-            let (_, crs) = formats::raster::read_dem(&a.dem).map_err(|e| e.to_string())?;
-            explicit_input(a, crs.map(|c| c.label()))?
-        }
-    };
-    let (dem, _) = formats::raster::read_dem(&a.dem).map_err(|e| e.to_string())?;
     let dem = dem
         .shifted(input.origin)
         .map_err(|e| format!("{}: {e}", a.dem.display()))?;
@@ -224,15 +233,19 @@ pub fn run_orient(a: &OrientArgs, json_out: bool, quiet: bool) -> Result<(), Str
     }
     .archive_options();
     opts.photo.io.orientation = a.scan_orientation;
+    // Progress per photo on stderr (a spinner on a terminal, lines in a log).
+    let shown =
+        crate::console::ProgressGuard::start(quiet || json_out, &format!("orient {}", input.name));
     let r = archive::orient_epoch(&input, &packages, &dem, &opts).map_err(|e| e.to_string())?;
     let report = write_outputs(&a.out, &r, &input.camera)?;
+    drop(shown);
     if json_out {
-        println!(
+        outln!(
             "{}",
             serde_json::to_string_pretty(&report).map_err(|e| e.to_string())?
         );
     } else if !quiet {
-        println!(
+        outln!(
             "cloudcontrol orient — epoch {}: {} of {} photos oriented ({:.1} s)",
             r.epoch,
             r.photos.iter().filter(|p| p.oriented).count(),
@@ -245,7 +258,7 @@ pub fn run_orient(a: &OrientArgs, json_out: bool, quiet: bool) -> Result<(), Str
                 .iter()
                 .map(|i| format!("{:.2}", i.success_ratio))
                 .collect();
-            println!(
+            outln!(
                 "  {:<24} {:<3} matches {:>3}  σ {:>5.2} px  success per round [{}]{}",
                 p.name,
                 if p.oriented { "ok" } else { "NO" },
@@ -259,28 +272,31 @@ pub fn run_orient(a: &OrientArgs, json_out: bool, quiet: bool) -> Result<(), Str
             );
         }
         if let Some(adj) = &r.adjustment {
-            println!(
+            outln!(
                 "  block adjustment: σ0 {:.2}, RMSE {:.2} px, {} rejected, {} control points",
-                adj.sigma0, adj.rmse_px, adj.rejected.count, adj.points
+                adj.sigma0,
+                adj.rmse_px,
+                adj.rejected.count,
+                adj.points
             );
         }
-        println!("  written to {}", a.out.display());
+        outln!("  written to {}", a.out.display());
     }
-    Ok(())
+    Ok(PartialEpoch::of_result(&r, Some(a.out.join("report.json"))))
 }
 
-/// Reproduce seed 001's table 1.3 on a synthetic block: per EO group, the share of
-/// predicted control patches matched per photo, with and without iterative refinement,
-/// and the relative time.
-///
-/// Example: cloudcontrol bench-table13 --out bench13
+/// The arguments of `cloudcontrol bench patches` (seed 001's table 1.3 reproduced on a
+/// synthetic block: per EO group, the share of predicted control patches matched per
+/// photo, with and without iterative refinement, and the relative time).
 #[derive(Args)]
 pub struct BenchArgs {
+    /// Work folder: the synthetic block, patches.txt (the table) and patches.json.
     #[arg(long)]
     out: PathBuf,
-    /// Synthetic preset (small: film at 0.5 m ground pixel).
+    /// Synthetic preset: tiny, small (film at 0.5 m ground pixel) or medium.
     #[arg(long, default_value = "small")]
     preset: String,
+    /// Seed of the synthetic block.
     #[arg(long, default_value_t = 3)]
     seed: u64,
     /// Noise draws per EO group.
@@ -356,7 +372,7 @@ pub fn run_bench(a: &BenchArgs, json_out: bool) -> Result<(), String> {
         },
     )
     .map_err(|e| e.to_string())?;
-    eprintln!(
+    errln!(
         "block and {} DCP points ready in {:.1} s",
         pkg.manifest.points.len(),
         t.elapsed().as_secs_f64()
@@ -456,7 +472,7 @@ pub fn run_bench(a: &BenchArgs, json_out: bool) -> Result<(), String> {
     }
     let mut table = String::new();
     table.push_str(&format!(
-        "Table 1.3 (seed 001) on synthetic preset {} seed {}: {} draws × {:?}\n",
+        "Control patch success by EO group, synthetic preset {} seed {}: {} draws × {:?}\n",
         a.preset, a.seed, a.draws, epochs
     ));
     table.push_str(
@@ -487,14 +503,14 @@ pub fn run_bench(a: &BenchArgs, json_out: bool) -> Result<(), String> {
             ));
         }
     }
-    write_bytes_atomically(&a.out.join("table13.txt"), table.as_bytes())
+    write_bytes_atomically(&a.out.join("patches.txt"), table.as_bytes())
         .map_err(|e| e.to_string())?;
     let j = serde_json::to_vec_pretty(&rows).map_err(|e| e.to_string())?;
-    write_bytes_atomically(&a.out.join("table13.json"), &j).map_err(|e| e.to_string())?;
+    write_bytes_atomically(&a.out.join("patches.json"), &j).map_err(|e| e.to_string())?;
     if json_out {
-        println!("{}", String::from_utf8_lossy(&j));
+        outln!("{}", String::from_utf8_lossy(&j));
     } else {
-        print!("{table}");
+        out!("{table}");
     }
     Ok(())
 }

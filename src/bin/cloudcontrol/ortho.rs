@@ -73,12 +73,12 @@ pub fn run(a: Args, json: bool, quiet: bool) -> ExitCode {
     match result {
         Ok(r) => {
             if json {
-                println!(
+                outln!(
                     "{}",
                     serde_json::to_string_pretty(&r).expect("report serialises")
                 );
             } else if !quiet {
-                println!(
+                outln!(
                     "{}: {}×{} px at {:.3} m, {} cells filled, {} taken from a farther photo because of occlusion",
                     a.out.display(),
                     r.width,
@@ -90,9 +90,6 @@ pub fn run(a: Args, json: bool, quiet: bool) -> ExitCode {
             }
             ExitCode::SUCCESS
         }
-        Err(e) => {
-            eprintln!("cloudcontrol ortho: {e}");
-            ExitCode::from(1)
-        }
+        Err(e) => crate::console::fail("ortho", e, crate::EXIT_FAILED),
     }
 }

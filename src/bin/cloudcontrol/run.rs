@@ -1,14 +1,15 @@
 //! `cloudcontrol run` and `cloudcontrol demo`: progress while the stages run, then the
 //! per-epoch summary table (or JSON).
 
+use crate::console::{self, ProgressGuard};
+use cloudcontrol::formats::paths::normalise;
+use cloudcontrol::pipeline::partial::PartialEpoch;
 use cloudcontrol::pipeline::project::Project;
 use cloudcontrol::pipeline::run::{check_output, run_project, Event, RunError, RunSummary};
 use cloudcontrol::pipeline::stages::{OutputFolder, StageError};
 use cloudcontrol::pipeline::{demo, report::EpochReport};
 use cloudcontrol::synth::Preset;
-use indicatif::{ProgressBar, ProgressStyle};
 use std::path::{Path, PathBuf};
-use std::time::Duration;
 
 #[derive(clap::Args)]
 pub struct RunArgs {
@@ -19,44 +20,41 @@ pub struct RunArgs {
     check: bool,
 }
 
-#[derive(Clone, Copy, clap::ValueEnum)]
-pub enum DemoPreset {
-    Tiny,
-    Small,
-}
-
-impl From<DemoPreset> for Preset {
-    fn from(p: DemoPreset) -> Self {
-        match p {
-            DemoPreset::Tiny => Preset::Tiny,
-            DemoPreset::Small => Preset::Small,
-        }
+/// `demo --preset`: the small block. The tiny preset (for unit tests of other modules)
+/// cannot carry the demo: its 400 × 266 px digital photos leave no room for the 193 px
+/// control chips of the next epoch's DCPs, and its film scans at 200 µm are too coarse
+/// for the fiducial marks to decide each scan's orientation.
+pub fn demo_preset(s: &str) -> Result<Preset, String> {
+    match s {
+        "small" => Ok(Preset::Small),
+        "tiny" => Err(
+            "the tiny preset cannot run the demo (its 400 × 266 px digital photos \
+             have no room for the 193 px control chips, its film scans at 200 µm are too \
+             coarse for the fiducial marks): use small, or `cloudcontrol synth --preset tiny` \
+             for a tiny block"
+                .into(),
+        ),
+        _ => Err(format!(
+            "{s:?}: the demo runs on the small preset (--preset small)"
+        )),
     }
 }
 
-/// A spinner per stage on stderr (hidden with --quiet or --json).
-fn progress(hidden: bool) -> impl FnMut(&Event) {
-    let bar = if hidden {
-        ProgressBar::hidden()
-    } else {
-        let b = ProgressBar::new_spinner();
-        b.set_style(
-            ProgressStyle::with_template("{spinner} [{elapsed_precise}] {msg}")
-                .unwrap_or_else(|_| ProgressStyle::default_spinner()),
-        );
-        b.enable_steady_tick(Duration::from_millis(120));
-        b
-    };
-    move |e: &Event| match e {
+/// Progress on stderr (nothing with --quiet or --json): a spinner with the stage and the
+/// photo being worked on when stderr is a terminal, else a line per stage and per photo;
+/// a line per finished stage with its time.
+fn progress(hidden: bool) -> (ProgressGuard, impl FnMut(&Event)) {
+    let guard = ProgressGuard::start(hidden, "");
+    let on_event = move |e: &Event| match e {
         Event::Start {
             stage,
             index,
             total,
         } => {
             if *total > 0 {
-                bar.set_message(format!("[{index}/{total}] {stage}"));
+                console::stage(&format!("[{index}/{total}] {stage}"));
             } else {
-                bar.set_message(stage.clone());
+                console::stage(stage);
             }
         }
         Event::Done {
@@ -69,7 +67,24 @@ fn progress(hidden: bool) -> impl FnMut(&Event) {
             } else {
                 format!("{seconds:.1} s")
             };
-            bar.println(format!("  {stage:<28} {what}"));
+            console::line(&format!("  {stage:<28} {what}"));
+        }
+    };
+    (guard, on_event)
+}
+
+/// The summary's paths as the user reads them: `…/block/../run` (a project's output
+/// given as `../run`) printed `…/run` (lexically: the paths the run used are unchanged).
+fn normalise_paths(s: &mut RunSummary) {
+    s.output = normalise(&s.output);
+    for files in s.products.values_mut() {
+        for f in files.iter_mut() {
+            *f = normalise(f);
+        }
+    }
+    for p in &mut s.partial {
+        if let Some(r) = p.result.as_mut() {
+            *r = normalise(r);
         }
     }
 }
@@ -82,37 +97,44 @@ fn px(m: f64, gsd: f64) -> String {
     }
 }
 
-fn print_summary(s: &RunSummary, json: bool) {
+fn print_summary(s: &mut RunSummary, json: bool) {
+    normalise_paths(s);
     if json {
-        println!(
+        outln!(
             "{}",
             serde_json::to_string_pretty(&s.to_json()).expect("summary serialises")
         );
         return;
     }
-    println!();
-    println!(
+    outln!();
+    outln!(
         "{:<16} {:>6} {:>9} {:>7}  {:<18} {:<18} {:>7}",
-        "epoch", "GSD m", "oriented", "checks", "plan RMSE", "height RMSE", "time s"
+        "epoch",
+        "GSD m",
+        "oriented",
+        "checks",
+        "plan RMSE",
+        "height RMSE",
+        "time s"
     );
     for e in &s.report.epochs {
         row(e);
     }
-    println!();
-    println!("outputs under {}", s.output.display());
+    outln!();
+    outln!("outputs under {}", s.output.display());
     for (epoch, files) in &s.products {
         for f in files {
-            println!("  {epoch:<16} {}", f.display());
+            outln!("  {epoch:<16} {}", f.display());
         }
     }
-    println!(
+    outln!(
         "  report           {}",
         s.output.join("report/report.html").display()
     );
 }
 
 fn row(e: &EpochReport) {
-    println!(
+    outln!(
         "{:<16} {:>6.3} {:>4}/{:<4} {:>7}  {:<18} {:<18} {:>7.1}",
         e.name,
         e.gsd_m,
@@ -127,7 +149,8 @@ fn row(e: &EpochReport) {
 
 /// Exit code 2: the project file is invalid, or its output folder is not a run's to write,
 /// and nothing ran; 1: a stage failed, or another run is writing the output folder.
-pub fn run(a: &RunArgs, json: bool, quiet: bool) -> Result<(), (u8, String)> {
+/// Ok: the epochs that oriented fewer photos than they have (exit code 3 when any).
+pub fn run(a: &RunArgs, json: bool, quiet: bool) -> Result<Vec<PartialEpoch>, (u8, String)> {
     let project = Project::load(&a.project).map_err(|e| (2, e.to_string()))?;
     let refused = |e: RunError| {
         let code = match &e {
@@ -138,48 +161,71 @@ pub fn run(a: &RunArgs, json: bool, quiet: bool) -> Result<(), (u8, String)> {
     };
     if a.check {
         let state = check_output(&project).map_err(refused)?;
-        if !quiet {
-            let what = match state {
-                OutputFolder::Missing => "made by the run",
-                OutputFolder::Empty => "empty, taken by the run",
-                OutputFolder::Owned => "made by an earlier run",
-            };
-            println!(
+        let (key, what) = match state {
+            OutputFolder::Missing => ("missing", "made by the run"),
+            OutputFolder::Empty => ("empty", "empty, taken by the run"),
+            OutputFolder::Owned => ("owned", "made by an earlier run"),
+        };
+        if json {
+            let doc = serde_json::json!({
+                "project": normalise(&a.project),
+                "valid": true,
+                "reference": project.reference.as_ref().map(|e| &e.name),
+                "archive": project.archive.iter().map(|e| &e.name).collect::<Vec<_>>(),
+                "output": normalise(&project.output),
+                "output_state": key,
+            });
+            outln!(
+                "{}",
+                serde_json::to_string_pretty(&doc).expect("check serialises")
+            );
+        } else if !quiet {
+            outln!(
                 "{}: valid; {} archive epoch(s), output {} ({what})",
                 a.project.display(),
                 project.archive.len(),
-                project.output.display()
+                normalise(&project.output).display()
             );
         }
-        return Ok(());
+        return Ok(Vec::new());
     }
-    let mut on_event = progress(quiet || json);
-    let s = run_project(&project, &mut on_event, None).map_err(refused)?;
+    let (shown, mut on_event) = progress(quiet || json);
+    let mut s = run_project(&project, &mut on_event, None).map_err(refused)?;
+    drop(shown);
     if !quiet || json {
-        print_summary(&s, json);
+        print_summary(&mut s, json);
     }
-    Ok(())
+    Ok(s.partial)
 }
 
-pub fn demo(out: &Path, preset: Preset, json: bool, quiet: bool) -> Result<(), String> {
+/// Ok: the epochs that oriented fewer photos than they have (exit code 3 when any).
+pub fn demo(
+    out: &Path,
+    preset: Preset,
+    json: bool,
+    quiet: bool,
+) -> Result<Vec<PartialEpoch>, String> {
     let t = std::time::Instant::now();
     if !quiet && !json {
-        println!(
+        outln!(
             "cloudcontrol demo: {} synthetic block (LiDAR, checkpoints, reference 2024, digital 2012, film 1978) under {}",
             match preset {
                 Preset::Tiny => "tiny",
-                _ => "small",
+                Preset::Small => "small",
+                Preset::Medium => "medium",
+                Preset::Large => "large",
             },
-            out.display()
+            normalise(out).display()
         );
     }
-    let mut on_event = progress(quiet || json);
-    let s = demo::run(out, preset, &mut on_event).map_err(|e| e.to_string())?;
+    let (shown, mut on_event) = progress(quiet || json);
+    let mut s = demo::run(out, preset, &mut on_event).map_err(|e| e.to_string())?;
+    drop(shown);
     if !quiet || json {
-        print_summary(&s, json);
+        print_summary(&mut s, json);
     }
     if !quiet && !json {
-        println!("demo finished in {:.1} s", t.elapsed().as_secs_f64());
+        outln!("demo finished in {:.1} s", t.elapsed().as_secs_f64());
     }
-    Ok(())
+    Ok(s.partial)
 }

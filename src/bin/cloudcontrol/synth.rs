@@ -96,24 +96,24 @@ pub fn run(args: SynthArgs, json: bool, quiet: bool) -> ExitCode {
                     "total_s": m.run.total_s,
                     "peak_memory_mib": m.run.peak_memory_mib,
                 });
-                println!("{}", serde_json::to_string_pretty(&v).expect("json"));
+                outln!("{}", serde_json::to_string_pretty(&v).expect("json"));
             } else if !quiet {
-                println!(
+                outln!(
                     "cloudcontrol synth — {} ({:?}, seed {})",
                     args.out.display(),
                     m.preset,
                     m.seed
                 );
-                println!(
+                outln!(
                     "  lidar        {} points in {} tiles, {:.1} pts/m², {} strips",
                     m.lidar.points,
                     m.lidar.tiles.len(),
                     m.lidar.density_per_m2,
                     m.lidar.strips
                 );
-                println!("  checkpoints  {}", m.checkpoint_count);
+                outln!("  checkpoints  {}", m.checkpoint_count);
                 for e in &m.epochs {
-                    println!(
+                    outln!(
                         "  {:<15} {} {} photos {}×{} at {:.2} m",
                         e.name,
                         e.kind,
@@ -124,18 +124,17 @@ pub fn run(args: SynthArgs, json: bool, quiet: bool) -> ExitCode {
                     );
                 }
                 for (stage, s) in &m.run.stages {
-                    println!("  time {stage:<14} {s:.2} s");
+                    outln!("  time {stage:<14} {s:.2} s");
                 }
-                println!(
+                outln!(
                     "  total        {:.2} s on {} threads, peak memory {:.0} MiB",
-                    m.run.total_s, m.run.threads, m.run.peak_memory_mib
+                    m.run.total_s,
+                    m.run.threads,
+                    m.run.peak_memory_mib
                 );
             }
             ExitCode::SUCCESS
         }
-        Err(e) => {
-            eprintln!("cloudcontrol synth: {e}");
-            ExitCode::from(1)
-        }
+        Err(e) => crate::console::fail("synth", e, crate::EXIT_FAILED),
     }
 }
