@@ -103,7 +103,11 @@ fn project_check_accepts_what_run_check_accepts() {
             target,
             "{}: run --check {} ({}), the target {}",
             f.display(),
-            if out.status.success() { "accepts" } else { "refuses" },
+            if out.status.success() {
+                "accepts"
+            } else {
+                "refuses"
+            },
             String::from_utf8_lossy(&out.stderr).trim(),
             if target { "accepts" } else { "refuses" },
         );
