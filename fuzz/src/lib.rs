@@ -709,7 +709,8 @@ fn link(target: &Path, at: &Path) {
 
 /// A project file through the checks `cloudcontrol run --check` makes (src/bin/cloudcontrol/
 /// run.rs: `Project::load`, its parse, paths and validation, then `check_output`, whether
-/// a run may write its output folder), in a folder where each path the project may name
+/// a run may write its output folder, then `validate::check_inputs`, every epoch's
+/// inputs and the checkpoint files read), in a folder where each path the project may name
 /// is present or not, a file, a folder, a link, a FIFO or a run's output folder:
 /// project.toml, the layout and the files' content by [`members`] ([`lay_out_project`]).
 /// tests/fuzz_replay.rs checks that the CLI accepts exactly the seeds this target does.
@@ -727,7 +728,10 @@ fn project_check_reads(data: &[u8]) -> bool {
     let path = dir.join("project.toml");
     put(&path, toml);
     match Project::load(&path) {
-        Ok(project) => check_output(&project).is_ok(),
+        Ok(project) => {
+            check_output(&project).is_ok()
+                && cloudcontrol::pipeline::validate::check_inputs(&project).is_ok()
+        }
         Err(_) => false,
     }
 }

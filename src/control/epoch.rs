@@ -59,15 +59,36 @@ impl EpochCamera {
     pub fn load(path: &Path) -> Result<Self, EpochError> {
         let text = crate::formats::input::read_text(path, crate::formats::input::Cap::camera())
             .map_err(|e| input_err(path, e.detail()))?;
-        let json: serde_json::Value =
-            serde_json::from_str(&text).map_err(|e| input_err(path, format!("not JSON: {e}")))?;
+        let json: serde_json::Value = serde_json::from_str(&text)
+            .map_err(|e| FormatError::at(path, e.line(), None, format!("not JSON: {e}")))?;
         if json.get("fiducials").is_some() {
             let dir = crate::formats::paths::folder_of(path);
             return CameraDefinition::from_json(json, dir)
                 .map(Self::Film)
                 .map_err(|e| input_err(path, e));
         }
-        match serde_json::from_value::<Camera>(json).map_err(|e| input_err(path, e.to_string()))? {
+        let keys: Vec<String> = match json.as_object() {
+            Some(o) if o.get("kind").and_then(|k| k.as_str()) == Some("frame") => {
+                o.keys().cloned().collect()
+            }
+            _ => Vec::new(),
+        };
+        let decoded = serde_json::from_value::<Camera>(json).map_err(|e| {
+            // The decoded value has no positions: a missing key is blamed on a key of the
+            // file no frame camera has (`"fxx"` for `"fx"`), on its line.
+            let odd = keys.iter().find(|k| !FRAME_KEYS.contains(&k.as_str()));
+            match odd.and_then(|k| json_key_line(&text, k).map(|l| (k, l))) {
+                Some((k, line)) if e.to_string().starts_with("missing field") => FormatError::at(
+                    path,
+                    line,
+                    None,
+                    format!("{e}; the file has {k:?}, which no frame camera has (misspelt?)"),
+                )
+                .into(),
+                _ => input_err(path, e.to_string()),
+            }
+        })?;
+        match decoded {
             Camera::Frame(f) => {
                 Camera::Frame(f.clone())
                     .validate()
@@ -80,6 +101,34 @@ impl EpochCamera {
             )),
         }
     }
+}
+
+/// The keys of a frame camera file (formats/cameras/).
+const FRAME_KEYS: [&str; 8] = [
+    "kind",
+    "width",
+    "height",
+    "fx",
+    "fy",
+    "cx",
+    "cy",
+    "distortion",
+];
+
+/// The 1-based line of the first `"key":` in a JSON text: where an error about the key
+/// points the reader (a decoded `serde_json::Value` keeps no positions).
+pub(crate) fn json_key_line(text: &str, key: &str) -> Option<usize> {
+    let quoted = format!("\"{key}\"");
+    let mut from = 0;
+    while let Some(i) = text[from..].find(&quoted) {
+        let at = from + i;
+        let after = text[at + quoted.len()..].trim_start();
+        if after.starts_with(':') {
+            return Some(text[..at].matches('\n').count() + 1);
+        }
+        from = at + quoted.len();
+    }
+    None
 }
 
 /// A photo of an epoch: its name (the image file's stem) and image file.

@@ -19,6 +19,7 @@ impl From<RunError> for FfiError {
             RunError::Stage(StageError::Busy { .. }) => CcpStatus::Busy,
             // The output folder is not a run's to write (the project's `output`).
             RunError::Stage(StageError::Output { .. }) => CcpStatus::InvalidArgument,
+            RunError::Inputs(_) => CcpStatus::InvalidArgument,
             RunError::Stage(StageError::Format(f)) => FfiError::from(f).status,
             // The status of the module error the stage failed on.
             RunError::Stage(StageError::Failed { source, .. }) => FfiError::from(*source).status,

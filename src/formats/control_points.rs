@@ -246,6 +246,18 @@ pub fn read_checkpoint_measurements(
     path: &Path,
     epoch: &str,
 ) -> Result<Vec<CheckpointMeasurement>> {
+    Ok(read_all_checkpoint_measurements(path)?
+        .into_iter()
+        .filter(|(e, _)| e == epoch)
+        .map(|(_, m)| m)
+        .collect())
+}
+
+/// Every checkpoint measurement of an `epoch,photo,id,col,row` file with its epoch, in
+/// file order: the check before a run reads the file once for all epochs.
+pub fn read_all_checkpoint_measurements(
+    path: &Path,
+) -> Result<Vec<(String, CheckpointMeasurement)>> {
     let table = read_records::<CheckpointRow>(
         path,
         &Layout {
@@ -276,14 +288,15 @@ pub fn read_checkpoint_measurements(
                 ),
             ));
         }
-        if r.epoch == epoch {
-            out.push(CheckpointMeasurement {
+        out.push((
+            r.epoch,
+            CheckpointMeasurement {
                 line,
                 photo: r.photo,
                 id: r.id,
                 pixel: [r.col, r.row],
-            });
-        }
+            },
+        ));
     }
     Ok(out)
 }

@@ -14,3 +14,4 @@ pub mod run;
 pub mod stages;
 pub mod tasks;
 pub mod tie_statistics;
+pub mod validate;

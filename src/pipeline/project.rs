@@ -289,6 +289,9 @@ pub struct Project {
     /// SHA-256 (hex) of the project file [`Project::load`] read; the run's report names it.
     #[serde(skip)]
     pub file_sha256: Option<String>,
+    /// The project file [`Project::load`] read (problems of its keys name it).
+    #[serde(skip)]
+    pub file: Option<PathBuf>,
 }
 
 impl Project {
@@ -330,6 +333,7 @@ impl Project {
         use sha2::Digest;
         let digest = sha2::Sha256::digest(text.as_bytes());
         p.file_sha256 = Some(digest.iter().map(|b| format!("{b:02x}")).collect());
+        p.file = Some(path.to_path_buf());
         Ok(p)
     }
 

@@ -50,6 +50,9 @@ pub enum RunError {
     Project(#[from] ProjectError),
     #[error(transparent)]
     Stage(#[from] StageError),
+    /// The project's inputs, checked before any stage ([`super::validate`]).
+    #[error(transparent)]
+    Inputs(#[from] super::validate::InputProblems),
     #[error("stopped after stage {0} as asked")]
     Stopped(String),
     /// A planning run ([`TaskMode::Plan`]) reached a stage whose per-photo tasks have not
@@ -239,12 +242,6 @@ pub(crate) fn read_checkpoints(project: &Project) -> Result<Option<Checkpoints>,
         .iter()
         .map(|p| Ok((p.id.clone(), t.transform_point(p.xyz)?)))
         .collect::<Result<_, crate::formats::FormatError>>()?;
-    // A measurement of a checkpoint the survey does not hold is refused now, naming its
-    // line, not dropped from an epoch's evaluation after hours of work.
-    for e in project.epochs() {
-        let measured = control_points::read_checkpoint_measurements(i, &e.name)?;
-        checkpoints::check_measured_points(i, &measured, &surveyed)?;
-    }
     Ok(Some(Checkpoints {
         surveyed,
         sigma: points
@@ -520,6 +517,11 @@ fn run_stages(
     let out = &project.output;
     check_output(project)?;
     let mut runner = Runner::new(out)?;
+    // Every input of every epoch and the checkpoint files, read and checked before the
+    // first stage (a misspelt camera key, a photo without its POS row, a measurement of
+    // an unknown checkpoint), all problems at once: not one by one after hours of work.
+    // After the lock, so that a run held by another is told so first.
+    super::validate::check_inputs(project)?;
     let epochs: Vec<&Epoch> = project.epochs().collect();
     let has_reference = project.reference.is_some();
     let o = &project.outputs;
@@ -593,17 +595,6 @@ fn run_stages(
         stage: "sources".into(),
         source: Box::new(source),
     })?;
-    // Every epoch's own inputs (photo folder, camera, POS or strips) are read and checked
-    // before the first stage: a photo without its row or an implausible camera fails the
-    // run now, naming the file, not after the epochs before it have run.
-    for e in project.epochs().filter(|e| e.block.is_none()) {
-        EpochInput::build(&e.spec(), &project.crs, [0.0; 3]).map_err(|source| {
-            StageError::Failed {
-                stage: format!("epoch-{}", e.name),
-                source: Box::new(source.into()),
-            }
-        })?;
-    }
     let sources = stage!(keyed "sources".to_string(), src_inputs, |dir: &Path, key: &str| {
         if !with_lidar {
             // The block origin: the one rule, over the DEM.

@@ -25,9 +25,10 @@ fn s(p: &Path) -> &str {
     p.to_str().unwrap()
 }
 
-/// A project whose every input is a small regular file (only `run --check`, which reads
-/// none of them, gets to the end): LiDAR, a camera, a POS, checkpoints, a photos folder
-/// with one photo. `change` replaces inputs before the project is written.
+/// A project whose every input is a small regular file: LiDAR (not read before work), a
+/// camera, a POS, checkpoints, a photos folder with one photo; those `run --check` reads
+/// (the epoch's and the checkpoint files, the photo's header) are valid, so that it gets
+/// to the end. `change` replaces inputs before the project is written.
 struct Project {
     dir: PathBuf,
     file: PathBuf,
@@ -35,17 +36,28 @@ struct Project {
 
 impl Project {
     fn new(dir: &Path) -> Self {
-        for f in [
-            "lidar.las",
-            "camera.json",
-            "pos.csv",
-            "cp.csv",
-            "cp_images.csv",
+        for (f, text) in [
+            ("lidar.las", "x\n"),
+            (
+                "camera.json",
+                r#"{"kind": "frame", "width": 64, "height": 64, "fx": 64, "fy": 64, "cx": 32, "cy": 32}"#,
+            ),
+            (
+                "pos.csv",
+                "name,x,y,z,omega,phi,kappa\np1,500000,4400000,400,0,0,0\n",
+            ),
+            ("cp.csv", "id,x,y,z\nCP1,500000,4400000,100\n"),
+            (
+                "cp_images.csv",
+                "epoch,photo,id,col,row\nref,p1,CP1,10,10\n",
+            ),
         ] {
-            std::fs::write(dir.join(f), "x\n").unwrap();
+            std::fs::write(dir.join(f), text).unwrap();
         }
         std::fs::create_dir_all(dir.join("photos")).unwrap();
-        std::fs::write(dir.join("photos/p1.png"), "x").unwrap();
+        image::GrayImage::new(64, 64)
+            .save(dir.join("photos/p1.png"))
+            .unwrap();
         let file = dir.join("project.toml");
         std::fs::write(
             &file,

@@ -9,10 +9,12 @@
 //!   naming the file and the field, by `lidar info` and by a run given the tile;
 //! - a camera JSON with fx 1e-300 or a side of 2³² − 1 px (formats/cameras/README.md):
 //!   refused naming the file and the field before anything is written;
-//! - a camera of 1500 × 1000 for 400 × 266 photos: the run and `orient` end partial (exit
-//!   status 3) saying which epoch, how many and why, and list no empty model;
+//! - a camera of 1500 × 1000 for 400 × 266 photos: refused by `run --check`, `run` and
+//!   the C ABI before any stage (exit status 2, INVALID_ARGUMENT; issue 52 item 2), and
+//!   `orient` ends partial (exit status 3); photos the run cannot decode end it partial,
+//!   saying which epoch, how many and why, and list no empty model;
 //! - a photo without a POS row, a checkpoint measurement of an unknown id: refused before
-//!   any stage, naming the file (and the line).
+//!   any stage (exit status 2), naming the file (and the line).
 //!
 //! Every file is written here from the format documents; the project is the tiny
 //! synthetic block's (its orthophoto and DEM as the control: a run takes a second).
@@ -80,6 +82,7 @@ fn child_call() {
 }
 
 /// CcpStatus values (include/cloudcontrol.h).
+const INVALID_ARGUMENT: i32 = 2;
 const FORMAT: i32 = 5;
 const PARTIAL: i32 = 12;
 
@@ -476,22 +479,52 @@ chip_size_px = 193
 }
 
 #[test]
-fn a_camera_of_another_size_than_the_photos_ends_the_run_and_orient_partial() {
+fn a_camera_of_another_size_than_the_photos_is_refused_by_the_run_and_ends_orient_partial() {
     let tmp = tempfile::tempdir().unwrap();
     let blk = tmp.path().join("block");
     common::block_copy("tiny", 2, "good", &blk);
-    // 1500 × 1000 for the epoch's 400 × 266 photos.
-    frame_camera(&blk.join("camera_1500.json"), 1500, 1000, 1800.0);
+    // 1500 × 1000 for the epoch's 400 × 266 photos: found from the image headers before
+    // any stage (issue 52 item 2), by `run --check`, `run` and the C ABI.
+    let camera_1500 = blk.join("camera_1500.json");
+    frame_camera(&camera_1500, 1500, 1000, 1800.0);
     let project = digital_project(&blk, "camera_1500.json", "truth/checkpoint_images.csv");
+    let p = project.to_str().unwrap();
+    let said = [
+        camera_1500.display().to_string(),
+        "the camera is 1500×1000 px".into(),
+        "is 400×266 px".into(),
+    ];
+    let said: Vec<&str> = said.iter().map(String::as_str).collect();
+    for args in [["run", "--check", p], ["--json", "run", p]] {
+        let c = cli_confined(&args);
+        c.refused_cleanly(5.0, &said);
+        assert_eq!(c.code, Some(2), "{args:?}: {}", c.stderr);
+        assert!(!blk.join("run/sources").exists(), "a stage ran");
+    }
+    let c = abi_confined(&format!("project {}", project.display()));
+    c.refused_cleanly(5.0, &said);
+    assert_eq!(c.code, Some(INVALID_ARGUMENT), "{}", c.stderr);
+
+    // A photo the run finds it cannot decode (its header read, its data cut short) makes
+    // the run partial (exit status 3), saying which epoch, how many and why, listing no
+    // empty model.
+    let images = blk.join("epochs/digital_2012/images");
+    let kept = tmp.path().join("images_kept");
+    std::fs::create_dir_all(&kept).unwrap();
+    for n in ["digital_s01_001.png", "digital_s01_002.png"] {
+        let bytes = std::fs::read(images.join(n)).unwrap();
+        std::fs::write(kept.join(n), &bytes).unwrap();
+        std::fs::write(images.join(n), &bytes[..bytes.len() / 2]).unwrap();
+    }
+    let cam = blk.join("epochs/digital_2012/camera.json");
+    let project = digital_project(&blk, cam.to_str().unwrap(), "truth/checkpoint_images.csv");
     let c = cli_confined(&["--json", "run", project.to_str().unwrap()]);
-    let why = "is 400×266 px, the camera 1500×1000";
     assert_eq!(c.code, Some(common::EXIT_PARTIAL), "{}", c.stderr);
     assert!(c.seconds < 30.0 && c.peak_rss <= 1 << 30);
     for w in [
         "cloudcontrol run: partial",
         "epoch digital_2012: 0 of 2 photos oriented",
         "digital_s01_001: image ",
-        why,
         "result.json",
     ] {
         assert!(c.stderr.contains(w), "says {w:?}: {}", c.stderr);
@@ -507,7 +540,7 @@ fn a_camera_of_another_size_than_the_photos_ends_the_run_and_orient_partial() {
         p["not_oriented"][1]["reason"]
             .as_str()
             .unwrap()
-            .contains(why),
+            .contains("digital_s01_002.png"),
         "{p}"
     );
     // The epoch oriented nothing: no empty model is written or listed.
@@ -539,8 +572,13 @@ fn a_camera_of_another_size_than_the_photos_ends_the_run_and_orient_partial() {
         .1;
     let handed: serde_json::Value = serde_json::from_str(json).unwrap();
     assert_eq!(handed["partial"][0]["epoch"], "digital_2012");
+    for n in ["digital_s01_001.png", "digital_s01_002.png"] {
+        std::fs::copy(kept.join(n), images.join(n)).unwrap();
+    }
 
-    // `orient` with the same camera and the run's package: partial as well, no model.
+    // `orient` (no project, no check before work) with the 1500 × 1000 camera and the
+    // run's package: partial, the size found as it orients each photo, no model.
+    let why = "is 400×266 px, the camera 1500×1000";
     let epoch = blk.join("epochs/digital_2012");
     let out = tmp.path().join("orient");
     let c = cli_confined(&[
@@ -602,7 +640,7 @@ fn a_photo_without_a_pos_row_is_refused_before_any_stage() {
             "has no row",
         ],
     );
-    assert_eq!(c.code, Some(1));
+    assert_eq!(c.code, Some(2));
     assert!(!blk.join("run/sources").exists(), "a stage ran");
 }
 
@@ -622,11 +660,11 @@ fn a_checkpoint_measurement_of_an_unknown_id_is_refused_naming_its_line() {
     c.refused_cleanly(
         5.0,
         &[
-            &file.display().to_string(),
-            &format!("line {line}"),
+            &format!("{}:{line}: ", file.display()),
             "\"CP999\"",
             "not among the surveyed checkpoints",
         ],
     );
+    assert_eq!(c.code, Some(2));
     assert!(!blk.join("run/sources").exists(), "a stage ran");
 }

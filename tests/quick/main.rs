@@ -14,6 +14,7 @@ mod adjust_cli;
 mod adjust_errors;
 mod adjust_kite;
 mod adjust_rejection;
+mod check_inputs;
 mod control_archive_cli;
 mod control_cloud;
 mod control_dcp;

@@ -7,6 +7,7 @@ use cloudcontrol::pipeline::partial::PartialEpoch;
 use cloudcontrol::pipeline::project::Project;
 use cloudcontrol::pipeline::run::{check_output, run_project, Event, RunError, RunSummary};
 use cloudcontrol::pipeline::stages::{OutputFolder, StageError};
+use cloudcontrol::pipeline::validate::{check_inputs, InputProblems};
 use cloudcontrol::pipeline::{demo, report::EpochReport};
 use cloudcontrol::synth::Preset;
 use std::path::{Path, PathBuf};
@@ -15,7 +16,9 @@ use std::path::{Path, PathBuf};
 pub struct RunArgs {
     /// Project file (TOML, see formats/project/).
     project: PathBuf,
-    /// Check the project file and list the stages without running them.
+    /// Check the project file, its output folder and every input of every epoch (cameras,
+    /// POS, photo names and image sizes, checkpoints), listing every problem, without
+    /// running anything.
     #[arg(long)]
     check: bool,
 }
@@ -147,20 +150,49 @@ fn row(e: &EpochReport) {
     );
 }
 
-/// Exit code 2: the project file is invalid, or its output folder is not a run's to write,
-/// and nothing ran; 1: a stage failed, or another run is writing the output folder.
+/// With --json, the problems of the project's inputs as one document on stdout: the
+/// error as every command gives it (`error`: command, message, input, exit status) and
+/// `problems`, each with `file`, `line`, `key` and `message`. The error is then not
+/// printed a second time as JSON (stderr still says it).
+fn print_problems(project: &Path, p: &InputProblems) {
+    let message = format!("{p}");
+    let doc = serde_json::json!({
+        "project": normalise(project),
+        "valid": false,
+        "problems": p.problems,
+        "error": {
+            "command": "run",
+            "message": message,
+            "input": console::input_of(&message),
+            "exit_status": 2,
+        },
+    });
+    outln!(
+        "{}",
+        serde_json::to_string_pretty(&doc).expect("problems serialise")
+    );
+    console::set_json(false);
+}
+
+/// Exit code 2: the project file or its inputs are invalid (every problem listed), or its
+/// output folder is not a run's to write, and nothing ran; 1: a stage failed, or another
+/// run is writing the output folder.
 /// Ok: the epochs that oriented fewer photos than they have (exit code 3 when any).
 pub fn run(a: &RunArgs, json: bool, quiet: bool) -> Result<Vec<PartialEpoch>, (u8, String)> {
     let project = Project::load(&a.project).map_err(|e| (2, e.to_string()))?;
     let refused = |e: RunError| {
         let code = match &e {
-            RunError::Stage(StageError::Output { .. }) => 2,
+            RunError::Stage(StageError::Output { .. }) | RunError::Inputs(_) => 2,
             _ => 1,
         };
+        if let (RunError::Inputs(p), true) = (&e, json) {
+            print_problems(&a.project, p);
+        }
         (code, e.to_string())
     };
     if a.check {
         let state = check_output(&project).map_err(refused)?;
+        check_inputs(&project).map_err(|p| refused(p.into()))?;
         let (key, what) = match state {
             OutputFolder::Missing => ("missing", "made by the run"),
             OutputFolder::Empty => ("empty", "empty, taken by the run"),
