@@ -206,6 +206,7 @@ fn run_check_lists_every_mistake_with_its_file_and_line_and_each_fix_passes() {
         assert_eq!(p["line"].as_u64(), m.at.map(|l| l as u64), "{p}");
     }
     assert_eq!(doc["error"]["exit_status"], 2);
+    assert_eq!(doc["error"]["input"], problems[0]["file"]);
     assert_eq!(doc["valid"], false);
 
     // The header right: the unknown id is listed with the rest.

@@ -152,7 +152,8 @@ fn row(e: &EpochReport) {
 
 /// With --json, the problems of the project's inputs as one document on stdout: the
 /// error as every command gives it (`error`: command, message, input, exit status) and
-/// `problems`, each with `file`, `line`, `key` and `message`. The error is then not
+/// `problems`, each with `file`, `line`, `key` and `message` (the error's `input`: the
+/// first problem's file). The error is then not
 /// printed a second time as JSON (stderr still says it).
 fn print_problems(project: &Path, p: &InputProblems) {
     let message = format!("{p}");
@@ -163,7 +164,7 @@ fn print_problems(project: &Path, p: &InputProblems) {
         "error": {
             "command": "run",
             "message": message,
-            "input": console::input_of(&message),
+            "input": p.problems.first().map(|q| normalise(&q.file)),
             "exit_status": 2,
         },
     });
