@@ -532,7 +532,14 @@ impl Read for Capped {
 
 /// SHA-256 of a regular file's content, read in blocks (never whole).
 pub fn sha256(path: &Path) -> Result<[u8; 32]> {
-    let mut f = open(path)?;
+    sha256_checked(path).map(|(d, _, _)| d)
+}
+
+/// [`sha256`], with the file's metadata taken on the open descriptor before the first
+/// read and after the last: a caller that keeps the digest for the file's (size, times,
+/// inode) keeps it only when the two agree (the file did not change while it was read).
+pub fn sha256_checked(path: &Path) -> Result<([u8; 32], Metadata, Metadata)> {
+    let (mut f, before) = open_file(path, Links::Follow)?;
     let mut h = Sha256::new();
     let mut buf = vec![0u8; 1 << 16];
     loop {
@@ -544,7 +551,8 @@ pub fn sha256(path: &Path) -> Result<[u8; 32]> {
         };
         h.update(&buf[..n]);
     }
-    Ok(h.finalize().into())
+    let after = f.metadata().map_err(|e| FormatError::io(path, e))?;
+    Ok((h.finalize().into(), before, after))
 }
 
 /// Lines of a text file, each at most a cap long (without its end): `\n` or `\r\n`

@@ -14,11 +14,19 @@
 //! temporary folders and files a killed run left behind (`.STAGE.part-PID-THREAD-N`, listed
 //! in the ledger before they are made, and `.stages.part-PID-THREAD-N.json`) are removed
 //! when the next run takes the lock.
+//!
+//! A fingerprint does not depend on where the project lies: each input file enters it by
+//! its name relative to the input it was given under (a folder's files by their path below
+//! it, a file by its name) with its content's SHA-256, so a project folder copied or moved
+//! elsewhere, its output with it, skips every finished stage. The content digests are kept
+//! in the output folder's digest cache ([`DIGESTS`]), keyed by each file's canonical path
+//! and trusted while its size, modification and change times, inode and device are those
+//! it was hashed with: a restart reads no unchanged input again.
 
 use crate::formats::{input, write_bytes_atomically, FormatError};
 use serde::{Deserialize, Serialize};
 use sha2::{Digest, Sha256};
-use std::collections::BTreeMap;
+use std::collections::{BTreeMap, HashMap, HashSet};
 use std::path::{Path, PathBuf};
 
 #[derive(Debug, thiserror::Error)]
@@ -93,23 +101,35 @@ impl Inputs {
         self
     }
 
-    /// SHA-256 over every input file's path and content digest (each file streamed
-    /// through the hash, never read whole; only regular files, [`input::open`]) and the
-    /// parameters. A file reached by two paths is read once.
-    fn fingerprint(&self) -> Result<String, FormatError> {
+    /// SHA-256 over, input by input in the order given, whether it is a file or a folder
+    /// and each of its files' name relative to it (a folder's files by their
+    /// `/`-separated path below it, a file by its file name) with the SHA-256 of the
+    /// file's content, then the parameters. Where the inputs lie does not enter it: a
+    /// project folder copied elsewhere has the same fingerprints. Content digests come
+    /// from `digests` when the file is unchanged since it was hashed, else the file is
+    /// streamed through the hash (never read whole; only regular files, [`input::open`]).
+    /// A file reached by two paths is read once.
+    fn fingerprint(&self, digests: &mut Digests) -> Result<String, FormatError> {
         let mut h = Sha256::new();
-        let mut digests: BTreeMap<(u64, u64), [u8; 32]> = BTreeMap::new();
-        for f in &self.files {
-            for file in files_below(f)? {
-                let digest = match digests.get(&file.id) {
+        let mut by_id: BTreeMap<(u64, u64), [u8; 32]> = BTreeMap::new();
+        for root in &self.files {
+            let files = files_below(root)?;
+            let single = files.len() == 1 && files[0].path == *root;
+            h.update(if single {
+                &b"file\0"[..]
+            } else {
+                &b"folder\0"[..]
+            });
+            for file in files {
+                let digest = match by_id.get(&file.id) {
                     Some(d) => *d,
                     None => {
-                        let d = input::sha256(&file.path)?;
-                        digests.insert(file.id, d);
+                        let d = digests.digest(&file)?;
+                        by_id.insert(file.id, d);
                         d
                     }
                 };
-                h.update(file.path.to_string_lossy().as_bytes());
+                h.update(relative_name(root, &file.path).as_bytes());
                 h.update([0]);
                 h.update(digest);
             }
@@ -120,7 +140,250 @@ impl Inputs {
             h.update(v.as_bytes());
             h.update([0]);
         }
-        Ok(h.finalize().iter().map(|b| format!("{b:02x}")).collect())
+        Ok(hex(&h.finalize()))
+    }
+}
+
+fn hex(bytes: &[u8]) -> String {
+    bytes.iter().map(|b| format!("{b:02x}")).collect()
+}
+
+/// The name a file of an input enters a fingerprint by: its `/`-separated path below the
+/// input folder `root`, or its file name when it is the input itself.
+fn relative_name(root: &Path, file: &Path) -> String {
+    match file.strip_prefix(root) {
+        Ok(rel) if !rel.as_os_str().is_empty() => rel
+            .components()
+            .map(|c| c.as_os_str().to_string_lossy())
+            .collect::<Vec<_>>()
+            .join("/"),
+        _ => file
+            .file_name()
+            .map(|n| n.to_string_lossy().into_owned())
+            .unwrap_or_default(),
+    }
+}
+
+/// The digest cache of an output folder, beside the ledger (formats/project/README.md,
+/// "Restarts"): each input's content SHA-256 by its canonical path, with the file's
+/// size, modification and change times (ns), inode and device when it was hashed. A
+/// restart takes the digest of a file whose stat is unchanged instead of reading it.
+pub const DIGESTS: &str = ".cloudcontrol-digests.json";
+/// [`DIGESTS`]'s stem, as its temporary files name it.
+const DIGESTS_STEM: &str = ".cloudcontrol-digests";
+const DIGESTS_FORMAT: u32 = 1;
+/// A file modified less than this before it was hashed is not cached: a write in the same
+/// tick of the file system's clock after the hash would leave its modification time as
+/// it was ("racy" entries, as git calls them). 2 s covers the coarsest timestamps of
+/// common file systems (FAT's 2 s; ext3's, HFS+'s and some NFS servers' 1 s). The change
+/// time is part of what an entry is valid for (a write, then the modification time put
+/// back, changes it), not of this test: a copy that keeps modification times (`cp -a`,
+/// `rsync -a`) is cached at once.
+const RACY_NS: i64 = 2_000_000_000;
+
+/// What a file's cached digest is valid for.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+struct FileStat {
+    size: u64,
+    mtime_ns: i64,
+    ctime_ns: i64,
+    ino: u64,
+    dev: u64,
+}
+
+impl FileStat {
+    #[cfg(unix)]
+    fn of(m: &std::fs::Metadata) -> Option<Self> {
+        use std::os::unix::fs::MetadataExt;
+        let ns = |s: i64, n: i64| s.checked_mul(1_000_000_000)?.checked_add(n);
+        Some(Self {
+            size: m.len(),
+            mtime_ns: ns(m.mtime(), m.mtime_nsec())?,
+            ctime_ns: ns(m.ctime(), m.ctime_nsec())?,
+            ino: m.ino(),
+            dev: m.dev(),
+        })
+    }
+    #[cfg(not(unix))]
+    fn of(_: &std::fs::Metadata) -> Option<Self> {
+        None
+    }
+}
+
+#[derive(Debug, Clone, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+struct CachedDigest {
+    stat: FileStat,
+    sha256: String,
+}
+
+#[derive(Debug, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+struct DigestFile {
+    format: u32,
+    files: BTreeMap<String, CachedDigest>,
+}
+
+/// The digest cache of a run ([`DIGESTS`]).
+#[derive(Debug, Default)]
+struct Digests {
+    /// The cache file; `None` when the run keeps no cache (a file of that name the run
+    /// did not write is in the output folder, or writing it failed).
+    path: Option<PathBuf>,
+    files: BTreeMap<String, CachedDigest>,
+    /// Digests of files checked unchanged in this run, by (device, inode).
+    checked: HashMap<(u64, u64), (FileStat, [u8; 32])>,
+    /// Keys looked up or stored in this run.
+    used: HashSet<String>,
+    /// Whether `files` differs from the cache file.
+    changed: bool,
+    /// Whether the entries of files that are gone were dropped.
+    pruned: bool,
+    /// Files (and their bytes) streamed through the hash in this run, and files whose
+    /// digest came from the cache.
+    files_read: u64,
+    bytes_read: u64,
+    files_cached: u64,
+}
+
+fn now_ns() -> i64 {
+    std::time::SystemTime::now()
+        .duration_since(std::time::UNIX_EPOCH)
+        .map(|d| d.as_nanos().min(i64::MAX as u128) as i64)
+        .unwrap_or(0)
+}
+
+fn parse_digest(hex: &str) -> Option<[u8; 32]> {
+    if hex.len() != 64 {
+        return None;
+    }
+    let mut out = [0u8; 32];
+    for (i, b) in out.iter_mut().enumerate() {
+        *b = u8::from_str_radix(hex.get(2 * i..2 * i + 2)?, 16).ok()?;
+    }
+    Some(out)
+}
+
+impl Digests {
+    /// The cache of output folder `root`: read when the ledger lists it (`listed`),
+    /// empty when it is not there yet; a file of its name the ledger does not list is the
+    /// user's, and the run then keeps no cache. An entry whose file was modified at or
+    /// after the cache file was written is dropped (git's racy rule).
+    fn load(root: &Path, listed: bool) -> Self {
+        let path = root.join(DIGESTS);
+        let mut d = Self {
+            path: Some(path.clone()),
+            ..Self::default()
+        };
+        if !listed {
+            if std::fs::symlink_metadata(&path).is_ok() {
+                tracing::warn!(
+                    path = %path.display(),
+                    "not written by cloudcontrol ({LEDGER} does not list it): no digest cache \
+                     is kept, every input is read again"
+                );
+                d.path = None;
+            }
+            return d;
+        }
+        let read = input::open_file(&path, input::Links::Refuse).and_then(|(f, meta)| {
+            let written = FileStat::of(&meta).map_or(i64::MIN, |s| s.mtime_ns);
+            let bytes = input::read_opened(&path, f, meta.len(), input::Cap::document())?;
+            Ok((written, bytes))
+        });
+        match read {
+            Ok((written, bytes)) => match serde_json::from_slice::<DigestFile>(&bytes) {
+                Ok(f) if f.format == DIGESTS_FORMAT => {
+                    d.files = f.files;
+                    let before = d.files.len();
+                    d.files.retain(|_, c| c.stat.mtime_ns < written);
+                    d.changed = d.files.len() != before;
+                }
+                _ => {
+                    tracing::warn!(path = %path.display(), "unreadable digest cache: read anew");
+                    d.changed = true;
+                }
+            },
+            Err(e) if matches!(&e, FormatError::Io { source, .. } if source.kind() == std::io::ErrorKind::NotFound) =>
+                {}
+            Err(e) => {
+                tracing::warn!(error = %e, "unreadable digest cache: read anew");
+                d.changed = true;
+            }
+        }
+        d
+    }
+
+    /// The content SHA-256 of `file`: from the cache when its stat is the one it was
+    /// hashed with, else streamed ([`input::sha256_checked`]) and cached when the file
+    /// did not change while read and was last modified [`RACY_NS`] before.
+    fn digest(&mut self, file: &input::Found) -> Result<[u8; 32], FormatError> {
+        let stat = std::fs::metadata(&file.path)
+            .ok()
+            .and_then(|m| FileStat::of(&m));
+        if let Some(st) = stat {
+            if let Some((s, d)) = self.checked.get(&file.id) {
+                if *s == st {
+                    return Ok(*d);
+                }
+            }
+        }
+        let key = std::fs::canonicalize(&file.path)
+            .ok()
+            .and_then(|p| p.to_str().map(str::to_owned));
+        if let (Some(k), Some(st)) = (&key, stat) {
+            self.used.insert(k.clone());
+            if let Some(c) = self.files.get(k).filter(|c| c.stat == st) {
+                if let Some(d) = parse_digest(&c.sha256) {
+                    self.checked.insert(file.id, (st, d));
+                    self.files_cached += 1;
+                    return Ok(d);
+                }
+            }
+        }
+        let started = now_ns();
+        let (d, before, after) = input::sha256_checked(&file.path)?;
+        self.files_read += 1;
+        self.bytes_read += before.len();
+        let Some(k) = key else { return Ok(d) };
+        match (FileStat::of(&before), FileStat::of(&after)) {
+            (Some(b), Some(a)) if b == a && b.mtime_ns < started.saturating_sub(RACY_NS) => {
+                self.files.insert(
+                    k,
+                    CachedDigest {
+                        stat: b,
+                        sha256: hex(&d),
+                    },
+                );
+                self.checked.insert(file.id, (b, d));
+                self.changed = true;
+            }
+            _ => {
+                if self.files.remove(&k).is_some() {
+                    self.changed = true;
+                }
+            }
+        }
+        Ok(d)
+    }
+
+    /// The cache file's bytes: its entries of this run's files and of files that are
+    /// still there.
+    fn to_json(&mut self) -> Vec<u8> {
+        if !self.pruned {
+            let used = &self.used;
+            self.files
+                .retain(|k, _| used.contains(k) || std::fs::symlink_metadata(k).is_ok());
+            self.pruned = true;
+        }
+        let file = DigestFile {
+            format: DIGESTS_FORMAT,
+            files: std::mem::take(&mut self.files),
+        };
+        let json = serde_json::to_vec(&file).expect("digest cache serialises");
+        self.files = file.files;
+        json
     }
 }
 
@@ -161,6 +424,10 @@ struct Ledger {
     /// before they are made: those a killed run left are removed by the next.
     #[serde(default)]
     temporaries: Vec<String>,
+    /// The names the run wrote beside the stage folders other than the marker and the
+    /// ledger: the digest cache ([`DIGESTS`]), listed before it is first written.
+    #[serde(default, skip_serializing_if = "Vec::is_empty")]
+    files: Vec<String>,
 }
 
 impl Default for Ledger {
@@ -169,6 +436,7 @@ impl Default for Ledger {
             format: OUTPUT_FORMAT,
             stages: BTreeMap::new(),
             temporaries: Vec::new(),
+            files: Vec::new(),
         }
     }
 }
@@ -358,18 +626,24 @@ fn names_below(dir: &Path) -> Result<Vec<String>, FormatError> {
     Ok(out)
 }
 
-/// Fingerprint of the files a stage wrote (the output check of a skipped stage).
-fn written_fingerprint(dir: &Path, written: &[String]) -> Result<String, FormatError> {
-    let mut files: Vec<PathBuf> = written
-        .iter()
-        .filter(|w| !w.ends_with('/'))
-        .map(|w| dir.join(w))
-        .collect();
-    files.sort();
-    files
-        .into_iter()
-        .fold(Inputs::new(), |i, f| i.file(f))
-        .fingerprint()
+/// Fingerprint of the files a stage wrote (the output check of a skipped stage): each
+/// file's name relative to the stage folder `dir` with its content's SHA-256.
+fn written_fingerprint(
+    dir: &Path,
+    written: &[String],
+    digests: &mut Digests,
+) -> Result<String, FormatError> {
+    let mut names: Vec<&String> = written.iter().filter(|w| !w.ends_with('/')).collect();
+    names.sort();
+    let mut h = Sha256::new();
+    for w in names {
+        for file in files_below(&dir.join(w))? {
+            h.update(relative_name(dir, &file.path).as_bytes());
+            h.update([0]);
+            h.update(digests.digest(&file)?);
+        }
+    }
+    Ok(hex(&h.finalize()))
 }
 
 /// Runs stages under one output folder.
@@ -378,6 +652,7 @@ pub struct Runner {
     /// The output folder's run lock (released on drop).
     _lock: crate::formats::Lock,
     ledger: Ledger,
+    digests: Digests,
     /// Names of the stages skipped in this run (for logs and tests).
     pub skipped: Vec<String>,
     pub ran: Vec<String>,
@@ -440,10 +715,12 @@ impl Runner {
             Err(e) if e.kind() == std::io::ErrorKind::NotFound => Ledger::default(),
             Err(e) => return Err(FormatError::io(&path, e).into()),
         };
+        let digests = Digests::load(root, ledger.files.iter().any(|f| f == DIGESTS));
         let mut runner = Self {
             root: root.to_path_buf(),
             _lock: lock,
             ledger,
+            digests,
             skipped: Vec::new(),
             ran: Vec::new(),
         };
@@ -459,6 +736,39 @@ impl Runner {
     fn save(&self) -> Result<(), FormatError> {
         let json = serde_json::to_vec_pretty(&self.ledger).expect("ledger serialises");
         write_bytes_atomically(&self.root.join(LEDGER), &json)
+    }
+
+    /// Writes the digest cache when it changed, listing it in the ledger before it is
+    /// first written. The cache only saves reading: a failure to write it is logged, and
+    /// the run goes on without it.
+    fn save_digests(&mut self) {
+        let Some(path) = self.digests.path.clone() else {
+            return;
+        };
+        if !self.digests.changed {
+            return;
+        }
+        if !self.ledger.files.iter().any(|f| f == DIGESTS) {
+            if std::fs::symlink_metadata(&path).is_ok() {
+                tracing::warn!(path = %path.display(), "not written by cloudcontrol: no digest cache is kept");
+                self.digests.path = None;
+                return;
+            }
+            self.ledger.files.push(DIGESTS.into());
+            if let Err(e) = self.save() {
+                tracing::warn!(error = %e, "the digest cache is not kept");
+                self.digests.path = None;
+                return;
+            }
+        }
+        let json = self.digests.to_json();
+        match write_bytes_atomically(&path, &json) {
+            Ok(()) => self.digests.changed = false,
+            Err(e) => {
+                tracing::warn!(error = %e, "the digest cache is not kept");
+                self.digests.path = None;
+            }
+        }
     }
 
     /// Runs `work` into the stage's folder unless the stage finished before with the same
@@ -485,12 +795,18 @@ impl Runner {
         work: impl FnOnce(&Path, &str) -> Result<(), WorkError>,
     ) -> Result<PathBuf, StageError> {
         let dir = self.dir(name);
-        let fp = inputs.fingerprint()?;
+        let fp = inputs.fingerprint(&mut self.digests);
+        self.save_digests();
+        let fp = fp?;
         if let Some(r) = self.ledger.stages.get(name) {
-            if r.inputs.as_deref() == Some(fp.as_str())
+            let unchanged = r.inputs.as_deref() == Some(fp.as_str())
                 && dir.is_dir()
-                && written_fingerprint(&dir, &r.written).ok().as_ref() == Some(&r.outputs)
-            {
+                && written_fingerprint(&dir, &r.written, &mut self.digests)
+                    .ok()
+                    .as_ref()
+                    == Some(&r.outputs);
+            self.save_digests();
+            if unchanged {
                 tracing::info!(stage = name, "inputs unchanged, skipping");
                 self.skipped.push(name.into());
                 return Ok(dir);
@@ -557,7 +873,9 @@ impl Runner {
         self.check_replaceable(name)?;
         self.remove_stage_folder(name)?;
         std::fs::rename(tmp, &dir).map_err(|e| FormatError::io(&dir, e))?;
-        let outputs = written_fingerprint(&dir, &written)?;
+        let outputs = written_fingerprint(&dir, &written, &mut self.digests);
+        self.save_digests();
+        let outputs = outputs?;
         // Later stages depend on this one: their fingerprints include its outputs, so
         // changing it invalidates them without any bookkeeping here.
         self.ledger.stages.insert(
@@ -687,6 +1005,20 @@ impl Runner {
     }
 }
 
+impl Drop for Runner {
+    /// Logs what the run's fingerprints read: a restart whose inputs are unchanged reads
+    /// none of them (their digests come from the cache).
+    fn drop(&mut self) {
+        let d = &self.digests;
+        tracing::info!(
+            files_read = d.files_read,
+            bytes_read = d.bytes_read,
+            files_cached = d.files_cached,
+            "input digests"
+        );
+    }
+}
+
 /// Whether `name`, in an output folder, is a temporary output of a run: a temporary
 /// ([`crate::formats::parse_temporary`]) of the ledger or the marker, or a temporary stage
 /// folder the ledger lists.
@@ -696,5 +1028,6 @@ fn is_leftover(name: &str, temporaries: &[String]) -> bool {
     };
     (t.stem == "stages" && t.rest == "json")
         || (t.stem == MARKER && t.rest.is_empty())
+        || (t.stem == DIGESTS_STEM && t.rest == "json")
         || temporaries.iter().any(|n| n == name)
 }

@@ -54,5 +54,6 @@ mod matching_fiducial;
 mod matching_ties;
 mod pipeline_project;
 mod pipeline_report;
+mod restart_fingerprint;
 mod synth;
 mod tie_statistics;
