@@ -205,7 +205,9 @@ pub fn intersect_snooped(rays: &[Ray<'_>], f2: f64, alpha: f64) -> SnoopedInters
         // Three rays along one base line share one redundant component: leaving out any
         // of them leaves a consistent pair, and which one is wrong cannot be told.
         let ambiguous = kept.len() == 3 && loo[1].0 <= super::chi2::critical(1, alpha);
-        if !(drop > super::chi2::critical(2, alpha)) || ambiguous {
+        // A NaN drop (rays that cannot be solved without one) is not a localised blunder.
+        let localised = drop > super::chi2::critical(2, alpha);
+        if !localised || ambiguous {
             return unresolved(kept, rejected, ssr);
         }
         kept.retain(|&i| i != worst_ray);
