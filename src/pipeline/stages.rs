@@ -370,7 +370,7 @@ impl Digests {
 
     /// The cache file's bytes: its entries of this run's files and of files that are
     /// still there.
-    fn to_json(&mut self) -> Vec<u8> {
+    fn pruned_json(&mut self) -> Vec<u8> {
         if !self.pruned {
             let used = &self.used;
             self.files
@@ -761,7 +761,7 @@ impl Runner {
                 return;
             }
         }
-        let json = self.digests.to_json();
+        let json = self.digests.pruned_json();
         match write_bytes_atomically(&path, &json) {
             Ok(()) => self.digests.changed = false,
             Err(e) => {
