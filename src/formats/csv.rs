@@ -62,11 +62,28 @@ impl<T> Table<T> {
 /// [`input::Limits::csv_line_bytes`], the header at most [`input::Limits::csv_columns`]
 /// columns (formats/README.md, "Input files").
 pub fn read_records<T: DeserializeOwned>(path: &Path, layout: &Layout) -> Result<Table<T>> {
+    read_records_renamed(path, layout, &|_| None)
+}
+
+/// What a format's old header is read as: given the header's names as written (trimmed,
+/// case kept), the names to read its columns by, or `None` to read them as usual.
+pub type Rename<'a> = &'a dyn Fn(&[&str]) -> Option<Vec<String>>;
+
+/// [`read_records`] for a format whose columns were renamed and whose old header is still
+/// read: `rename` sees the header as written, case kept, and may give the names to read
+/// its columns by. The one place where case tells columns apart: `resect --points`'s old
+/// header `x,y,X,Y,Z` (pixel, then world) is read as `col,row,x,y,z`.
+pub fn read_records_renamed<T: DeserializeOwned>(
+    path: &Path,
+    layout: &Layout,
+    rename: Rename,
+) -> Result<Table<T>> {
     let file = input::open_capped(path, input::Cap::csv())?;
     parse_from(
         path,
         std::io::BufReader::with_capacity(1 << 16, file),
         layout,
+        rename,
     )
 }
 
@@ -76,7 +93,7 @@ pub fn parse_records<T: DeserializeOwned>(
     text: &str,
     layout: &Layout,
 ) -> Result<Table<T>> {
-    parse_from(path, text.as_bytes(), layout)
+    parse_from(path, text.as_bytes(), layout, &|_| None)
 }
 
 /// The lines of a CSV text as the `csv` crate reads them: comments and blank lines taken
@@ -201,6 +218,7 @@ fn parse_from<T: DeserializeOwned, R: BufRead>(
     path: &Path,
     reader: R,
     layout: &Layout,
+    rename: Rename,
 ) -> Result<Table<T>> {
     let limits = input::limits();
     let line_cap = input::Cap::csv_line();
@@ -263,7 +281,10 @@ fn parse_from<T: DeserializeOwned, R: BufRead>(
             ),
         });
     }
-    let columns: Vec<String> = header.iter().map(|h| h.to_ascii_lowercase()).collect();
+    let written: Vec<&str> = header.iter().collect();
+    let columns: Vec<String> = rename(&written)
+        .filter(|c| c.len() == written.len())
+        .unwrap_or_else(|| written.iter().map(|h| h.to_ascii_lowercase()).collect());
     check_header(path, header_line, &columns, layout)?;
     let mut rows = Vec::new();
     let mut r = ::csv::StringRecord::new();

@@ -1,5 +1,6 @@
 //! Reading of XYZ point sets for ICP sources: CSV/text (X,Y,Z in the first three numeric
-//! columns), PLY (ascii or binary little endian, vertex x/y/z) and LAS/LAZ.
+//! columns), PLY (ascii or binary, vertex x/y/z; read by the `ply-rs-bw` crate) and
+//! LAS/LAZ.
 
 use super::las::read_points;
 use super::{LidarError, Result};
@@ -74,158 +75,161 @@ pub fn read_text(path: &Path) -> Result<Vec<[f64; 3]>> {
     Ok(out)
 }
 
-/// PLY vertices (x, y, z as float or double; other properties skipped).
+/// The longest PLY header read (its lines up to `end_header`): real headers are a few
+/// hundred bytes; without a bound a header line without an end would be read whole.
+const PLY_HEADER_BYTES: u64 = 1 << 20;
+
+/// A `ply-rs-bw` error on one line (its messages quote the line read, over several).
+fn one_line(e: &std::io::Error) -> String {
+    e.to_string()
+        .split_whitespace()
+        .collect::<Vec<_>>()
+        .join(" ")
+}
+
+/// One vertex as read by `ply-rs-bw`: its x, y and z, whatever their scalar type; other
+/// properties are read over.
+struct PlyVertex([f64; 3]);
+
+impl ply_rs_bw::ply::PropertyAccess for PlyVertex {
+    fn new() -> Self {
+        Self([f64::NAN; 3])
+    }
+    fn set_property(&mut self, name: &str, p: ply_rs_bw::ply::Property) {
+        use ply_rs_bw::ply::Property as P;
+        let axis = match name {
+            "x" => 0,
+            "y" => 1,
+            "z" => 2,
+            _ => return,
+        };
+        self.0[axis] = match p {
+            P::Char(v) => v.into(),
+            P::UChar(v) => v.into(),
+            P::Short(v) => v.into(),
+            P::UShort(v) => v.into(),
+            P::Int(v) => v.into(),
+            P::UInt(v) => v.into(),
+            P::Float(v) => v.into(),
+            P::Double(v) => v,
+            _ => f64::NAN,
+        };
+    }
+}
+
+/// PLY vertices: x, y, z of the `vertex` element (any scalar type; other properties read
+/// over), ascii or binary of either byte order, through the `ply-rs-bw` crate. The header
+/// is read by the crate from at most [`PLY_HEADER_BYTES`]; the counts it declares, of the
+/// vertices and of the elements before them, are checked against the bytes after the
+/// header before the crate reads or sizes anything from them (at least one byte and a
+/// separator per property in ascii, the record in binary).
 pub fn read_ply(path: &Path) -> Result<Vec<[f64; 3]>> {
-    let f = crate::formats::input::open(path).map_err(super::las::input_error)?;
-    let file_len = f.metadata().map_err(|e| LidarError::io(path, e))?.len();
+    use ply_rs_bw::parser::Parser;
+    use ply_rs_bw::ply::{Encoding, PropertyType, ScalarType};
+    let (f, meta) = crate::formats::input::open_file(path, crate::formats::input::Links::Follow)
+        .map_err(super::las::input_error)?;
+    let file_len = meta.len();
     let mut r = BufReader::new(f);
-    let mut header_len = 0u64;
-    let mut line = String::new();
-    let mut format = String::new();
-    let mut n_vertex = None;
-    let mut in_vertex = false;
-    let mut props: Vec<(String, usize)> = Vec::new();
-    let size_of = |t: &str| -> Option<usize> {
-        Some(match t {
-            "char" | "uchar" | "int8" | "uint8" => 1,
-            "short" | "ushort" | "int16" | "uint16" => 2,
-            "int" | "uint" | "int32" | "uint32" | "float" | "float32" => 4,
-            "double" | "float64" => 8,
-            _ => return None,
-        })
-    };
-    let mut first = true;
-    loop {
-        line.clear();
-        let got = r
-            .read_line(&mut line)
-            .map_err(|e| LidarError::io(path, e))?;
-        if got == 0 {
-            return Err(bad(path, "PLY header has no end_header"));
-        }
-        header_len += got as u64;
-        let t = line.trim();
-        if first {
-            if t != "ply" {
-                return Err(bad(path, "not a PLY file"));
-            }
-            first = false;
-            continue;
-        }
-        let w: Vec<&str> = t.split_whitespace().collect();
-        match w.as_slice() {
-            ["format", f, ..] => format = f.to_string(),
-            ["element", "vertex", n] => {
-                n_vertex = Some(
-                    n.parse::<u64>()
-                        .map_err(|_| bad(path, format!("bad vertex count {n:?}")))?,
-                );
-                in_vertex = true;
-            }
-            ["element", ..] => in_vertex = false,
-            ["property", "list", ..] if in_vertex => {
-                return Err(bad(path, "list properties on vertices are not supported"))
-            }
-            ["property", ty, name] if in_vertex => {
-                let s = size_of(ty).ok_or_else(|| bad(path, format!("unknown PLY type {ty}")))?;
-                props.push((format!("{ty}:{name}"), s));
-            }
-            ["end_header"] => break,
-            _ => {}
-        }
+    let magic = r.fill_buf().map_err(|e| LidarError::io(path, e))?;
+    if !(magic.starts_with(b"ply\n") || magic.starts_with(b"ply\r\n")) {
+        return Err(bad(path, "not a PLY file"));
     }
-    let n = n_vertex.ok_or_else(|| bad(path, "PLY has no vertex element"))?;
-    let find = |axis: &str| {
-        props
-            .iter()
-            .position(|(p, _)| p.ends_with(&format!(":{axis}")))
-            .ok_or_else(|| bad(path, format!("PLY vertices have no {axis} property")))
-    };
-    let (ix, iy, iz) = (find("x")?, find("y")?, find("z")?);
-    // The fewest bytes a vertex can take: its binary record, or in ascii one digit and one
-    // separator per property. Nothing is sized from the count before it fits in the file.
-    let stride: usize = props.iter().map(|p| p.1).sum();
-    let min_record = if format == "ascii" {
-        2 * props.len()
-    } else {
-        stride
-    } as u64;
-    let body = file_len.saturating_sub(header_len);
-    if n.checked_mul(min_record).is_none_or(|need| need > body) {
-        return Err(LidarError::TooLarge {
-            path: path.to_path_buf(),
-            what: "PLY element vertex count".into(),
-            claimed: n,
-            limit: body / min_record.max(1),
-            basis: format!(
-                "what the {body} bytes after the header can hold at {min_record} bytes per \
-                 vertex"
-            ),
-        });
-    }
-    let n = n as usize;
-    let mut out = Vec::with_capacity(n);
-    match format.as_str() {
-        "ascii" => {
-            for i in 0..n {
-                line.clear();
-                if r.read_line(&mut line)
-                    .map_err(|e| LidarError::io(path, e))?
-                    == 0
-                {
-                    return Err(bad(path, format!("truncated: {i} of {n} vertices")));
-                }
-                let v: Vec<f64> = line
-                    .split_whitespace()
-                    .filter_map(|s| s.parse().ok())
-                    .collect();
-                if v.len() < props.len() {
-                    return Err(bad(
-                        path,
-                        format!("vertex {i}: {} values, expected {}", v.len(), props.len()),
-                    ));
-                }
-                out.push([v[ix], v[iy], v[iz]]);
-            }
-        }
-        "binary_little_endian" => {
-            let offs: Vec<usize> = props
-                .iter()
-                .scan(0, |o, p| {
-                    let at = *o;
-                    *o += p.1;
-                    Some(at)
-                })
-                .collect();
-            let mut buf = vec![0u8; stride * n];
-            r.read_exact(&mut buf)
-                .map_err(|_| bad(path, format!("truncated: fewer than {n} vertices")))?;
-            let get = |rec: &[u8], k: usize| -> Result<f64> {
-                let o = offs[k];
-                match props[k].0.split(':').next().unwrap_or("") {
-                    "float" | "float32" => {
-                        Ok(f32::from_le_bytes(rec[o..o + 4].try_into().unwrap()) as f64)
-                    }
-                    "double" | "float64" => {
-                        Ok(f64::from_le_bytes(rec[o..o + 8].try_into().unwrap()))
-                    }
-                    t => Err(bad(
-                        path,
-                        format!("vertex coordinates of type {t} are not supported"),
-                    )),
-                }
-            };
-            for rec in buf.chunks_exact(stride) {
-                out.push([get(rec, ix)?, get(rec, iy)?, get(rec, iz)?]);
-            }
-        }
-        f => {
-            return Err(bad(
+    let parser = Parser::<PlyVertex>::new();
+    let mut head = (&mut r).take(PLY_HEADER_BYTES);
+    let header = parser.read_header(&mut head).map_err(|e| {
+        if head.limit() == 0 {
+            bad(
                 path,
-                format!("PLY format {f:?} is not supported (ascii or binary_little_endian)"),
-            ))
+                format!("PLY header has no end_header in its first {PLY_HEADER_BYTES} bytes"),
+            )
+        } else if e.kind() == std::io::ErrorKind::UnexpectedEof {
+            bad(path, "PLY header has no end_header")
+        } else {
+            bad(path, format!("PLY header: {}", one_line(&e)))
+        }
+    })?;
+    let header_len = PLY_HEADER_BYTES - head.limit();
+    let Some(vertex_at) = header.elements.keys().position(|k| k == "vertex") else {
+        return Err(bad(path, "PLY has no vertex element"));
+    };
+    let vertex = &header.elements[vertex_at];
+    if vertex
+        .properties
+        .values()
+        .any(|p| matches!(p.data_type, PropertyType::List(..)))
+    {
+        return Err(bad(path, "list properties on vertices are not supported"));
+    }
+    for axis in ["x", "y", "z"] {
+        if !vertex.properties.contains_key(axis) {
+            return Err(bad(path, format!("PLY vertices have no {axis} property")));
         }
     }
+    let size = |t: &ScalarType| -> u64 {
+        match t {
+            ScalarType::Char | ScalarType::UChar => 1,
+            ScalarType::Short | ScalarType::UShort => 2,
+            ScalarType::Int | ScalarType::UInt | ScalarType::Float => 4,
+            ScalarType::Double => 8,
+        }
+    };
+    // The fewest bytes a record can take: in binary its scalars (an empty list its
+    // count), in ascii one digit and one separator per property. Nothing is sized from a
+    // count before it fits in the file.
+    let mut room = file_len.saturating_sub(header_len);
+    for e in header.elements.values().take(vertex_at + 1) {
+        let min_record: u64 = match header.encoding {
+            Encoding::Ascii => 2 * e.properties.len() as u64,
+            _ => e
+                .properties
+                .values()
+                .map(|p| match &p.data_type {
+                    PropertyType::Scalar(t) | PropertyType::List(t, _) => size(t),
+                })
+                .sum(),
+        };
+        let count = e.count as u64;
+        match count.checked_mul(min_record) {
+            Some(need) if need <= room => room -= need,
+            _ => {
+                return Err(LidarError::TooLarge {
+                    path: path.to_path_buf(),
+                    what: format!("PLY element {} count", e.name),
+                    claimed: count,
+                    limit: room / min_record.max(1),
+                    basis: format!(
+                        "what the {room} bytes after the header can hold at {min_record} bytes \
+                         per {}",
+                        e.name
+                    ),
+                })
+            }
+        }
+    }
+    let mut vertices = Vec::new();
+    for e in header.elements.values().take(vertex_at + 1) {
+        let read = parser
+            .read_payload_for_element(&mut r, e, &header)
+            .map_err(|x| {
+                if x.kind() == std::io::ErrorKind::UnexpectedEof {
+                    bad(
+                        path,
+                        format!(
+                            "truncated: fewer than {} {} elements ({})",
+                            e.count,
+                            e.name,
+                            one_line(&x)
+                        ),
+                    )
+                } else {
+                    bad(path, format!("PLY element {}: {}", e.name, one_line(&x)))
+                }
+            })?;
+        if e.name == "vertex" {
+            vertices = read;
+        }
+    }
+    let out: Vec<[f64; 3]> = vertices.into_iter().map(|v| v.0).collect();
     if let Some(i) = out.iter().position(|p| !p.iter().all(|v| v.is_finite())) {
         return Err(bad(path, format!("vertex {i} is not finite")));
     }

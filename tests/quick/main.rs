@@ -32,6 +32,7 @@ mod formats_crs;
 mod formats_gdal;
 mod formats_odm_gcp;
 mod formats_ortho;
+mod formats_readers;
 mod formats_workflow;
 mod geometry;
 mod hostile_files;

@@ -8,8 +8,7 @@ use cloudcontrol::adjust::{
 };
 use cloudcontrol::block::{Block, ObjectPoint, PointId, PointKind};
 use cloudcontrol::formats::control_points::{self, Measurement, SurveyedPoint};
-use cloudcontrol::formats::csv::{read_records, Extra, Layout};
-use cloudcontrol::formats::input;
+use cloudcontrol::formats::csv::{read_records, read_records_renamed, Extra, Layout};
 use cloudcontrol::formats::odm_gcp::{read_odm_gcp, GcpOptions};
 use cloudcontrol::formats::write_bytes_atomically;
 use cloudcontrol::geometry::{Brown, Camera, FrameCamera};
@@ -93,7 +92,8 @@ pub struct ResectArgs {
     /// Photo height (px).
     #[arg(long)]
     pub height: u32,
-    /// Control CSV: x,y,X,Y,Z (pixel, world), header line required.
+    /// Control CSV: col,row,X,Y,Z (pixel column and row, world), header line required;
+    /// the older header x,y,X,Y,Z is read too (formats/adjust/README.md).
     #[arg(long)]
     pub points: PathBuf,
     /// A-priori σ of the image measurements (px).
@@ -118,35 +118,31 @@ fn text<E: std::fmt::Display>(e: E) -> String {
     e.to_string()
 }
 
-// `resect --points` has columns x,y,X,Y,Z that differ only in case, which the project's
-// CSV reader (case-insensitive names) cannot tell apart: it keeps this positional reader.
-fn read_csv(path: &Path) -> Result<Vec<Vec<String>>, String> {
-    let text = input::read_text(path, input::Cap::csv()).map_err(|e| e.to_string())?;
-    let mut rows = Vec::new();
-    for (i, line) in text.lines().enumerate() {
-        let l = line.trim();
-        if i == 0 || l.is_empty() || l.starts_with('#') {
-            continue;
-        }
-        rows.push(l.split(',').map(|s| s.trim().to_string()).collect());
-    }
-    Ok(rows)
+/// A row of `resect --points` (formats/adjust/README.md): pixel column and row, world
+/// X, Y, Z.
+#[derive(serde::Deserialize)]
+struct ResectRow {
+    col: f64,
+    row: f64,
+    x: f64,
+    y: f64,
+    z: f64,
 }
 
-fn num(s: &str, path: &Path, line: usize, what: &str) -> Result<f64, String> {
-    let v: f64 = s.parse().map_err(|_| {
-        format!(
-            "{}: row {line}: {what} '{s}' is not a number",
-            path.display()
-        )
-    })?;
-    if !v.is_finite() {
-        return err(format!(
-            "{}: row {line}: {what} is not finite",
-            path.display()
-        ));
-    }
-    Ok(v)
+/// `resect --points`, through the one CSV reader: columns `col,row,X,Y,Z`; the older
+/// header `x,y,X,Y,Z` (pixel, then world: names that differ only in case) is read as it.
+fn read_resect_points(path: &Path) -> Result<Vec<ResectRow>, String> {
+    const COLUMNS: [&str; 5] = ["col", "row", "x", "y", "z"];
+    let old_header = |header: &[&str]| {
+        (header == ["x", "y", "X", "Y", "Z"]).then(|| COLUMNS.map(String::from).to_vec())
+    };
+    let layout = Layout {
+        required: &COLUMNS,
+        optional: &[],
+        extra: Extra::Refuse,
+    };
+    let table = read_records_renamed::<ResectRow>(path, &layout, &old_header).map_err(text)?;
+    Ok(table.rows.into_iter().map(|(_, r)| r).collect())
 }
 
 const F_NAMES: [(&str, &[&str]); 7] = [
@@ -458,19 +454,9 @@ pub fn run_resect(a: &ResectArgs) -> Result<serde_json::Value, String> {
     });
     let mut px = Vec::new();
     let mut xs = Vec::new();
-    for (i, r) in read_csv(&a.points)?.iter().enumerate() {
-        if r.len() < 5 {
-            return err(format!(
-                "{}: row {}: expected x,y,X,Y,Z",
-                a.points.display(),
-                i + 1
-            ));
-        }
-        let v: Vec<f64> = (0..5)
-            .map(|k| num(&r[k], &a.points, i + 1, "value"))
-            .collect::<Result<_, _>>()?;
-        px.push([v[0], v[1]]);
-        xs.push([v[2], v[3], v[4]]);
+    for r in read_resect_points(&a.points)? {
+        px.push([r.col, r.row]);
+        xs.push([r.x, r.y, r.z]);
     }
     // Resect in a local frame: projected coordinates of 10⁶ m would cost precision.
     let origin = xs

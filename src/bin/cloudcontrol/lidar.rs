@@ -238,42 +238,16 @@ fn write_json(path: &Path, v: &serde_json::Value) -> Result<(), String> {
     write_bytes_atomically(path, text.as_bytes()).map_err(|e| e.to_string())
 }
 
-/// Tiny checkpoint CSV reader: `id,X,Y,Z` (comma, semicolon, tab or blanks); a non-numeric
-/// first line is a header; `#` comments.
+/// The checkpoints of `lidar eval --checkpoints`: the control points CSV
+/// (formats/control-points/: `id,x,y,z[,sigma_xy,sigma_z][,kind]`) read by the one reader
+/// the pipeline reads its checkpoints with (`control_points::read_points`).
 pub fn read_checkpoints(path: &Path) -> Result<Vec<(String, [f64; 3])>, String> {
-    let text =
-        cloudcontrol::formats::input::read_text(path, cloudcontrol::formats::input::Cap::csv())
-            .map_err(|e| e.to_string())?;
-    let mut out = Vec::new();
-    for (i, line) in text.lines().enumerate() {
-        let t = line.trim();
-        if t.is_empty() || t.starts_with('#') {
-            continue;
-        }
-        let f: Vec<&str> = t
-            .split(|c: char| c == ',' || c == ';' || c.is_whitespace())
-            .filter(|s| !s.is_empty())
-            .collect();
-        let nums: Vec<Option<f64>> = f.iter().skip(1).take(3).map(|s| s.parse().ok()).collect();
-        if f.len() >= 4 && nums.iter().all(|v| v.is_some_and(f64::is_finite)) {
-            out.push((
-                f[0].to_string(),
-                [nums[0].unwrap(), nums[1].unwrap(), nums[2].unwrap()],
-            ));
-        } else if out.is_empty() && i == 0 {
-            continue;
-        } else {
-            return Err(format!(
-                "{}: line {}: expected id,X,Y,Z, got {t:?}",
-                path.display(),
-                i + 1
-            ));
-        }
-    }
-    if out.is_empty() {
+    let points =
+        cloudcontrol::formats::control_points::read_points(path).map_err(|e| e.to_string())?;
+    if points.is_empty() {
         return Err(format!("{}: no checkpoint", path.display()));
     }
-    Ok(out)
+    Ok(points.into_iter().map(|p| (p.id, p.xyz)).collect())
 }
 
 fn classes(ground: &[u8], all: bool) -> Option<Vec<u8>> {
