@@ -247,7 +247,7 @@ fn examples(help: &str) -> Vec<String> {
         let Some(colon) = t.find(':') else { continue };
         let rest = t[colon + 1..].trim();
         let mut cmd = String::new();
-        let mut more: Box<dyn Iterator<Item = &str>> = if rest.is_empty() {
+        let more: Box<dyn Iterator<Item = &str>> = if rest.is_empty() {
             Box::new(
                 lines[i + 1..]
                     .iter()
@@ -257,7 +257,7 @@ fn examples(help: &str) -> Vec<String> {
         } else {
             Box::new(std::iter::once(rest))
         };
-        while let Some(part) = more.next() {
+        for part in more {
             match part.strip_suffix('\\') {
                 Some(head) => {
                     cmd.push_str(head.trim_end());

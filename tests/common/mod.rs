@@ -246,32 +246,43 @@ impl Confined {
     }
 }
 
+/// `cmd` run through util-linux's `prlimit --as`, which sets RLIMIT_AS on itself and
+/// execs the command in the same process (same pid, so wait4's peak RSS is the
+/// command's). Not a `pre_exec` hook: that makes std fork the multi-threaded test
+/// process, and the child then runs the libraries' atfork handlers, one of which (PROJ's,
+/// through GDAL) waited forever on a lock another test thread held: a test hung in 1 of 2
+/// runs. Without `pre_exec` std spawns by posix_spawn, which runs no atfork handler.
+pub fn under_rlimit_as(cmd: &std::process::Command, rlimit_as: u64) -> std::process::Command {
+    let mut c = std::process::Command::new("prlimit");
+    c.arg(format!("--as={rlimit_as}"))
+        .arg("--")
+        .arg(cmd.get_program())
+        .args(cmd.get_args());
+    for (k, v) in cmd.get_envs() {
+        match v {
+            Some(v) => c.env(k, v),
+            None => c.env_remove(k),
+        };
+    }
+    if let Some(d) = cmd.get_current_dir() {
+        c.current_dir(d);
+    }
+    c
+}
+
 /// Runs `cmd` in a child process under an address-space limit of `rlimit_as` bytes
 /// (RLIMIT_AS: an allocation beyond it fails in the child instead of taking the machine),
 /// killed after `limit_s` seconds, and reports its exit, output, peak RSS and time. The
 /// hostile-input tests run each crafted case this way so that a regression shows as a
 /// failed assertion, never as a hung or out-of-memory test run.
-pub fn run_confined(cmd: &mut std::process::Command, rlimit_as: u64, limit_s: f64) -> Confined {
-    use std::os::unix::process::CommandExt;
+pub fn run_confined(cmd: &std::process::Command, rlimit_as: u64, limit_s: f64) -> Confined {
     use std::process::Stdio;
+    let mut cmd = under_rlimit_as(cmd, rlimit_as);
     let out = tempfile::NamedTempFile::new().unwrap();
     let err = tempfile::NamedTempFile::new().unwrap();
     cmd.stdin(Stdio::null())
         .stdout(out.reopen().unwrap())
         .stderr(err.reopen().unwrap());
-    // SAFETY: setrlimit is async-signal-safe; nothing else runs between fork and exec.
-    unsafe {
-        cmd.pre_exec(move || {
-            let lim = libc::rlimit {
-                rlim_cur: rlimit_as,
-                rlim_max: rlimit_as,
-            };
-            if libc::setrlimit(libc::RLIMIT_AS, &lim) != 0 {
-                return Err(std::io::Error::last_os_error());
-            }
-            Ok(())
-        });
-    }
     let t = std::time::Instant::now();
     let child = cmd.spawn().expect("child starts");
     let pid = child.id() as libc::pid_t;

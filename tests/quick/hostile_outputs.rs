@@ -799,11 +799,12 @@ fn a_killed_ortho_leaves_nothing_the_next_one_does_not_remove() {
     // limit; the next run into the same place removes what it left.
     let mut saw = false;
     for _ in 0..5 {
-        let mut cmd = Command::new(exe());
-        cmd.args(&a)
+        let mut cmd = common::under_rlimit_as(Command::new(exe()).args(&a), 2 << 30);
+        let mut child = cmd
             .stdout(std::process::Stdio::null())
-            .stderr(std::process::Stdio::null());
-        let mut child = confine(&mut cmd).spawn().unwrap();
+            .stderr(std::process::Stdio::null())
+            .spawn()
+            .unwrap();
         let t = std::time::Instant::now();
         while t.elapsed().as_secs_f64() < 10.0 {
             let part = std::fs::read_dir(&outdir).unwrap().any(|e| {
@@ -836,22 +837,4 @@ fn a_killed_ortho_leaves_nothing_the_next_one_does_not_remove() {
         .map(|e| e.unwrap().file_name().to_string_lossy().into_owned())
         .collect();
     assert_eq!(names, ["ortho.tif"]);
-}
-
-/// `cmd` under an RLIMIT_AS of 2 GiB.
-fn confine(cmd: &mut Command) -> &mut Command {
-    use std::os::unix::process::CommandExt;
-    // SAFETY: setrlimit is async-signal-safe; nothing else runs between fork and exec.
-    unsafe {
-        cmd.pre_exec(|| {
-            let lim = libc::rlimit {
-                rlim_cur: 2 << 30,
-                rlim_max: 2 << 30,
-            };
-            if libc::setrlimit(libc::RLIMIT_AS, &lim) != 0 {
-                return Err(std::io::Error::last_os_error());
-            }
-            Ok(())
-        })
-    }
 }
