@@ -746,7 +746,13 @@ fn run_stages(
             inputs = inputs.file(c);
         }
         if let Some(b) = &e.block {
-            inputs = inputs.file(&b.path).param("block", b);
+            // The block's path enters as the file (hashed by its name and content), not as
+            // a parameter: an absolute path there made a copied project redo the epoch.
+            inputs = inputs
+                .file(&b.path)
+                .param("block_format", &b.format)
+                .param("block_lidar_check", &b.lidar_check)
+                .param("block_apply_lidar_offset", &b.apply_lidar_offset);
         }
         if k == 0 && has_reference {
             inputs = inputs.param("lidar_datum_sigma_m", &project.control.lidar_datum_sigma_m);
