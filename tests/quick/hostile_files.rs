@@ -330,7 +330,7 @@ fn adjust_control(dir: &Path, csv: &Path, limits: Option<&str>) -> Confined {
     if let Some(l) = limits {
         cmd.env("CLOUDCONTROL_INPUT_LIMITS", l);
     }
-    run_confined(&mut cmd, 2 << 30, 30.0)
+    run_confined(&cmd, 2 << 30, 30.0)
 }
 
 #[test]

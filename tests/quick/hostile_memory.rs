@@ -629,7 +629,7 @@ fn the_photo_memory_budget_is_configurable() {
             Some(b) => cmd.env("CLOUDCONTROL_PHOTO_MEMORY", b),
             None => cmd.env_remove("CLOUDCONTROL_PHOTO_MEMORY"),
         };
-        run_confined(&mut cmd, 2 << 30, 30.0)
+        run_confined(&cmd, 2 << 30, 30.0)
     };
     run(Some("64M")).refused_cleanly(5.0, &[s(&photo), "photo memory budget", "67108864"]);
     run(Some("lots")).refused_cleanly(5.0, &[s(&photo), "CLOUDCONTROL_PHOTO_MEMORY=\"lots\""]);

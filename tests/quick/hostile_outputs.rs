@@ -239,7 +239,7 @@ fn outputs_that_are_not_a_folder_of_their_own_are_refused() {
         if check {
             cmd.arg("--check");
         }
-        let c = run_confined(&mut cmd, 2 << 30, 30.0);
+        let c = run_confined(&cmd, 2 << 30, 30.0);
         c.refused_cleanly(5.0, &[&home.display().to_string(), "home folder"]);
         assert_eq!(c.code, Some(2));
     }
