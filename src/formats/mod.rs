@@ -136,6 +136,16 @@ fn temporary_token() -> String {
     format!("{}-{thread}-{call}", std::process::id())
 }
 
+/// A number of an input file as an error message shows it: in scientific notation when
+/// far from 1 (`1e-300`, not three hundred zeros), as written otherwise.
+pub fn number_in_message(v: f64) -> String {
+    if v != 0.0 && v.is_finite() && !(1e-4..1e9).contains(&v.abs()) {
+        format!("{v:e}")
+    } else {
+        format!("{v}")
+    }
+}
+
 /// A temporary sibling of `path` to write into before an atomic rename, so that readers
 /// never see a half-written output: `.STEM.part-PID-THREAD-N[.EXT]`, a name no other
 /// process, thread or call of this one is given (formats/README.md, "Outputs"). The

@@ -33,15 +33,7 @@ pub const FOCAL_MM: [f64; 2] = [1.0, 5000.0];
 /// largest film format's side).
 pub const MAX_PRINCIPAL_POINT_MM: f64 = 500.0;
 
-/// A number as a message shows it: in scientific notation when far from 1 (`1e-300`,
-/// not three hundred zeros).
-fn num(v: f64) -> String {
-    if v != 0.0 && v.is_finite() && !(1e-4..1e9).contains(&v.abs()) {
-        format!("{v:e}")
-    } else {
-        format!("{v}")
-    }
-}
+use crate::formats::number_in_message as num;
 
 /// Jacobian of a pixel with respect to the interior parameters; unused columns are zero.
 pub type IntrinsicsJacobian = SMatrix<f64, 2, MAX_INTRINSICS>;

@@ -30,7 +30,7 @@ impl Default for CheckpointOptions {
 }
 
 /// One checkpoint's comparison; `dz_m = lidar_z − checkpoint z`.
-#[derive(Debug, Clone, Serialize, Deserialize)]
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 pub struct CheckpointRow {
     pub id: String,
     pub x: f64,

@@ -283,14 +283,7 @@ pub const SCALE_RANGE: [f64; 2] = [1e-9, 1e3];
 /// geocentric coordinate.
 pub const MAX_OFFSET: f64 = 1e9;
 
-/// A number as a message shows it: in scientific notation when far from 1.
-fn num(v: f64) -> String {
-    if v != 0.0 && v.is_finite() && !(1e-4..1e9).contains(&v.abs()) {
-        format!("{v:e}")
-    } else {
-        format!("{v}")
-    }
-}
+use crate::formats::number_in_message as num;
 
 /// Refuses a header whose scale factors or offsets are not finite or not plausible
 /// ([`SCALE_RANGE`], [`MAX_OFFSET`]): NaN or 0 would make every coordinate NaN or the

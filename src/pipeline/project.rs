@@ -301,6 +301,14 @@ impl Project {
         self.reference.iter().chain(self.archive.iter())
     }
 
+    /// [`Project::epochs`] with the key that names each in the project file
+    /// (`reference`, `archive[1]`): messages about an epoch's inputs name it so.
+    pub fn keyed_epochs(&self) -> impl Iterator<Item = (String, &Epoch)> {
+        let reference = self.reference.iter().map(|e| ("reference".to_string(), e));
+        let archive = (self.archive.iter().enumerate()).map(|(i, e)| (format!("archive[{i}]"), e));
+        reference.chain(archive)
+    }
+
     /// Reads and validates a project file. Relative paths are taken from the file's folder.
     pub fn load(path: &Path) -> Result<Self, ProjectError> {
         let text = crate::formats::input::read_text(path, crate::formats::input::Cap::project())

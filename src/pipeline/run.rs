@@ -446,18 +446,7 @@ fn input_paths(project: &Project) -> Vec<(String, &Path)> {
             out.push((key.into(), p));
         }
     }
-    let epochs = project
-        .reference
-        .iter()
-        .map(|e| ("reference".to_string(), e))
-        .chain(
-            project
-                .archive
-                .iter()
-                .enumerate()
-                .map(|(i, e)| (format!("archive[{i}]"), e)),
-        );
-    for (key, e) in epochs {
+    for (key, e) in project.keyed_epochs() {
         out.push((format!("{key}.photos"), &e.photos));
         for (k, p) in [
             ("camera", &e.camera),

@@ -74,18 +74,7 @@ pub fn check_inputs(project: &Project) -> Result<(), InputProblems> {
     let mut problems = Vec::new();
     // Each epoch's photo keys, when its photo folder could be read.
     let mut photos: BTreeMap<String, Option<BTreeSet<String>>> = BTreeMap::new();
-    let keyed = project
-        .reference
-        .iter()
-        .map(|e| ("reference".to_string(), e))
-        .chain(
-            project
-                .archive
-                .iter()
-                .enumerate()
-                .map(|(i, e)| (format!("archive[{i}]"), e)),
-        );
-    for (key, e) in keyed {
+    for (key, e) in project.keyed_epochs() {
         let names = if e.block.is_some() {
             check_block_epoch(&key, e, &mut problems)
         } else {

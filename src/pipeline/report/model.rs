@@ -238,25 +238,9 @@ impl EpochReport {
     }
 }
 
-/// One checkpoint against the LiDAR (`lidar::eval::CheckpointRow`): `dz_m` = LiDAR −
+/// One checkpoint against the LiDAR, as the LiDAR evaluation gives it: `dz_m` = LiDAR −
 /// checkpoint height.
-#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
-pub struct LidarCheckRow {
-    pub id: String,
-    pub x: f64,
-    pub y: f64,
-    pub z: f64,
-    pub lidar_z: Option<f64>,
-    pub dz_m: Option<f64>,
-    /// Ground points the local plane was fitted to.
-    pub neighbours: usize,
-    /// RMS of those points about the plane (m).
-    pub plane_rms_m: Option<f64>,
-    /// |dz − mean| > 3σ.
-    pub outlier: bool,
-    /// Why no LiDAR height was derived.
-    pub skipped: Option<String>,
-}
+pub use crate::lidar::eval::CheckpointRow as LidarCheckRow;
 
 /// The LiDAR against the surveyed checkpoints (`sources/lidar_checkpoints.json`).
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
@@ -301,22 +285,7 @@ impl LidarCheck {
             radius_m: options.radius,
             k: options.k,
             min_points: options.min_points,
-            rows: r
-                .rows
-                .iter()
-                .map(|c| LidarCheckRow {
-                    id: c.id.clone(),
-                    x: c.x,
-                    y: c.y,
-                    z: c.z,
-                    lidar_z: c.lidar_z,
-                    dz_m: c.dz_m,
-                    neighbours: c.neighbours,
-                    plane_rms_m: c.plane_rms_m,
-                    outlier: c.outlier,
-                    skipped: c.skipped.clone(),
-                })
-                .collect(),
+            rows: r.rows.clone(),
         }
     }
 }
