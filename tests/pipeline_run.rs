@@ -199,8 +199,12 @@ fn demo_runs_the_workflow_and_a_killed_run_resumes_identically() {
         .unwrap();
     let t = Instant::now();
     loop {
+        // Finished when the ledger's `stages` holds it (its temporary folder is listed
+        // under `temporaries` before it is made, with the stage's name in it).
         let ledger = std::fs::read_to_string(run2.join("stages.json")).unwrap_or_default();
-        if ledger.contains("epoch-reference_2024") {
+        let done = serde_json::from_str::<Value>(&ledger)
+            .is_ok_and(|v| v["stages"].get("epoch-reference_2024").is_some());
+        if done {
             break;
         }
         assert!(

@@ -713,16 +713,23 @@ chip_size_px = 193
 
 def test_a_run_whose_epoch_orients_nothing_is_partial(tmp_path, shared_block):
     """formats/project/README.md, "Exit statuses": a camera of 1500 × 1000 for 400 × 266
-    photos orients none of them; ccp_project_run returns PARTIAL (12) with the epoch, the
-    count and the reason, and Python raises PartialRunError carrying the summary (or
-    returns it with partial_ok)."""
+    photos is refused before any work (INVALID_ARGUMENT, naming the camera file and both
+    sizes); photos whose headers read but whose data is cut short orient none of them:
+    ccp_project_run returns PARTIAL (12) with the epoch, the count and the reason, and
+    Python raises PartialRunError carrying the summary (or returns it with partial_ok)."""
     blk = shared_block("tiny", 2, "good", tmp_path / "block")
     (blk / "camera_1500.json").write_text(json.dumps(
         {"kind": "frame", "width": 1500, "height": 1000, "fx": 1800.0, "fy": 1800.0, "cx": 750.0, "cy": 500.0}))
-    project = digital_project(blk, "camera_1500.json")
+    r = refused("call_project_run", digital_project(blk, "camera_1500.json"),
+                status=INVALID_ARGUMENT,
+                words=["camera_1500.json", "the camera is 1500×1000 px", "is 400×266 px"])
+    assert not (blk / "run" / "sources").exists(), "a stage ran"
+    for png in sorted((blk / "epochs/digital_2012/images").glob("*.png")):
+        data = png.read_bytes()
+        png.write_bytes(data[:len(data) // 2])
+    project = digital_project(blk, "epochs/digital_2012/camera.json")
     r = refused("call_project_run", project, status=PARTIAL,
-                words=["partial run", "epoch digital_2012: 0 of 2 photos oriented",
-                       "is 400×266 px, the camera 1500×1000"])
+                words=["partial run", "epoch digital_2012: 0 of 2 photos oriented", "image "])
     assert r.message.startswith("[PARTIAL]")
     assert run_in_child("call_project_run_partial_ok", project).status == 0
     try:
