@@ -165,3 +165,33 @@ fn unknown_crs_is_a_typed_error_naming_it() {
     let wkt = utm.to_wkt().unwrap();
     assert!(wkt.contains("\"central_meridian\",-117]"), "{wkt}");
 }
+
+/// LAZ files whose GPS time data switches sequence without end (point format 6, LAS 1.4;
+/// point format 3, LAS 1.2): laz 0.12.2 called itself per switch and overflowed the stack,
+/// aborting the process (`lidar catalogue`, or a host through the C ABI). The vendored laz
+/// (vendor/README.md) reads them in a bounded loop: an error naming the file, no abort.
+#[test]
+fn laz_gps_time_switching_without_end_is_an_error() {
+    for (name, count) in [
+        ("laz_gps_sequence_switches_point6", 40),
+        ("laz_gps_sequence_switches_point3", 1065),
+    ] {
+        let dir = tempfile::tempdir().unwrap();
+        let path = dir.path().join(format!("{name}.laz"));
+        std::fs::write(&path, reproducer("las", name)).unwrap();
+        let mut s = LasStream::open(&path).expect("header and chunk table are intact");
+        assert_eq!(s.info().point_count, count, "{name}");
+        let mut batch = PointBatch::default();
+        let err = loop {
+            match s.read_batch(1 << 16, &mut batch) {
+                Ok(0) => panic!("{name}: every point read"),
+                Ok(_) => {}
+                Err(e) => break e.to_string(),
+            }
+        };
+        assert!(
+            err.contains(&path.display().to_string()) && err.contains("switches of sequence"),
+            "{name}: {err}"
+        );
+    }
+}
