@@ -195,3 +195,56 @@ fn laz_gps_time_switching_without_end_is_an_error() {
         );
     }
 }
+
+/// A 796-byte baseline JPEG whose frame claims 65 313 × 4 128 pixels: decoded as a valid
+/// image of zeros (800 MB, 2.6 s; a timeout under the fuzzer's sanitizer). Its 4.2 million
+/// 8×8 blocks need 527 KB of coded data at least: refused from the header, as a chip and
+/// as a photo, naming the bound.
+#[test]
+fn jpeg_too_small_for_its_claimed_size_is_refused() {
+    let bytes = reproducer("image_decode", "jpeg_65313x4128_in_796_bytes");
+    let t = std::time::Instant::now();
+    let chip = cloudcontrol::formats::image_open::decode_image_bytes(Path::new("chip.jpg"), &bytes)
+        .map(|_| ())
+        .unwrap_err()
+        .to_string();
+    let dir = tempfile::tempdir().unwrap();
+    let path = dir.path().join("photo.jpg");
+    std::fs::write(&path, &bytes).unwrap();
+    let photo = cloudcontrol::matching::GreyImage::load(&path)
+        .map(|_| ())
+        .unwrap_err()
+        .to_string();
+    for (e, name) in [(&chip, "chip.jpg"), (&photo, "photo.jpg")] {
+        assert!(
+            e.contains(name) && e.contains("JPEG of 65313×4128 pixels") && e.contains("796 bytes"),
+            "{e}"
+        );
+    }
+    assert!(t.elapsed().as_secs_f64() < 1.0, "{:?}", t.elapsed());
+}
+
+/// An 847-byte TIFF of 32 × 19 785 pixels claiming 61 955 samples a pixel, pixel
+/// interleaved in one strip: the `image` crate refuses it and GDAL, the photo reader's
+/// fallback, allocated 4.9 GB for the strip to read the first rows of three bands. Refused
+/// from its block size and band count against the photo memory budget.
+#[test]
+fn tiff_whose_block_exceeds_the_photo_budget_is_refused() {
+    let dir = tempfile::tempdir().unwrap();
+    let path = dir.path().join("photo.tif");
+    std::fs::write(
+        &path,
+        reproducer("image_decode", "tiff_one_strip_4_9_gb_block"),
+    )
+    .unwrap();
+    let e = cloudcontrol::matching::GreyImage::load(&path)
+        .map(|_| ())
+        .unwrap_err()
+        .to_string();
+    assert!(
+        e.contains("photo.tif")
+            && e.contains("GDAL decodes whole")
+            && e.contains("photo memory budget"),
+        "{e}"
+    );
+}

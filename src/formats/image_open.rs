@@ -233,6 +233,22 @@ fn limited_decoder<'a, R: std::io::BufRead + Seek + 'a>(
 ) -> Result<impl image::ImageDecoder + 'a> {
     use image::ImageDecoder;
     let budget = photo_memory_for(path)?;
+    let coded_bytes = if r.format() == Some(image::ImageFormat::Jpeg) {
+        let mut inner = r.into_inner();
+        let here = inner
+            .stream_position()
+            .map_err(|e| FormatError::io(path, e))?;
+        let end = inner
+            .seek(SeekFrom::End(0))
+            .map_err(|e| FormatError::io(path, e))?;
+        inner
+            .seek(SeekFrom::Start(here))
+            .map_err(|e| FormatError::io(path, e))?;
+        r = image::ImageReader::with_format(inner, image::ImageFormat::Jpeg);
+        Some(end.saturating_sub(here))
+    } else {
+        None
+    };
     // Our cap replaces the reader's default (512 MiB) for the header's own allocations
     // (PNG text and ICC chunks, TIFF tags) and the decoded image.
     let mut limits = image::Limits::default();
@@ -241,6 +257,9 @@ fn limited_decoder<'a, R: std::io::BufRead + Seek + 'a>(
     let decoder = r.into_decoder().map_err(bad_image(path))?;
     let (w, h) = decoder.dimensions();
     check_pixels(path, w.into(), h.into())?;
+    if let Some(len) = coded_bytes {
+        check_jpeg_coded_size(path, w, h, len)?;
+    }
     let bytes = decoder.total_bytes();
     for (limit, basis) in [
         (MAX_DECODED_BYTES, "the bytes an image may decode to".to_string()),
@@ -263,6 +282,31 @@ fn limited_decoder<'a, R: std::io::BufRead + Seek + 'a>(
         }
     }
     Ok(decoder)
+}
+
+/// Refuses a JPEG of `width`×`height` pixels held in `file_bytes` bytes that cannot hold
+/// the coded data of that many pixels. Every 8×8 block of a component at full sampling
+/// (one always is: the largest sampling factor is some component's) is coded in its first
+/// (DC) scan by a Huffman code, at least 1 bit long (lengths are 1–16 bits); a baseline
+/// block takes 2 at least (its DC difference and the end of block). A smaller file is a
+/// decompression bomb or a truncated file: a 796-byte JPEG claiming 65 313 × 4 128 pixels
+/// decoded as zeros into 800 MB in 2.6 s. (Arithmetic-coded JPEG, which could go below a
+/// bit a block, is not decoded by the `image` crate.)
+fn check_jpeg_coded_size(path: &Path, width: u32, height: u32, file_bytes: u64) -> Result<()> {
+    let blocks = u64::from(width.div_ceil(8)) * u64::from(height.div_ceil(8));
+    let least = blocks.div_ceil(8);
+    if file_bytes < least {
+        return Err(FormatError::TooLarge {
+            path: path.to_path_buf(),
+            what: format!(
+                "JPEG of {width}×{height} pixels ({blocks} blocks of 8×8, a bit each at least) in a file of {file_bytes} bytes: coded bytes needed"
+            ),
+            claimed: least,
+            limit: file_bytes,
+            basis: "what the file holds (a decompression bomb, or a truncated file)".into(),
+        });
+    }
+    Ok(())
 }
 
 fn decode<R: std::io::BufRead + Seek>(
@@ -521,6 +565,7 @@ pub fn read_band_strips(
     (c, r, w, h): (usize, usize, usize, usize),
     mut strip: impl FnMut(&[Vec<f32>]),
 ) -> Result<()> {
+    check_blocks(path, ds, bands)?;
     let mut row = r;
     while row < r + h {
         let rows = STRIP_ROWS.min(r + h - row);
@@ -542,6 +587,7 @@ pub fn read_band_strips_uncached(
     (c, r, w, h): (usize, usize, usize, usize),
     mut strip: impl FnMut(&[Vec<f32>]),
 ) -> Result<()> {
+    check_blocks(path, ds, bands)?;
     let mut row = r;
     while row < r + h {
         let rows = STRIP_ROWS.min(r + h - row);
@@ -549,6 +595,42 @@ pub fn read_band_strips_uncached(
         ds.flush_cache().map_err(|e| FormatError::gdal(path, e))?;
         strip(&parts?);
         row += rows;
+    }
+    Ok(())
+}
+
+/// Refuses a raster whose blocks exceed the photo memory budget: GDAL decodes and caches a
+/// whole block to read any part of it, and the block of a pixel-interleaved file holds
+/// every band of the dataset, read or not. An 847-byte TIFF of 32 × 19 785 pixels claiming
+/// 61 955 samples a pixel, one strip of all of them, made GDAL allocate 4.9 GB to read the
+/// first rows of its first three bands. Counted as the first band's block times the
+/// dataset's bands (the read bands' when fewer would do is not known from here).
+fn check_blocks(path: &Path, ds: &Dataset, bands: &[usize]) -> Result<()> {
+    let budget = photo_memory_for(path)?;
+    let Some(&first) = bands.first() else {
+        return Ok(());
+    };
+    let band = ds
+        .rasterband(first)
+        .map_err(|e| FormatError::gdal(path, e))?;
+    let (bx, by) = band.block_size();
+    let all = ds.raster_count().max(bands.len());
+    let bytes = (bx as u64)
+        .saturating_mul(by as u64)
+        .saturating_mul(band.pixel_bytes() as u64)
+        .saturating_mul(all as u64);
+    if bytes > budget {
+        return Err(FormatError::TooLarge {
+            path: path.to_path_buf(),
+            what: format!(
+                "blocks of {bx}×{by} pixels × {all} band(s), which GDAL decodes whole, in bytes"
+            ),
+            claimed: bytes,
+            limit: budget,
+            basis: format!(
+                "the photo memory budget (set {PHOTO_MEMORY_ENV}, e.g. {PHOTO_MEMORY_ENV}=2G, or write the raster tiled)"
+            ),
+        });
     }
     Ok(())
 }

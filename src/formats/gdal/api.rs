@@ -69,6 +69,8 @@ gdal_api! {
     GDALBuildOverviews: fn(H, Str, c_int, *const c_int, c_int, *const c_int, *mut c_void, *mut c_void) -> c_int;
     GDALRasterIO: fn(H, c_int, c_int, c_int, c_int, c_int, *mut c_void, c_int, c_int, c_int, c_int, c_int) -> c_int;
     GDALGetRasterDataType: fn(H) -> c_int;
+    GDALGetBlockSize: fn(H, *mut c_int, *mut c_int);
+    GDALGetDataTypeSizeBytes: fn(c_int) -> c_int;
     GDALGetRasterNoDataValue: fn(H, *mut c_int) -> f64;
     GDALSetRasterNoDataValue: fn(H, f64) -> c_int;
     GDALSetRasterColorInterpretation: fn(H, c_int) -> c_int;

@@ -285,6 +285,23 @@ impl RasterBand<'_> {
         DataType::from_gdal(unsafe { (self.api.GDALGetRasterDataType)(self.h) })
     }
 
+    /// Bytes of one pixel of the band's type.
+    pub fn pixel_bytes(&self) -> usize {
+        // SAFETY: a valid band; the size query takes any type value.
+        let t = unsafe { (self.api.GDALGetRasterDataType)(self.h) };
+        // SAFETY: a pure function of the type value.
+        unsafe { (self.api.GDALGetDataTypeSizeBytes)(t) }.max(0) as usize
+    }
+
+    /// The band's natural block (columns, rows): what GDAL decodes whole to read any part
+    /// of it.
+    pub fn block_size(&self) -> (usize, usize) {
+        let (mut x, mut y): (c_int, c_int) = (0, 0);
+        // SAFETY: a valid band and two out values.
+        unsafe { (self.api.GDALGetBlockSize)(self.h, &mut x, &mut y) };
+        (x.max(0) as usize, y.max(0) as usize)
+    }
+
     pub fn no_data_value(&self) -> Option<f64> {
         let mut set: c_int = 0;
         // SAFETY: a valid band and flag.
