@@ -167,6 +167,15 @@ impl<T: Read> ArithmeticDecoder<T> {
             }
             let dv = self.value / self.length;
             let t = dv >> model.table_shift;
+            // Valid data keeps value below length, so t indexes the table; corrupt data
+            // does not (an index 20 in a table of 18 panicked: cloudcontrol's patch,
+            // vendor/README.md).
+            if t as usize + 1 >= model.decoder_table.len() {
+                return Err(std::io::Error::new(
+                    std::io::ErrorKind::InvalidData,
+                    "corrupt LAZ: arithmetic decoder state beyond its model",
+                ));
+            }
 
             sym = model.decoder_table[t as usize]; // initial decision based on table look-up
             n = model.decoder_table[t as usize + 1] + 1;
