@@ -199,11 +199,12 @@ fn demo_runs_the_workflow_and_a_killed_run_resumes_identically() {
         .unwrap();
     let t = Instant::now();
     loop {
-        // Finished when the ledger's `stages` holds it (its temporary folder is listed
-        // under `temporaries` before it is made, with the stage's name in it).
+        // Finished when the ledger's record of it has its input fingerprint: its temporary
+        // folder is listed under `temporaries` before it is made, and its record is put
+        // first without one (`inputs: null`) while the folder is moved into place.
         let ledger = std::fs::read_to_string(run2.join("stages.json")).unwrap_or_default();
         let done = serde_json::from_str::<Value>(&ledger)
-            .is_ok_and(|v| v["stages"].get("epoch-reference_2024").is_some());
+            .is_ok_and(|v| v["stages"]["epoch-reference_2024"]["inputs"].is_string());
         if done {
             break;
         }
