@@ -173,11 +173,23 @@ fn unknown_crs_is_a_typed_error_naming_it() {
 #[test]
 fn laz_gps_time_switching_without_end_is_an_error() {
     for (name, count, says) in [
-        ("laz_gps_sequence_switches_point6", 40, "switches of sequence"),
-        ("laz_gps_sequence_switches_point3", 1065, "switches of sequence"),
+        (
+            "laz_gps_sequence_switches_point6",
+            40,
+            "switches of sequence",
+        ),
+        (
+            "laz_gps_sequence_switches_point3",
+            1065,
+            "switches of sequence",
+        ),
         // A mutation of the first: the arithmetic decoder's state beyond its model indexed
         // past the decoder table (a bounds-check panic, release builds too).
-        ("laz_decoder_table_index_out_of_bounds", 40, "beyond its model"),
+        (
+            "laz_decoder_table_index_out_of_bounds",
+            40,
+            "beyond its model",
+        ),
     ] {
         let dir = tempfile::tempdir().unwrap();
         let path = dir.path().join(format!("{name}.laz"));
