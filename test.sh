@@ -5,6 +5,13 @@ set -euo pipefail
 cd "$(dirname "$0")"
 ./setup.sh
 
+# The sanitizer build of the fuzz targets (fuzz/target, the fuzz crate's own workspace)
+# overlaps the Rust tests at the lowest priority: their test binaries leave a core idle
+# much of the time. Its log is printed before the fuzz runs, which wait for it.
+mkdir -p fuzz/target
+FUZZ_NICE=19 fuzz/run.sh build > fuzz/target/ci-build.log 2>&1 &
+fuzz_build=$!
+
 echo "== Rust tests"
 cargo test --release
 
@@ -21,4 +28,9 @@ echo "== Python binding tests"
 CLOUDCONTROL_LIB="$PWD/target/release/libcloudcontrol.so" .venv/bin/python -m pytest -q -p no:cacheprovider bindings/python/tests
 
 echo "== Fuzz targets: every target ${FUZZ_SECONDS:-60} s, two at a time, ASan, -rss_limit_mb=2048 (fuzz/README.md)"
+if ! wait "$fuzz_build"; then
+    cat fuzz/target/ci-build.log
+    echo "fuzz: the background build failed; fuzz/run.sh ci builds again"
+fi
+tail -n 1 fuzz/target/ci-build.log
 fuzz/run.sh ci
