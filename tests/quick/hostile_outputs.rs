@@ -7,6 +7,8 @@
 //! still there byte for byte and that no `.part-` name is left behind.
 
 use crate::common;
+// The project tree of formats/project/example.toml with empty input files.
+use crate::pipeline_project::example_tree;
 use cloudcontrol::ffi::*;
 use cloudcontrol::pipeline::stages::{Inputs, Runner, StageError, WorkError, MARKER};
 use common::{cli_confined, exe, last_error, run_confined, Confined};
@@ -75,35 +77,6 @@ fn succeeded(c: &Confined, seconds: f64) {
     );
     assert!(c.peak_rss <= 1 << 30, "peak RSS {} MiB", c.peak_rss >> 20);
     assert!(c.seconds <= seconds, "{:.1} s", c.seconds);
-}
-
-/// The project tree of formats/project/example.toml with empty input files; the text of
-/// the example (its output is `out`).
-fn example_tree(dir: &Path) -> String {
-    for d in [
-        "lidar",
-        "epochs/reference/images",
-        "epochs/digital/images",
-        "epochs/film/images",
-    ] {
-        std::fs::create_dir_all(dir.join(d)).unwrap();
-    }
-    for f in [
-        "checkpoints.csv",
-        "checkpoint_images.csv",
-        "epochs/reference/camera.json",
-        "epochs/reference/pos.csv",
-        "epochs/digital/camera.json",
-        "epochs/digital/pos.csv",
-        "epochs/film/camera.json",
-        "epochs/film/strips.csv",
-    ] {
-        std::fs::write(dir.join(f), "").unwrap();
-    }
-    std::fs::read_to_string(
-        Path::new(env!("CARGO_MANIFEST_DIR")).join("formats/project/example.toml"),
-    )
-    .unwrap()
 }
 
 /// `text` with its `output = "out"` line replaced by `output = "{output}"`.

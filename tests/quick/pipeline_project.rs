@@ -3,7 +3,9 @@
 use cloudcontrol::pipeline::project::Project;
 use std::path::Path;
 
-fn example_tree(dir: &Path) -> String {
+/// The project tree of formats/project/example.toml with empty input files; the text of
+/// the example (its output is `out`).
+pub(crate) fn example_tree(dir: &Path) -> String {
     for d in [
         "lidar",
         "epochs/reference/images",
