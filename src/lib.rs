@@ -10,6 +10,7 @@ pub mod adjust;
 pub mod block;
 pub mod cache;
 pub mod control;
+pub mod dense;
 pub mod estimators;
 pub mod ffi;
 pub mod formats;

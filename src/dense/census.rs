@@ -1,0 +1,103 @@
+//! Census transform: each pixel becomes a bit string saying which pixels of a window
+//! around it are darker than it, so the matching cost (the Hamming distance of two bit
+//! strings) ignores radiometric differences that keep the order of grey values.
+
+use crate::matching::GreyImage;
+use rayon::prelude::*;
+
+/// Census of `img` over a window of `cw × ch` samples `stride` pixels apart (odd sides, at
+/// most 64 bits without the centre): bit k is set where the window's k-th sample
+/// (row-major, centre skipped) is darker than the centre. Windows are clamped at the
+/// image edges.
+pub fn census_transform(img: &GreyImage, cw: usize, ch: usize, stride: usize) -> Vec<u64> {
+    assert!(
+        cw % 2 == 1 && ch % 2 == 1 && cw * ch - 1 <= 64,
+        "census window {cw}×{ch} must have odd sides and at most 65 pixels"
+    );
+    let w = img.width;
+    let mut out = vec![0u64; w * img.height];
+    out.par_chunks_mut(w)
+        .enumerate()
+        .for_each(|(y, bits)| super::simd::census_row(img, y, cw, ch, stride, bits));
+    out
+}
+
+/// One row of [`census_transform`] (the kernel the SIMD dispatch instantiates).
+#[inline(always)]
+pub(crate) fn census_row_generic(
+    img: &GreyImage,
+    y: usize,
+    cw: usize,
+    ch: usize,
+    stride: usize,
+    bits: &mut [u64],
+) {
+    let (w, h) = (img.width, img.height);
+    let (rx, ry) = ((cw / 2) as isize, (ch / 2) as isize);
+    let st = stride.max(1) as isize;
+    let centre = img.row(y);
+    let mut k = 0u32;
+    for dy in -ry..=ry {
+        let ny = (y as isize + st * dy).clamp(0, h as isize - 1) as usize;
+        let nb = img.row(ny);
+        for sx in -rx..=rx {
+            if sx == 0 && dy == 0 {
+                continue;
+            }
+            let dx = st * sx;
+            // Columns whose neighbour lies inside the row: no clamping.
+            let lo = ((-dx).max(0) as usize).min(w);
+            let hi = (w as isize - dx.max(0)).max(lo as isize) as usize;
+            let shifted = &nb[(lo as isize + dx) as usize..(hi as isize + dx) as usize];
+            for ((b, &c), &n) in bits[lo..hi].iter_mut().zip(&centre[lo..hi]).zip(shifted) {
+                *b |= ((n < c) as u64) << k;
+            }
+            for x in (0..lo).chain(hi..w) {
+                let nx = (x as isize + dx).clamp(0, w as isize - 1) as usize;
+                bits[x] |= ((nb[nx] < centre[x]) as u64) << k;
+            }
+            k += 1;
+        }
+    }
+}
+
+/// Gaussian blur of standard deviation `sigma` px (separable, kernel to 3σ, edges
+/// clamped); the image itself when `sigma` ≤ 0.
+pub(crate) fn gaussian_blur(img: &GreyImage, sigma: f32) -> GreyImage {
+    if sigma <= 0.0 {
+        return img.clone();
+    }
+    let r = (3.0 * sigma).ceil() as isize;
+    let mut k: Vec<f32> = (-r..=r)
+        .map(|i| (-(i * i) as f32 / (2.0 * sigma * sigma)).exp())
+        .collect();
+    let s: f32 = k.iter().sum();
+    k.iter_mut().for_each(|v| *v /= s);
+    let (w, h) = (img.width, img.height);
+    let mut tmp = vec![0.0f32; w * h];
+    tmp.par_chunks_mut(w).enumerate().for_each(|(y, out)| {
+        let row = img.row(y);
+        for (x, o) in out.iter_mut().enumerate() {
+            let mut acc = 0.0;
+            for (j, kv) in k.iter().enumerate() {
+                let xx = (x as isize + j as isize - r).clamp(0, w as isize - 1) as usize;
+                acc += kv * row[xx];
+            }
+            *o = acc;
+        }
+    });
+    let mut data = vec![0.0f32; w * h];
+    data.par_chunks_mut(w).enumerate().for_each(|(y, out)| {
+        for (j, kv) in k.iter().enumerate() {
+            let yy = (y as isize + j as isize - r).clamp(0, h as isize - 1) as usize;
+            for (o, &t) in out.iter_mut().zip(&tmp[yy * w..(yy + 1) * w]) {
+                *o += kv * t;
+            }
+        }
+    });
+    GreyImage {
+        width: w,
+        height: h,
+        data,
+    }
+}

@@ -1,0 +1,228 @@
+//! Unit tests of `dense` semi-global matching on rectified pairs made from one random
+//! texture with a known disparity field: a constant shift, a slanted plane, a prior band
+//! that excludes the truth, and the statuses of pixels without a match.
+
+mod tests {
+    use cloudcontrol::dense::{
+        match_images, BandGrid, DisparityPrior, PixelStatus, SgmOptions, Subpixel,
+    };
+    use cloudcontrol::matching::GreyImage;
+
+    /// Random texture: value noise on a lattice of `cell` px, bilinear, with two octaves,
+    /// integrated over the pixel by 3 × 3 samples, plus sensor noise.
+    pub struct Texture {
+        seed: u64,
+        cell: f64,
+    }
+
+    fn hash(seed: u64, i: i64, j: i64) -> f64 {
+        let mut z = seed
+            ^ (i as u64).wrapping_mul(0x9E3779B97F4A7C15)
+            ^ (j as u64).wrapping_mul(0xC2B2AE3D27D4EB4F);
+        z = (z ^ (z >> 30)).wrapping_mul(0xBF58476D1CE4E5B9);
+        z = (z ^ (z >> 27)).wrapping_mul(0x94D049BB133111EB);
+        z ^= z >> 31;
+        (z >> 11) as f64 / (1u64 << 53) as f64
+    }
+
+    impl Texture {
+        pub fn new(seed: u64, cell: f64) -> Self {
+            Self { seed, cell }
+        }
+
+        fn lattice(&self, seed: u64, x: f64, y: f64, cell: f64) -> f64 {
+            let (u, v) = (x / cell, y / cell);
+            let (i, j) = (u.floor(), v.floor());
+            let (fu, fv) = (u - i, v - j);
+            let (i, j) = (i as i64, j as i64);
+            let a = hash(seed, i, j) + fu * (hash(seed, i + 1, j) - hash(seed, i, j));
+            let b = hash(seed, i, j + 1) + fu * (hash(seed, i + 1, j + 1) - hash(seed, i, j + 1));
+            a + fv * (b - a)
+        }
+
+        pub fn at(&self, x: f64, y: f64) -> f64 {
+            let mut s = 0.0;
+            for a in 0..3 {
+                for b in 0..3 {
+                    let (xx, yy) = (x + (a as f64 - 1.0) / 3.0, y + (b as f64 - 1.0) / 3.0);
+                    s += 0.7 * self.lattice(self.seed, xx, yy, self.cell)
+                        + 0.3 * self.lattice(self.seed ^ 0xABCD, xx, yy, 4.0 * self.cell);
+                }
+            }
+            30.0 + 190.0 * s / 9.0
+        }
+    }
+
+    /// Left and right images of `w × h` px: right(x, y) = T(x, y), left(x, y) = T(x − d, y).
+    pub fn pair(
+        w: usize,
+        h: usize,
+        seed: u64,
+        noise: f64,
+        d: impl Fn(f64, f64) -> f64,
+    ) -> (GreyImage, GreyImage) {
+        let t = Texture::new(seed, 1.7);
+        let n = |x: f64, y: f64, k: u64| noise * (hash(seed ^ k, x as i64, y as i64) - 0.5) * 3.46;
+        let right = GreyImage::from_fn(w, h, |x, y| t.at(x, y) + n(x, y, 1));
+        let left = GreyImage::from_fn(w, h, |x, y| t.at(x - d(x, y), y) + n(x, y, 2));
+        (left, right)
+    }
+
+    /// Median and 95th percentile of |error| over valid pixels, and the valid share, over
+    /// the columns where the right image holds the match.
+    pub fn score(
+        map: &cloudcontrol::dense::DisparityMap,
+        d: impl Fn(f64, f64) -> f64,
+        x0: usize,
+    ) -> (f64, f64, f64) {
+        let mut errs = Vec::new();
+        let mut total = 0usize;
+        for y in 4..map.height - 4 {
+            for x in x0..map.width - 4 {
+                total += 1;
+                if let Some(v) = map.at(x, y) {
+                    errs.push((v as f64 - d(x as f64 + 0.5, y as f64 + 0.5)).abs());
+                }
+            }
+        }
+        errs.sort_by(f64::total_cmp);
+        let q = |p: f64| errs[((errs.len() - 1) as f64 * p) as usize];
+        (q(0.5), q(0.95), errs.len() as f64 / total as f64)
+    }
+
+    #[test]
+    fn constant_shift_is_found_to_a_tenth_of_a_pixel() {
+        let truth = |_: f64, _: f64| 17.3;
+        let (l, r) = pair(320, 240, 3, 1.0, truth);
+        let map = match_images(
+            &l,
+            None,
+            &r,
+            None,
+            &DisparityPrior::range(0.0, 64.0),
+            &SgmOptions::default(),
+        )
+        .unwrap();
+        let (med, p95, valid) = score(&map, truth, 24);
+        eprintln!("shift: median {med:.3} px, 95 % {p95:.3} px, valid {valid:.3}");
+        assert!(med < 0.1 && p95 < 0.4 && valid > 0.97);
+    }
+
+    #[test]
+    fn slanted_plane_is_found_with_either_sub_pixel_fit() {
+        let truth = |x: f64, y: f64| 6.0 + 0.05 * x + 0.03 * y;
+        let (l, r) = pair(400, 300, 5, 1.0, truth);
+        for subpixel in [Subpixel::Parabola, Subpixel::Equiangular] {
+            let options = SgmOptions {
+                subpixel,
+                ..Default::default()
+            };
+            let map = match_images(
+                &l,
+                None,
+                &r,
+                None,
+                &DisparityPrior::range(-8.0, 96.0),
+                &options,
+            )
+            .unwrap();
+            let (med, p95, valid) = score(&map, truth, 40);
+            eprintln!("plane {subpixel:?}: median {med:.3} px, 95 % {p95:.3} px, valid {valid:.3}");
+            assert!(med < 0.15 && p95 < 0.6 && valid > 0.95);
+        }
+    }
+
+    #[test]
+    fn a_prior_band_narrows_the_search_but_never_supplies_the_answer() {
+        let truth = |x: f64, _: f64| 20.0 + 0.02 * x;
+        let (l, r) = pair(256, 192, 9, 1.0, truth);
+        let options = SgmOptions::default();
+        // A band around the truth gives the same answer as the wide range.
+        let mut grid = BandGrid::covering(16, 256, 192);
+        for j in 0..grid.rows {
+            for i in 0..grid.cols {
+                let d = truth((i * 16) as f64, 0.0) as f32;
+                grid.min[j * grid.cols + i] = d - 6.0;
+                grid.max[j * grid.cols + i] = d + 6.0;
+            }
+        }
+        let narrow = DisparityPrior {
+            range: [0.0, 64.0],
+            grid: Some(&grid),
+            first_row: 0,
+        };
+        let a = match_images(&l, None, &r, None, &narrow, &options).unwrap();
+        let (med, _, valid) = score(&a, truth, 30);
+        assert!(med < 0.1 && valid > 0.95, "median {med}, valid {valid}");
+        assert!(a.stats.levels[0].mean_band < 20.0);
+        // A band that misses the truth by 5 px yields no disparities, not wrong ones.
+        for v in grid.min.iter_mut().chain(grid.max.iter_mut()) {
+            *v += 11.0;
+        }
+        let wrong = DisparityPrior {
+            range: [0.0, 64.0],
+            grid: Some(&grid),
+            first_row: 0,
+        };
+        let b = match_images(&l, None, &r, None, &wrong, &options).unwrap();
+        let (_, _, valid) = score(&b, truth, 30);
+        let mut hist = std::collections::BTreeMap::new();
+        for s in &b.status {
+            *hist.entry(format!("{s:?}")).or_insert(0) += 1;
+        }
+        let vals: Vec<f32> = b
+            .disparity
+            .iter()
+            .copied()
+            .filter(|d| d.is_finite())
+            .take(20)
+            .collect();
+        eprintln!("wrong band: {hist:?} {vals:?} {:?}", b.stats);
+        assert!(
+            valid < 0.02,
+            "{valid} of the pixels matched outside the truth"
+        );
+    }
+
+    #[test]
+    fn pixels_without_a_match_say_why() {
+        let truth = |_: f64, _: f64| 12.0;
+        let (mut l, r) = pair(200, 160, 11, 1.0, truth);
+        // A flat patch: no texture.
+        for y in 60..100 {
+            for x in 80..140 {
+                l.data[y * 200 + x] = 128.0;
+            }
+        }
+        let mut valid = vec![true; 200 * 160];
+        for v in valid[..200 * 10].iter_mut() {
+            *v = false;
+        }
+        let options = SgmOptions {
+            min_texture: 2.0,
+            ..Default::default()
+        };
+        let map = match_images(
+            &l,
+            Some(&valid),
+            &r,
+            None,
+            &DisparityPrior::range(4.0, 40.0),
+            &options,
+        )
+        .unwrap();
+        assert!(map.status[..200 * 10]
+            .iter()
+            .all(|&s| s == PixelStatus::NoData));
+        // Columns left of the smallest disparity (4) have no right pixel in their band.
+        assert_eq!(map.status[50 * 200 + 2], PixelStatus::NoData);
+        assert_eq!(map.status[80 * 200 + 110], PixelStatus::LowTexture);
+        assert!(map.disparity[80 * 200 + 110].is_nan());
+        let ok = map
+            .status
+            .iter()
+            .zip(&map.disparity)
+            .all(|(s, d)| (*s == PixelStatus::Valid) == d.is_finite());
+        assert!(ok, "valid status and finite disparity disagree");
+    }
+}
