@@ -442,6 +442,15 @@ pub fn generate(config: &SynthConfig, out_dir: &Path) -> Result<SynthManifest, S
         let mut rng = sub_seed(config.seed, 10 + k as u64);
         let (info, rows) =
             epoch::generate_epoch(spec, &epoch_scene, config, &p, out_dir, &mut rng)?;
+        // The surface as it was in this epoch, at its ground pixel, over the block.
+        orthophoto::write_surface(
+            &epoch_scene,
+            p.area,
+            ORIGIN,
+            spec.gsd,
+            &crs,
+            &out_dir.join(&info.truth_dir).join("dsm.tif"),
+        )?;
         epochs.push(info);
         cp_rows.extend(rows);
         stage(&mut stats, &spec.name);

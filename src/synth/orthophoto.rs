@@ -51,14 +51,35 @@ pub fn write(
         crs,
         &GeoTiffOptions::default(),
     )?;
-    let dem = Dem::from_fn(
-        x0 + origin[0],
-        y1 + origin[1],
-        DEM_CELL_M,
-        ((x1 - x0) / DEM_CELL_M).floor() as usize,
-        ((y1 - y0) / DEM_CELL_M).floor() as usize,
-        |x, y| scene.height_at(x - origin[0], y - origin[1]) + origin[2],
-    )?;
-    raster::write_dem(&dir.join("dem.tif"), &dem, crs, &GeoTiffOptions::default())?;
+    write_surface(scene, area, origin, DEM_CELL_M, crs, &dir.join("dem.tif"))
+}
+
+/// Writes the surface of `scene` (first-return heights: terrain, roofs, crowns; world
+/// heights) over `area` (block-local) in cells of `cell` m, north up, as a float32
+/// GeoTIFF at `path`: the orthophoto's DEM, and each epoch's true DSM (the scene as it
+/// was then) that the epoch's dense matching is scored against.
+pub fn write_surface(
+    scene: &Scene,
+    area: [f64; 4],
+    origin: [f64; 3],
+    cell: f64,
+    crs: &Crs,
+    path: &Path,
+) -> Result<(), SynthError> {
+    let [x0, y0, x1, y1] = area;
+    let (w, h) = (
+        ((x1 - x0) / cell).floor() as usize,
+        ((y1 - y0) / cell).floor() as usize,
+    );
+    let transform = GeoTransform::north_up(x0 + origin[0], y1 + origin[1], cell);
+    let data: Vec<f32> = (0..w * h)
+        .into_par_iter()
+        .map(|k| {
+            let (x, y) = transform.pixel_to_world((k % w) as f64 + 0.5, (k / w) as f64 + 0.5);
+            (scene.height_at(x - origin[0], y - origin[1]) + origin[2]) as f32
+        })
+        .collect();
+    let dem = Dem::new(w, h, transform, data)?;
+    raster::write_dem(path, &dem, crs, &GeoTiffOptions::default())?;
     Ok(())
 }

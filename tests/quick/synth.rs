@@ -370,3 +370,88 @@ fn navigation_is_the_documented_pos_within_its_sigma_of_the_truth() {
         }
     }
 }
+
+/// Each epoch's true surface (`truth/epochs/<epoch>/dsm.tif`), read with GDAL: on the
+/// block's area at the epoch's ground pixel in the block's CRS; the reference epoch's is
+/// the present scene's heights; an older epoch's differs where the scene changed
+/// (buildings built or demolished since) and nowhere else.
+#[test]
+fn every_epoch_has_its_true_surface_at_its_ground_pixel() {
+    let s = shared();
+    let cfg = config(11);
+    let area = synth::scene_extent(cfg.preset);
+    let scene = synth::Scene::generate(cfg.seed, area);
+    let read = |epoch: &synth::EpochInfo| {
+        let path = s.path.join(&epoch.truth_dir).join("dsm.tif");
+        let ds = gdal::Dataset::open(&path).unwrap_or_else(|e| panic!("{}: {e}", path.display()));
+        let gt = ds.geo_transform().unwrap();
+        let srs = ds.spatial_ref().unwrap();
+        assert_eq!(srs.auth_code().unwrap(), 4547, "{}", path.display());
+        let (w, h) = ds.raster_size();
+        let band = ds.rasterband(1).unwrap();
+        let z = band
+            .read_as::<f32>((0, 0), (w, h), (w, h), None)
+            .unwrap()
+            .data()
+            .to_vec();
+        (gt, w, h, z)
+    };
+    let reference = &s.manifest.epochs[0];
+    let (gt, w, h, z_ref) = read(reference);
+    let g = reference.gsd_m;
+    assert_eq!((gt[1], gt[5]), (g, -g));
+    assert_eq!(
+        (gt[0], gt[3]),
+        (area[0] + synth::ORIGIN[0], area[3] + synth::ORIGIN[1])
+    );
+    assert_eq!(
+        (w, h),
+        (
+            ((area[2] - area[0]) / g) as usize,
+            ((area[3] - area[1]) / g) as usize
+        )
+    );
+    let mut worst: f64 = 0.0;
+    for k in (0..w * h).step_by(97) {
+        let (c, r) = ((k % w) as f64 + 0.5, (k / w) as f64 + 0.5);
+        let (x, y) = (gt[0] + c * gt[1], gt[3] + r * gt[5]);
+        let truth = scene.height_at(x - synth::ORIGIN[0], y - synth::ORIGIN[1]) + synth::ORIGIN[2];
+        worst = worst.max((z_ref[k] as f64 - truth).abs());
+    }
+    assert!(worst < 1e-3, "reference DSM off the scene by {worst} m");
+    for epoch in &s.manifest.epochs[1..] {
+        let (gt, w, h, z) = read(epoch);
+        assert_eq!(
+            (gt[1], gt[5]),
+            (epoch.gsd_m, -epoch.gsd_m),
+            "{}",
+            epoch.name
+        );
+        // The reference surface at this grid's cell centres, from its own grid.
+        let (mut same, mut changed, mut n) = (0usize, 0usize, 0usize);
+        for k in (0..w * h).step_by(7) {
+            let (c, r) = ((k % w) as f64 + 0.5, (k / w) as f64 + 0.5);
+            let (x, y) = (gt[0] + c * gt[1], gt[3] + r * gt[5]);
+            let truth = scene.height_at(x - synth::ORIGIN[0], y - synth::ORIGIN[1]);
+            let dz = (z[k] as f64 - truth).abs();
+            n += 1;
+            same += (dz < 1e-3) as usize;
+            changed += (dz > 2.0) as usize;
+        }
+        let (same, changed) = (same as f64 / n as f64, changed as f64 / n as f64);
+        eprintln!(
+            "{}: {same:.3} of the cells as today, {changed:.3} changed by > 2 m",
+            epoch.name
+        );
+        assert!(
+            same > 0.7 && changed > 0.005,
+            "{}: same {same}, changed {changed}",
+            epoch.name
+        );
+        assert!(
+            same + changed > 0.97,
+            "{}: heights changed without an object",
+            epoch.name
+        );
+    }
+}
