@@ -4,29 +4,12 @@
 //! its reference stage and rerun skips the finished stages and gives identical products.
 
 use serde_json::Value;
-use std::path::{Path, PathBuf};
+use std::path::Path;
 use std::process::{Command, Stdio};
 use std::time::{Duration, Instant};
 
 mod common;
-use common::{block_copy, epoch, exe, json_of, px};
-
-fn files_below(d: &Path) -> Vec<PathBuf> {
-    let mut out = Vec::new();
-    let mut stack = vec![d.to_path_buf()];
-    while let Some(d) = stack.pop() {
-        for e in std::fs::read_dir(&d).unwrap() {
-            let p = e.unwrap().path();
-            if p.is_dir() {
-                stack.push(p);
-            } else {
-                out.push(p);
-            }
-        }
-    }
-    out.sort();
-    out
-}
+use common::{block_copy, epoch, exe, files_below, json_of, px};
 
 #[test]
 fn demo_runs_the_workflow_and_a_killed_run_resumes_identically() {

@@ -124,6 +124,54 @@ pub fn copy_block(src: &std::path::Path, dest: &std::path::Path) {
     }
 }
 
+/// Every regular file below `dir`, sorted.
+pub fn files_below(dir: &std::path::Path) -> Vec<std::path::PathBuf> {
+    let mut out = Vec::new();
+    let mut stack = vec![dir.to_path_buf()];
+    while let Some(d) = stack.pop() {
+        for e in std::fs::read_dir(&d).unwrap() {
+            let p = e.unwrap().path();
+            if p.is_dir() {
+                stack.push(p);
+            } else {
+                out.push(p);
+            }
+        }
+    }
+    out.sort();
+    out
+}
+
+/// The project file of a tiny block's digital epoch controlled by its orthophoto and DEM
+/// (no LiDAR, no reference: a run takes about a second), named `name`, with `camera` and
+/// the checkpoint measurements `checkpoint_images` (paths relative to the block).
+pub fn digital_project_toml(name: &str, camera: &str, checkpoint_images: &str) -> String {
+    format!(
+        r#"name = "{name}"
+crs = "EPSG:4547"
+output = "run"
+
+[control]
+orthophoto = "orthophoto/orthophoto.tif"
+dem = "orthophoto/dem.tif"
+dem_sigma_m = 0.1
+checkpoints = "checkpoints.csv"
+checkpoint_images = "{checkpoint_images}"
+
+[[archive]]
+name = "digital_2012"
+date = "2012-08-14"
+photos = "epochs/digital_2012/images"
+camera = "{camera}"
+pos = "epochs/digital_2012/pos.csv"
+
+[thresholds]
+control_interval_px = 60
+chip_size_px = 193
+"#
+    )
+}
+
 /// [`copy_block`] of [`shared_block`]`(preset, seed, pos)` at `dest`.
 pub fn block_copy(preset: &str, seed: u64, pos: &str, dest: &std::path::Path) {
     copy_block(&shared_block(preset, seed, pos), dest);

@@ -106,25 +106,12 @@ fn sample(epoch: &str, n: usize) -> (Manifest, BTreeMap<String, DynamicImage>) {
 }
 
 fn listing(dir: &Path) -> Vec<String> {
-    let mut v: Vec<String> = walk(dir)
+    let mut v: Vec<String> = crate::common::files_below(dir)
         .into_iter()
         .map(|p| p.strip_prefix(dir).unwrap().display().to_string())
         .collect();
     v.sort();
     v
-}
-
-fn walk(dir: &Path) -> Vec<std::path::PathBuf> {
-    let mut out = Vec::new();
-    for e in std::fs::read_dir(dir).unwrap() {
-        let p = e.unwrap().path();
-        if p.is_dir() {
-            out.extend(walk(&p));
-        } else {
-            out.push(p);
-        }
-    }
-    out
 }
 
 #[test]

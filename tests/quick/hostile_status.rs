@@ -399,12 +399,36 @@ fn frame_camera(path: &Path, width: u64, height: u64, f: f64) {
     std::fs::write(path, cam.to_string()).unwrap();
 }
 
+/// `cloudcontrol orient` of the tiny block `blk`'s digital epoch from the package `dcp`
+/// with `camera`, into `out`, confined.
+fn orient_digital(blk: &Path, dcp: &Path, camera: &Path, out: &Path) -> Confined {
+    let epoch = blk.join("epochs/digital_2012");
+    cli_confined(&[
+        "orient",
+        "--dcp",
+        dcp.to_str().unwrap(),
+        "--camera",
+        camera.to_str().unwrap(),
+        "--images",
+        epoch.join("images").to_str().unwrap(),
+        "--pos",
+        epoch.join("pos.csv").to_str().unwrap(),
+        "--name",
+        "digital_2012",
+        "--crs",
+        "EPSG:4547",
+        "--dem",
+        blk.join("orthophoto/dem.tif").to_str().unwrap(),
+        "--out",
+        out.to_str().unwrap(),
+    ])
+}
+
 #[test]
 fn orient_refuses_an_implausible_camera_naming_the_file_and_the_field() {
     let tmp = tempfile::tempdir().unwrap();
     let blk = tmp.path().join("block");
     common::block_copy("tiny", 2, "good", &blk);
-    let epoch = blk.join("epochs/digital_2012");
     let cases: [(u64, u64, f64, &str); 3] = [
         (
             (1 << 32) - 1,
@@ -419,23 +443,7 @@ fn orient_refuses_an_implausible_camera_naming_the_file_and_the_field() {
         let cam = tmp.path().join(format!("camera_{k}.json"));
         frame_camera(&cam, w, h, f);
         let out = tmp.path().join(format!("out_{k}"));
-        let c = cli_confined(&[
-            "orient",
-            "--dcp",
-            tmp.path().join("no.dcp").to_str().unwrap(),
-            "--camera",
-            cam.to_str().unwrap(),
-            "--images",
-            epoch.join("images").to_str().unwrap(),
-            "--pos",
-            epoch.join("pos.csv").to_str().unwrap(),
-            "--crs",
-            "EPSG:4547",
-            "--dem",
-            blk.join("orthophoto/dem.tif").to_str().unwrap(),
-            "--out",
-            out.to_str().unwrap(),
-        ]);
+        let c = orient_digital(&blk, &tmp.path().join("no.dcp"), &cam, &out);
         c.refused_cleanly(5.0, &[&cam.display().to_string(), "invalid camera", words]);
         assert!(!out.exists(), "nothing is written for a refused camera");
     }
@@ -445,34 +453,9 @@ fn orient_refuses_an_implausible_camera_naming_the_file_and_the_field() {
 // Issue 52 item 3
 // ---------------------------------------------------------------------------------------
 
-/// The tiny block's digital epoch controlled by its orthophoto and DEM (no LiDAR, no
-/// reference: a run takes about a second), with camera `camera` and the checkpoint
-/// measurements `checkpoint_images`.
+/// [`common::digital_project_toml`] written into `blk` as `project_digital.toml`.
 fn digital_project(blk: &Path, camera: &str, checkpoint_images: &str) -> PathBuf {
-    let toml = format!(
-        r#"name = "hostile-status"
-crs = "EPSG:4547"
-output = "run"
-
-[control]
-orthophoto = "orthophoto/orthophoto.tif"
-dem = "orthophoto/dem.tif"
-dem_sigma_m = 0.1
-checkpoints = "checkpoints.csv"
-checkpoint_images = "{checkpoint_images}"
-
-[[archive]]
-name = "digital_2012"
-date = "2012-08-14"
-photos = "epochs/digital_2012/images"
-camera = "{camera}"
-pos = "epochs/digital_2012/pos.csv"
-
-[thresholds]
-control_interval_px = 60
-chip_size_px = 193
-"#
-    );
+    let toml = common::digital_project_toml("hostile-status", camera, checkpoint_images);
     let p = blk.join("project_digital.toml");
     std::fs::write(&p, toml).unwrap();
     p
@@ -579,27 +562,13 @@ fn a_camera_of_another_size_than_the_photos_is_refused_by_the_run_and_ends_orien
     // `orient` (no project, no check before work) with the 1500 × 1000 camera and the
     // run's package: partial, the size found as it orients each photo, no model.
     let why = "is 400×266 px, the camera 1500×1000";
-    let epoch = blk.join("epochs/digital_2012");
     let out = tmp.path().join("orient");
-    let c = cli_confined(&[
-        "orient",
-        "--dcp",
-        blk.join("run/dcp-orthophoto/package").to_str().unwrap(),
-        "--camera",
-        blk.join("camera_1500.json").to_str().unwrap(),
-        "--images",
-        epoch.join("images").to_str().unwrap(),
-        "--pos",
-        epoch.join("pos.csv").to_str().unwrap(),
-        "--name",
-        "digital_2012",
-        "--crs",
-        "EPSG:4547",
-        "--dem",
-        blk.join("orthophoto/dem.tif").to_str().unwrap(),
-        "--out",
-        out.to_str().unwrap(),
-    ]);
+    let c = orient_digital(
+        &blk,
+        &blk.join("run/dcp-orthophoto/package"),
+        &blk.join("camera_1500.json"),
+        &out,
+    );
     assert_eq!(
         c.code,
         Some(common::EXIT_PARTIAL),

@@ -24,23 +24,6 @@ const STAGES: [&str; 5] = [
 ];
 const PHOTO: &str = "epochs/digital_2012/images/digital_s01_001.png";
 
-/// Every regular file below `dir`.
-fn files(dir: &Path) -> Vec<PathBuf> {
-    let mut out = Vec::new();
-    let mut stack = vec![dir.to_path_buf()];
-    while let Some(d) = stack.pop() {
-        for e in std::fs::read_dir(&d).unwrap() {
-            let p = e.unwrap().path();
-            if p.is_dir() {
-                stack.push(p);
-            } else {
-                out.push(p);
-            }
-        }
-    }
-    out
-}
-
 fn set_mtime(path: &Path, t: SystemTime) {
     std::fs::File::options()
         .write(true)
@@ -61,32 +44,15 @@ fn tiny_project(blk: &Path) -> PathBuf {
     let p = blk.join("project_digital.toml");
     std::fs::write(
         &p,
-        r#"name = "restart"
-crs = "EPSG:4547"
-output = "run"
-
-[control]
-orthophoto = "orthophoto/orthophoto.tif"
-dem = "orthophoto/dem.tif"
-dem_sigma_m = 0.1
-checkpoints = "checkpoints.csv"
-checkpoint_images = "truth/checkpoint_images.csv"
-
-[[archive]]
-name = "digital_2012"
-date = "2012-08-14"
-photos = "epochs/digital_2012/images"
-camera = "epochs/digital_2012/camera.json"
-pos = "epochs/digital_2012/pos.csv"
-
-[thresholds]
-control_interval_px = 60
-chip_size_px = 193
-"#,
+        common::digital_project_toml(
+            "restart",
+            "epochs/digital_2012/camera.json",
+            "truth/checkpoint_images.csv",
+        ),
     )
     .unwrap();
     let hour_ago = SystemTime::now() - Duration::from_secs(3600);
-    for f in files(blk) {
+    for f in common::files_below(blk) {
         set_mtime(&f, hour_ago);
     }
     p
@@ -105,7 +71,7 @@ fn inputs(blk: &Path) -> Vec<PathBuf> {
     .iter()
     .map(|f| blk.join(f))
     .collect();
-    v.extend(files(&blk.join("epochs/digital_2012/images")));
+    v.extend(common::files_below(&blk.join("epochs/digital_2012/images")));
     v
 }
 
