@@ -17,8 +17,12 @@
 
 mod aggregate;
 mod census;
+pub mod epoch;
 mod filter;
+pub mod fusion;
 mod pair;
+pub mod pairs;
+pub mod products;
 mod rectify;
 mod refine;
 mod sgm;
@@ -43,6 +47,8 @@ pub enum DenseError {
     Rectification(String),
     #[error(transparent)]
     Geometry(#[from] crate::geometry::GeometryError),
+    #[error(transparent)]
+    Format(#[from] crate::formats::FormatError),
 }
 
 pub type Result<T> = std::result::Result<T, DenseError>;

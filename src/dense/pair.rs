@@ -19,13 +19,15 @@ pub struct PairTile {
 }
 
 /// How a pair is cut into tiles of rectified rows.
-#[derive(Debug, Clone, Copy)]
+#[derive(Debug, Clone)]
 pub struct Tiling {
     /// Rectified rows a tile hands over.
     pub rows: usize,
     /// Rows matched on both sides of a tile beyond the ones it hands over, so that its
     /// aggregation paths start outside it.
     pub overlap: usize,
+    /// Rectified rows matched (clipped to the pair's); the rest are not.
+    pub within: Range<usize>,
 }
 
 /// Matches `pair` from its two photos (whole, as `left` and `right`) tile by tile;
@@ -55,15 +57,16 @@ pub fn match_pair(
     let Tiling {
         rows: tile_rows,
         overlap,
+        within,
     } = tiling;
     if tile_rows == 0 {
         return Err(invalid("tile rows", "must be at least 1"));
     }
-    let h = pair.height;
-    let mut r0 = 0;
+    let h = within.end.min(pair.height);
+    let mut r0 = within.start;
     while r0 < h {
         let r1 = (r0 + tile_rows).min(h);
-        let (w0, w1) = (r0.saturating_sub(overlap), (r1 + overlap).min(h));
+        let (w0, w1) = (r0.saturating_sub(overlap), (r1 + overlap).min(pair.height));
         let (l, r) = rayon::join(
             || pair.render_rows(Side::Left, left, [0, 0], w0..w1),
             || pair.render_rows(Side::Right, right, [0, 0], w0..w1),

@@ -12,7 +12,8 @@
 //! forward map).
 
 use super::{invalid, DenseError, Result};
-use crate::geometry::{Brown, Camera, Dem, FrameCamera, Pose, Ray};
+use crate::geometry::{Brown, Camera, FrameCamera, Pose, Ray};
+use crate::matching::oriented::Surface;
 use crate::matching::resample::bilinear;
 use crate::matching::GreyImage;
 use nalgebra::{Matrix3, Vector3};
@@ -101,8 +102,9 @@ impl BandGrid {
         Self::empty(step, width.div_ceil(step) + 1, height.div_ceil(step) + 1)
     }
 
-    /// Band of left rectified pixel (col, row): the hull of its four nodes; `None` where
-    /// one of them has no prior or the pixel is beyond the grid.
+    /// Band of left rectified pixel (col, row): the hull of those of its four nodes that
+    /// have a prior (at the edge of a prior surface, the nodes on it); `None` where none
+    /// has or the pixel is beyond the grid.
     pub fn band_at(&self, col: usize, row: usize) -> Option<(f32, f32)> {
         let (i, j) = (col / self.step, row / self.step);
         if i >= self.cols || j >= self.rows {
@@ -113,13 +115,12 @@ impl BandGrid {
         for (a, b) in [(i, j), (i1, j), (i, j1), (i1, j1)] {
             let k = b * self.cols + a;
             let (l, h) = (self.min[k], self.max[k]);
-            if !(l.is_finite() && h.is_finite()) {
-                return None;
+            if l.is_finite() && h.is_finite() {
+                lo = lo.min(l);
+                hi = hi.max(h);
             }
-            lo = lo.min(l);
-            hi = hi.max(h);
         }
-        Some((lo, hi))
+        (lo <= hi).then_some((lo, hi))
     }
 }
 
@@ -415,11 +416,11 @@ impl RectifiedPair {
         })
     }
 
-    /// A prior band of disparities from a surface: every `step` pixels of the left view,
-    /// the ray meets `dem` and the band holds the disparities of the ray's points
-    /// `margin` (object units, vertical) above and below that intersection. Nodes whose
-    /// ray misses the DEM have no prior (NaN).
-    pub fn band_from_surface(&self, dem: &Dem, margin: f64, step: usize) -> BandGrid {
+    /// A prior band of disparities from a surface (in the pair's coordinates): every
+    /// `step` pixels of the left view, the ray meets `surface` and the band holds the
+    /// disparities of the ray's points `margin` (object units, vertical) above and below
+    /// that intersection. Nodes whose ray misses the surface have no prior (NaN).
+    pub fn band_from_surface(&self, surface: &Surface, margin: f64, step: usize) -> BandGrid {
         let mut grid = BandGrid::covering(step, self.left.width, self.height);
         let f = self.focal_px;
         let cols = grid.cols;
@@ -435,7 +436,7 @@ impl RectifiedPair {
                     origin: self.left.center,
                     direction: d.normalize(),
                 };
-                let Ok(p) = dem.intersect(&ray) else {
+                let Some(p) = surface.intersect(&ray) else {
                     return (f32::NAN, f32::NAN);
                 };
                 let (mut lo, mut hi) = (f64::INFINITY, f64::NEG_INFINITY);

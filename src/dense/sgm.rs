@@ -180,6 +180,10 @@ pub struct DisparityPrior<'a> {
     pub grid: Option<&'a BandGrid>,
     /// Rectified row of the matched window's first row (to look up the grid).
     pub first_row: usize,
+    /// Pixels without a band in the grid are not searched (`NoData`) instead of searching
+    /// the range: a prior surface (a DEM) that ends within the photos bounds where
+    /// matching is wanted.
+    pub grid_only: bool,
 }
 
 impl DisparityPrior<'_> {
@@ -189,15 +193,18 @@ impl DisparityPrior<'_> {
             range: [min, max],
             grid: None,
             first_row: 0,
+            grid_only: false,
         }
     }
 
-    /// Band (px at full resolution) of window pixel (col, row).
-    fn band(&self, col: usize, row: usize) -> (f32, f32) {
+    /// Band (px at full resolution) of window pixel (col, row); `None`: not searched.
+    fn band(&self, col: usize, row: usize) -> Option<(f32, f32)> {
         let [lo, hi] = self.range;
         match self.grid.and_then(|g| g.band_at(col, row + self.first_row)) {
-            Some((a, b)) if a.max(lo) <= b.min(hi) => (a.max(lo), b.min(hi)),
-            _ => (lo, hi),
+            Some((a, b)) if a.max(lo) <= b.min(hi) => Some((a.max(lo), b.min(hi))),
+            Some(_) => Some((lo, hi)),
+            None if self.grid_only && self.grid.is_some() => None,
+            None => Some((lo, hi)),
         }
     }
 }
@@ -345,12 +352,12 @@ pub fn match_images(
         let [(li, lm), (ri, rm)] = &pyr[l];
         let scale = (1u32 << l) as f32;
         let half = 1usize << l >> 1;
-        let prior_band = |x: usize, y: usize| -> (i32, i32) {
-            let (a, b) = prior.band((x << l) + half, ((y << l) + half).min(left.height - 1));
-            (
+        let prior_band = |x: usize, y: usize| -> Option<(i32, i32)> {
+            let (a, b) = prior.band((x << l) + half, ((y << l) + half).min(left.height - 1))?;
+            Some((
                 (a / scale).floor() as i32 - 1,
                 (b / scale).ceil() as i32 + 1,
-            )
+            ))
         };
         let c0 = cpu_seconds();
         let hood = coarse.as_ref().map(|(d, cw, ch)| {
@@ -360,7 +367,7 @@ pub fn match_images(
             if !lm[y * li.width + x] {
                 return None;
             }
-            let (plo, phi) = prior_band(x, y);
+            let (plo, phi) = prior_band(x, y)?;
             match hood.as_ref().and_then(|h| h.band(x, y)) {
                 Some((a, b)) if a.max(plo) <= b.min(phi) => Some((a.max(plo), b.min(phi))),
                 _ => Some((plo, phi)),

@@ -96,6 +96,19 @@ pub fn convert(input: &Path, output: &Path, opts: &ConvertOptions) -> Result<Blo
     Ok(block)
 }
 
+/// Where a block file's photos are when no folder is given: a COLMAP model folder
+/// itself, else the folder holding the block file.
+pub fn default_images_dir(block_path: &Path) -> std::path::PathBuf {
+    if block_path.is_dir() {
+        block_path.to_path_buf()
+    } else {
+        block_path
+            .parent()
+            .map(Path::to_path_buf)
+            .unwrap_or_default()
+    }
+}
+
 /// The image files of a block's oriented photos in `images_dir` (photo names relative to
 /// it); a missing file is reported in the error, naming the first.
 pub fn image_files(

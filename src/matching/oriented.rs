@@ -157,6 +157,59 @@ pub struct OrientedPair {
     pub overlap: f64,
 }
 
+/// An `n × n` grid of photo a's pixel centres carried through the surface into photo b.
+pub struct GridTransfer {
+    /// Grid pixels of a whose ray meets the surface and projects into b's image plane.
+    pub pa: Vec<[f64; 2]>,
+    /// Their pixels in b (inside b or not).
+    pub pb: Vec<[f64; 2]>,
+    /// Share of the grid whose pixel in b lies inside b: the pair's overlap seen from a.
+    pub overlap: f64,
+    /// The same share of the grid pixels whose ray meets the surface: the overlap where
+    /// the surface is known (a DEM may cover less than a photo).
+    pub overlap_on_surface: f64,
+}
+
+/// The [`GridTransfer`] of photo a into photo b.
+pub fn grid_transfer(
+    a: (&Camera, &Pose),
+    b: (&Camera, &Pose),
+    surface: &Surface,
+    n: usize,
+) -> GridTransfer {
+    let (wa, ha) = a.0.image_size();
+    let (wb, hb) = b.0.image_size();
+    let (wb, hb) = (wb as f64, hb as f64);
+    let (mut pa, mut pb, mut inside) = (Vec::new(), Vec::new(), 0usize);
+    for r in 0..n {
+        for c in 0..n {
+            let p = [
+                (c as f64 + 0.5) / n as f64 * wa as f64,
+                (r as f64 + 0.5) / n as f64 * ha as f64,
+            ];
+            let q = back_project(a.0, a.1, p)
+                .ok()
+                .and_then(|ray| surface.intersect(&ray))
+                .and_then(|x| project(b.0, b.1, &x).ok());
+            if let Some(q) = q {
+                let q = [q.pixel.x, q.pixel.y];
+                if q[0] >= 0.0 && q[1] >= 0.0 && q[0] <= wb && q[1] <= hb {
+                    inside += 1;
+                }
+                pa.push(p);
+                pb.push(q);
+            }
+        }
+    }
+    let overlap_on_surface = inside as f64 / pa.len().max(1) as f64;
+    GridTransfer {
+        pa,
+        pb,
+        overlap: inside as f64 / (n * n).max(1) as f64,
+        overlap_on_surface,
+    }
+}
+
 /// Predicts the pair (a, b) from the approximate orientations; `None` when the photos do
 /// not overlap (by at least `min_overlap`).
 pub fn predict_oriented_pair(
@@ -168,25 +221,9 @@ pub fn predict_oriented_pair(
 ) -> Option<OrientedPair> {
     let (a, b) = (&photos[ia], &photos[ib]);
     let (wa, ha) = a.size();
-    let (wb, hb) = b.size();
-    const N: usize = 11;
-    let (mut pa, mut pb, mut inside) = (Vec::new(), Vec::new(), 0usize);
-    for r in 0..N {
-        for c in 0..N {
-            let p = [
-                (c as f64 + 0.5) / N as f64 * wa,
-                (r as f64 + 0.5) / N as f64 * ha,
-            ];
-            if let Some(q) = a.transfer(b, surface, p) {
-                if q[0] >= 0.0 && q[1] >= 0.0 && q[0] <= wb && q[1] <= hb {
-                    inside += 1;
-                }
-                pa.push(p);
-                pb.push(q);
-            }
-        }
-    }
-    let overlap = inside as f64 / (N * N) as f64;
+    let GridTransfer {
+        pa, pb, overlap, ..
+    } = grid_transfer((a.camera, &a.pose), (b.camera, &b.pose), surface, 11);
     if overlap < opts.min_overlap || pa.len() < 4 {
         return None;
     }

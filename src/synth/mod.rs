@@ -20,6 +20,7 @@ pub mod project;
 pub mod reading;
 pub mod render;
 pub mod scene;
+pub mod surface_score;
 pub mod truth;
 
 pub use film::{Fiducial, FiducialShape, FilmCameraDef};

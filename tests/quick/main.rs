@@ -21,6 +21,7 @@ mod control_dcp;
 mod control_dcp_cli;
 mod control_orient;
 mod control_ortho_source;
+mod dense_epoch;
 mod ffi;
 mod ffi_handles;
 mod formats_blocks_exchange;

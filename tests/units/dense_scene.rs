@@ -29,6 +29,7 @@ mod tests {
             Tiling {
                 rows: tile_rows,
                 overlap: 64,
+                within: 0..pair.height,
             },
             |tile| {
                 let w = tile.map.width;

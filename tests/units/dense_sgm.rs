@@ -2,7 +2,7 @@
 //! texture with a known disparity field: a constant shift, a slanted plane, a prior band
 //! that excludes the truth, and the statuses of pixels without a match.
 
-mod tests {
+pub mod tests {
     use cloudcontrol::dense::{
         match_images, BandGrid, DisparityPrior, PixelStatus, SgmOptions, Subpixel,
     };
@@ -150,6 +150,7 @@ mod tests {
             range: [0.0, 64.0],
             grid: Some(&grid),
             first_row: 0,
+            grid_only: false,
         };
         let a = match_images(&l, None, &r, None, &narrow, &options).unwrap();
         let (med, _, valid) = score(&a, truth, 30);
@@ -163,6 +164,7 @@ mod tests {
             range: [0.0, 64.0],
             grid: Some(&grid),
             first_row: 0,
+            grid_only: false,
         };
         let b = match_images(&l, None, &r, None, &wrong, &options).unwrap();
         let (_, _, valid) = score(&b, truth, 30);
@@ -224,5 +226,46 @@ mod tests {
             .zip(&map.disparity)
             .all(|(s, d)| (*s == PixelStatus::Valid) == d.is_finite());
         assert!(ok, "valid status and finite disparity disagree");
+    }
+}
+
+mod grid_only {
+    use super::tests::pair;
+    use cloudcontrol::dense::{match_images, BandGrid, DisparityPrior, PixelStatus, SgmOptions};
+
+    /// A prior grid that ends half way (a DEM smaller than the photos): with `grid_only`
+    /// the pixels beyond it are not searched, without it they search the range.
+    #[test]
+    fn pixels_beyond_a_prior_grid_are_searched_only_when_asked() {
+        let truth = |_: f64, _: f64| 14.0;
+        let (l, r) = pair(256, 192, 21, 1.0, truth);
+        let mut grid = BandGrid::covering(16, 256, 192);
+        for j in 0..grid.rows {
+            for i in 0..grid.cols {
+                if j * 16 < 96 {
+                    grid.min[j * grid.cols + i] = 8.0;
+                    grid.max[j * grid.cols + i] = 20.0;
+                }
+            }
+        }
+        for grid_only in [true, false] {
+            let prior = DisparityPrior {
+                range: [0.0, 40.0],
+                grid: Some(&grid),
+                first_row: 0,
+                grid_only,
+            };
+            let map = match_images(&l, None, &r, None, &prior, &SgmOptions::default()).unwrap();
+            let lower = &map.status[140 * 256..150 * 256];
+            let valid = lower.iter().filter(|&&s| s == PixelStatus::Valid).count();
+            if grid_only {
+                assert!(lower.iter().all(|&s| s == PixelStatus::NoData));
+            } else {
+                assert!(valid > lower.len() / 2, "{valid} of {}", lower.len());
+            }
+            // Above, on the grid, the truth either way.
+            let upper = map.at(128, 40).unwrap();
+            assert!((upper - 14.0).abs() < 0.2, "{upper}");
+        }
     }
 }

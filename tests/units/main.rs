@@ -18,6 +18,7 @@ mod control_photo;
 mod control_predict;
 mod control_rounds;
 mod control_strips;
+mod dense_fusion;
 mod dense_rectify;
 mod dense_scene;
 mod dense_sgm;

@@ -8,6 +8,7 @@ mod adjust;
 mod bench;
 mod convert;
 mod dcp;
+mod dsm;
 mod lidar;
 mod matching;
 mod orient;
@@ -96,6 +97,7 @@ enum Command {
     Version,
     Convert(convert::Args),
     Ortho(ortho::Args),
+    Dsm(dsm::Args),
     /// Robust bundle adjustment of a COLMAP model with control, check points and LiDAR planes.
     ///
     /// Example: cloudcontrol adjust --model sparse/0 --control gcp.csv --measurements gcp_img.csv --self-calibrate f,k1,k2 --out adjusted
@@ -222,6 +224,7 @@ fn main() -> ExitCode {
     match cli.command {
         Command::Convert(a) => convert::run(a, cli.json, cli.quiet),
         Command::Ortho(a) => ortho::run(a, cli.json, cli.quiet),
+        Command::Dsm(a) => dsm::run(a, cli.json, cli.quiet),
         Command::Io(a) => matching::io(a, cli.quiet),
         Command::Match(a) => matching::matching(a),
         Command::Ties(a) => matching::ties(a, cli.quiet),

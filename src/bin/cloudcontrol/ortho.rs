@@ -41,17 +41,10 @@ pub struct Args {
 }
 
 pub fn run(a: Args, json: bool, quiet: bool) -> ExitCode {
-    let images = a.images.clone().unwrap_or_else(|| {
-        let parent = if a.block.is_dir() {
-            a.block.clone()
-        } else {
-            a.block
-                .parent()
-                .map(|p| p.to_path_buf())
-                .unwrap_or_default()
-        };
-        parent
-    });
+    let images = a
+        .images
+        .clone()
+        .unwrap_or_else(|| cloudcontrol::formats::convert::default_images_dir(&a.block));
     let opts = OrthoOptions {
         gsd: a.gsd,
         extent: a.extent.as_ref().map(|e| (e[0], e[1], e[2], e[3])),

@@ -1,0 +1,243 @@
+//! Each epoch's own surface by dense matching, scored against the epoch's truth, over
+//! synthetic blocks of several seeds (issue 55's acceptance table).
+//!
+//!     cargo bench --bench dense_epochs [-- --preset small --seeds 1,2,3,4,5
+//!                                          --epochs film_1978 --prior dem|plane]
+//!
+//! Per block (generated once into target/dense-epochs/<preset>-<seed>/) and epoch, the
+//! true orientation (`synth::reading::synth_truth_block`: the matching, pairing and
+//! fusion alone, without the adjustment's errors) is matched within ± 25 m of the present
+//! surface (`orthophoto/dem.tif`), in a child process of this bench so that its peak
+//! memory (VmHWM) is the epoch's alone. Printed: pairs, time, peak memory, and the DSM
+//! against the epoch's truth on cells ≥ 2 GSD from height edges (median and NMAD in GSD,
+//! completeness over the stereo-covered cells), and in the cells that changed since the
+//! present (NMAD against the epoch's truth and against the present's). The worst case of
+//! each column is named at the end.
+
+use cloudcontrol::dense::epoch::{epoch_dsm, DsmOptions};
+use cloudcontrol::formats::raster::read_dem;
+use cloudcontrol::matching::oriented::Surface;
+use cloudcontrol::matching::GreyImage;
+use cloudcontrol::synth::reading::synth_truth_block;
+use cloudcontrol::synth::surface_score::{score_surface, SurfaceScore};
+use cloudcontrol::synth::{self, PosQuality, Preset, SynthConfig};
+use nalgebra::Vector3;
+use serde::{Deserialize, Serialize};
+use std::path::{Path, PathBuf};
+use std::time::Instant;
+
+const EPOCHS: [&str; 3] = ["reference_2024", "digital_2012", "film_1978"];
+
+/// JSON has no NaN: serde_json writes it as null, read back here as NaN.
+fn nan_from_null<'de, D: serde::Deserializer<'de>>(d: D) -> Result<f64, D::Error> {
+    Ok(Option::<f64>::deserialize(d)?.unwrap_or(f64::NAN))
+}
+
+#[derive(Serialize, Deserialize)]
+struct Row {
+    pairs: usize,
+    gsd: f64,
+    seconds: f64,
+    cpu_seconds: f64,
+    peak_mib: f64,
+    #[serde(deserialize_with = "nan_from_null")]
+    median_gsd: f64,
+    #[serde(deserialize_with = "nan_from_null")]
+    nmad_gsd: f64,
+    #[serde(deserialize_with = "nan_from_null")]
+    completeness: f64,
+    cells: usize,
+    #[serde(deserialize_with = "nan_from_null")]
+    changed_nmad_gsd: f64,
+    changed_cells: usize,
+    #[serde(deserialize_with = "nan_from_null")]
+    changed_nmad_vs_present_gsd: f64,
+}
+
+fn block_dir(preset: &str, seed: u64) -> PathBuf {
+    let dir = Path::new(env!("CARGO_MANIFEST_DIR"))
+        .join("target/dense-epochs")
+        .join(format!("{preset}-{seed}"));
+    if !dir.join("manifest.json").is_file() {
+        let preset_v = match preset {
+            "tiny" => Preset::Tiny,
+            "small" => Preset::Small,
+            "medium" => Preset::Medium,
+            other => panic!("preset {other}: tiny, small or medium"),
+        };
+        let tmp = dir.with_extension("part");
+        let _ = std::fs::remove_dir_all(&tmp);
+        synth::generate(
+            &SynthConfig {
+                preset: preset_v,
+                seed,
+                change: 0.5,
+                pos: PosQuality::Good,
+                laz: false,
+            },
+            &tmp,
+        )
+        .expect("synthetic block");
+        std::fs::rename(&tmp, &dir).unwrap();
+    }
+    dir
+}
+
+/// One epoch, in this (child) process: prints its row as JSON. `plane`: the prior is a
+/// plane at the present surface's median height ± its relief instead of the surface
+/// itself, so the whole of every pair is matched (the memory case of a film pair).
+fn one(dir: &Path, epoch: &str, plane: bool) {
+    let block = synth_truth_block(dir, epoch).unwrap();
+    let (dem, _) = read_dem(&dir.join("orthophoto/dem.tif")).unwrap();
+    let dem_prior = Surface::Dem {
+        dem: &dem,
+        origin: Vector3::from(block.origin),
+        sigma_m: 1.0,
+    };
+    let prior = if plane {
+        cloudcontrol::dense::epoch::plane_of(&dem_prior).unwrap()
+    } else {
+        dem_prior
+    };
+    let image = |p: &cloudcontrol::block::Photo| {
+        GreyImage::load(p.image.as_ref().unwrap()).map_err(|e| e.to_string())
+    };
+    let (t0, c0) = (Instant::now(), cloudcontrol::dense::cpu_seconds());
+    let out = epoch_dsm(
+        &block,
+        &image,
+        &prior,
+        None,
+        &DsmOptions::default(),
+        |k, n, r| {
+            eprintln!(
+                "  {epoch} pair {k}/{n}: {}×{} rectified, {:.2} matched, {:.1} s",
+                r.rectified[0], r.rectified[1], r.matched, r.seconds
+            )
+        },
+    )
+    .unwrap();
+    let gsd = out.ground_pixel;
+    let (seconds, cpu) = (
+        t0.elapsed().as_secs_f64(),
+        cloudcontrol::dense::cpu_seconds() - c0,
+    );
+    let pairs: Vec<(u32, u32)> = out
+        .pairs
+        .iter()
+        .map(|p| (p.pair.left, p.pair.right))
+        .collect();
+    let s: SurfaceScore = score_surface(dir, epoch, &out.surface.dsm, &block, &pairs, gsd).unwrap();
+    let row = Row {
+        pairs: out.pairs.len(),
+        gsd,
+        seconds,
+        cpu_seconds: cpu,
+        peak_mib: synth::peak_memory_mib(),
+        median_gsd: s.median_gsd,
+        nmad_gsd: s.nmad_gsd,
+        completeness: s.completeness,
+        cells: s.cells,
+        changed_nmad_gsd: s.changed_nmad_gsd,
+        changed_cells: s.changed_cells,
+        changed_nmad_vs_present_gsd: s.changed_nmad_vs_present_gsd,
+    };
+    println!("ROW {}", serde_json::to_string(&row).unwrap());
+}
+
+fn main() {
+    let args: Vec<String> = std::env::args().collect();
+    let arg = |k: &str| {
+        args.iter()
+            .position(|a| a == k)
+            .and_then(|i| args.get(i + 1).cloned())
+    };
+    let plane = arg("--prior").is_some_and(|p| p == "plane");
+    if let (Some(dir), Some(epoch)) = (arg("--one-dir"), arg("--one-epoch")) {
+        one(Path::new(&dir), &epoch, plane);
+        return;
+    }
+    let epochs: Vec<String> = arg("--epochs")
+        .map(|e| e.split(',').map(str::to_string).collect())
+        .unwrap_or_else(|| EPOCHS.map(str::to_string).to_vec());
+    let preset = arg("--preset").unwrap_or("small".into());
+    let seeds: Vec<u64> = arg("--seeds")
+        .unwrap_or("1,2,3,4,5".into())
+        .split(',')
+        .map(|s| s.parse().unwrap())
+        .collect();
+    println!(
+        "dense matching per epoch, {preset} preset, true orientation, prior: {} ± 25 m",
+        if plane {
+            "plane at the present surface's median height, ± its relief"
+        } else {
+            "present surface"
+        }
+    );
+    println!(
+        "{:<6} {:<15} {:>5} {:>6} {:>7} {:>7} {:>8} {:>8} {:>7} {:>7} {:>8} {:>8} {:>7}",
+        "seed",
+        "epoch",
+        "pairs",
+        "GSD m",
+        "wall s",
+        "cpu s",
+        "peak MiB",
+        "median",
+        "NMAD",
+        "compl",
+        "chg NMAD",
+        "vs now",
+        "chg n"
+    );
+    let mut worst: Vec<(String, f64, String)> = Vec::new();
+    let mut note = |what: &str, v: f64, at: String, higher_is_worse: bool| {
+        if v.is_nan() {
+            return;
+        }
+        let e = worst.iter_mut().find(|w| w.0 == what);
+        match e {
+            Some(w) if (higher_is_worse && v > w.1) || (!higher_is_worse && v < w.1) => {
+                w.1 = v;
+                w.2 = at;
+            }
+            Some(_) => {}
+            None => worst.push((what.to_string(), v, at)),
+        }
+    };
+    for seed in seeds {
+        let dir = block_dir(&preset, seed);
+        for epoch in &epochs {
+            let epoch = epoch.as_str();
+            let out = std::process::Command::new(std::env::current_exe().unwrap())
+                .args(["--one-dir", dir.to_str().unwrap(), "--one-epoch", epoch])
+                .args(["--prior", if plane { "plane" } else { "dem" }])
+                .stderr(std::process::Stdio::inherit())
+                .output()
+                .unwrap();
+            let text = String::from_utf8_lossy(&out.stdout);
+            let Some(json) = text.lines().find_map(|l| l.strip_prefix("ROW ")) else {
+                println!("{seed:<6} {epoch:<15} FAILED ({})", out.status);
+                continue;
+            };
+            let r: Row = serde_json::from_str(json).unwrap();
+            println!(
+                "{:<6} {:<15} {:>5} {:>6.3} {:>7.1} {:>7.1} {:>8.0} {:>+8.3} {:>7.3} {:>7.3} {:>8.3} {:>8.3} {:>7}",
+                seed, epoch, r.pairs, r.gsd, r.seconds, r.cpu_seconds, r.peak_mib, r.median_gsd,
+                r.nmad_gsd, r.completeness, r.changed_nmad_gsd, r.changed_nmad_vs_present_gsd,
+                r.changed_cells
+            );
+            let at = format!("seed {seed} {epoch}");
+            note("|median| GSD", r.median_gsd.abs(), at.clone(), true);
+            note("NMAD GSD", r.nmad_gsd, at.clone(), true);
+            note("completeness", r.completeness, at.clone(), false);
+            note("changed NMAD GSD", r.changed_nmad_gsd, at.clone(), true);
+            note("peak MiB", r.peak_mib, at.clone(), true);
+            note("wall s", r.seconds, at, true);
+        }
+    }
+    println!("worst:");
+    for (what, v, at) in worst {
+        println!("  {what:<18} {v:>9.3}  ({at})");
+    }
+}

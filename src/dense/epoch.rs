@@ -1,0 +1,365 @@
+//! An oriented block's own surface: its stereo pairs ([`super::pairs`]) rectified and
+//! matched tile by tile within a band around a prior surface, every matched pixel
+//! triangulated, and all pairs' points fused into a DSM ([`super::fusion`]).
+//!
+//! The prior (the LiDAR or control DEM, or a plane at the tie points' height) only bounds
+//! the search, widened by a margin that covers what changed since it was measured; the
+//! heights come from the photos alone.
+
+use super::fusion::{DsmGrid, FusedSurface, Fusion};
+use super::pair::{match_pair, Tiling};
+use super::pairs::{select_pairs, PairOptions, StereoPair};
+use super::rectify::{BandGrid, RectifiedPair};
+use super::sgm::{DisparityPrior, SgmOptions};
+use super::{invalid, Result};
+use crate::block::{Block, Photo, PhotoId, PointKind};
+use crate::geometry::back_project;
+use crate::matching::oriented::Surface;
+use crate::matching::GreyImage;
+use nalgebra::Vector3;
+use serde::{Deserialize, Serialize};
+use std::time::Instant;
+
+/// Options of an epoch's surface.
+#[derive(Debug, Clone, Serialize, Deserialize)]
+#[serde(default)]
+pub struct DsmOptions {
+    /// Cell of the DSM (m); `None`: the block's ground pixel (median over its photos).
+    pub cell: Option<f64>,
+    /// Vertical margin (m) of the search around the prior surface: the relief the prior
+    /// misses and what was built or removed since it was measured.
+    pub prior_margin_m: f64,
+    /// Least number of points in a cell for it to get a height.
+    pub min_count: usize,
+    pub pairs: PairOptions,
+    pub sgm: SgmOptions,
+    /// Rectified pixels of the left view matched at a time (whole rows): bounds the cost
+    /// volumes of a tile whatever the photo's width; and rows more on both sides.
+    pub tile_pixels: usize,
+    pub tile_overlap: usize,
+}
+
+impl Default for DsmOptions {
+    fn default() -> Self {
+        Self {
+            cell: None,
+            prior_margin_m: 25.0,
+            min_count: 1,
+            pairs: PairOptions::default(),
+            sgm: SgmOptions::default(),
+            tile_pixels: 1 << 20,
+            tile_overlap: 48,
+        }
+    }
+}
+
+/// What one pair gave.
+#[derive(Debug, Clone, Serialize)]
+pub struct PairReport {
+    pub pair: StereoPair,
+    /// Rectified size of the left view.
+    pub rectified: [usize; 2],
+    /// Share of the left view's rectified pixels with a disparity.
+    pub matched: f64,
+    pub points: usize,
+    pub seconds: f64,
+}
+
+/// An epoch's surface and how it was made.
+#[derive(Debug, Clone)]
+pub struct EpochDsm {
+    pub surface: FusedSurface,
+    /// The block's ground pixel (m, median over its photos).
+    pub ground_pixel: f64,
+    pub grid: DsmGrid,
+    pub pairs: Vec<PairReport>,
+}
+
+/// Where an `n × n` grid of a photo's pixels meets `surface` (block-local), with the
+/// distance from the projection centre; rays that miss it (a DEM smaller than a film
+/// photo's footprint) are left out.
+fn ground_hits(
+    block: &Block,
+    photo: &Photo,
+    surface: &Surface,
+    n: usize,
+) -> Vec<(Vector3<f64>, f64)> {
+    let Some(cam) = block.camera_of(photo).map(|c| &c.model) else {
+        return Vec::new();
+    };
+    let (w, h) = cam.image_size();
+    let mut out = Vec::new();
+    for j in 0..n {
+        for i in 0..n {
+            let q = [
+                w as f64 * i as f64 / (n - 1) as f64,
+                h as f64 * j as f64 / (n - 1) as f64,
+            ];
+            let x = back_project(cam, &photo.pose, q)
+                .ok()
+                .and_then(|r| surface.intersect(&r));
+            if let Some(x) = x {
+                out.push((x, (x - photo.pose.center).norm()));
+            }
+        }
+    }
+    out
+}
+
+/// The ground pixel of the block's oriented photos over `surface` (median, m).
+pub fn ground_pixel(block: &Block, surface: &Surface) -> Option<f64> {
+    let mut gsd: Vec<f64> = block
+        .photos
+        .values()
+        .filter(|p| p.is_oriented())
+        .flat_map(|p| {
+            let f = block.camera_of(p).map_or(f64::NAN, |c| c.model.focal_px());
+            ground_hits(block, p, surface, 5)
+                .into_iter()
+                .map(move |(_, d)| d / f)
+        })
+        .filter(|g| g.is_finite() && *g > 0.0)
+        .collect();
+    gsd.sort_by(f64::total_cmp);
+    gsd.get(gsd.len() / 2).copied()
+}
+
+/// The world area the oriented photos see on `surface`: the bounding box of where a grid
+/// of their pixels meets it.
+pub fn footprint_area(block: &Block, surface: &Surface) -> Option<[f64; 4]> {
+    let mut area = [
+        f64::INFINITY,
+        f64::INFINITY,
+        f64::NEG_INFINITY,
+        f64::NEG_INFINITY,
+    ];
+    for p in block.photos.values().filter(|p| p.is_oriented()) {
+        for (x, _) in ground_hits(block, p, surface, 9) {
+            let x = block.to_world(&x);
+            area = [
+                area[0].min(x.x),
+                area[1].min(x.y),
+                area[2].max(x.x),
+                area[3].max(x.y),
+            ];
+        }
+    }
+    area.iter().all(|v| v.is_finite()).then_some(area)
+}
+
+/// The prior as a horizontal plane (block-local): a DEM's median height with the half
+/// range of its 2nd to 98th percentile as relief. Pairs, the ground pixel and the
+/// footprint are judged over it: a DEM may cover only part of a photo (a film photo sees
+/// kilometres around a LiDAR survey), and rays that miss it would say nothing.
+pub fn plane_of(prior: &Surface<'_>) -> Option<Surface<'static>> {
+    match prior {
+        Surface::Plane { height, sigma_m } => Some(Surface::Plane {
+            height: *height,
+            sigma_m: *sigma_m,
+        }),
+        Surface::Dem { dem, origin, .. } => {
+            let mut z: Vec<f32> = dem.data.iter().copied().filter(|v| v.is_finite()).collect();
+            if z.is_empty() {
+                return None;
+            }
+            z.sort_unstable_by(f32::total_cmp);
+            let q = |f: f64| z[((z.len() - 1) as f64 * f) as usize] as f64 - origin.z;
+            Some(Surface::Plane {
+                height: q(0.5),
+                sigma_m: 0.5 * (q(0.98) - q(0.02)),
+            })
+        }
+    }
+}
+
+/// A horizontal plane at the median height of the block's tie points (block-local), the
+/// prior of a block without a DEM; `None` without tie points.
+pub fn tie_point_plane(block: &Block) -> Option<Surface<'static>> {
+    let mut z: Vec<f64> = block
+        .points
+        .values()
+        .filter(|p| p.kind == PointKind::Tie && p.position.z.is_finite())
+        .map(|p| p.position.z)
+        .collect();
+    if z.is_empty() {
+        return None;
+    }
+    z.sort_by(f64::total_cmp);
+    let median = z[z.len() / 2];
+    // The relief about the median: the 2nd to 98th percentile of the tie points.
+    let q = |f: f64| z[((z.len() - 1) as f64 * f) as usize];
+    Some(Surface::Plane {
+        height: median,
+        sigma_m: (q(0.98) - median).max(median - q(0.02)),
+    })
+}
+
+/// The surface of `block`'s oriented photos on `grid` (world; `None`: the photos'
+/// footprint at the ground pixel or `options.cell`), searched around `prior`
+/// (block-local) ± `options.prior_margin_m` (plus a plane prior's relief); `image` gives
+/// a photo's pixels (the size of its camera). Pairs that fail to rectify are reported
+/// with nothing matched; an error of `image` stops the run.
+pub fn epoch_dsm(
+    block: &Block,
+    image: &(dyn Fn(&Photo) -> std::result::Result<GreyImage, String> + Sync),
+    prior: &Surface,
+    grid: Option<DsmGrid>,
+    options: &DsmOptions,
+    mut progress: impl FnMut(usize, usize, &PairReport),
+) -> Result<EpochDsm> {
+    let plane = plane_of(prior).ok_or_else(|| invalid("prior", "holds no height"))?;
+    let gsd = ground_pixel(block, &plane)
+        .ok_or_else(|| invalid("block", "no ground pixel: no oriented photo sees the prior"))?;
+    let grid = match grid {
+        Some(g) => g,
+        None => {
+            let mut area = footprint_area(block, &plane)
+                .ok_or_else(|| invalid("block", "no oriented photo sees the prior surface"))?;
+            // Where a DEM bounds the search, the surface is made within it.
+            if let Surface::Dem { dem, .. } = prior {
+                let (x0, y0, x1, y1) = dem.extent();
+                area = [
+                    area[0].max(x0),
+                    area[1].max(y0),
+                    area[2].min(x1),
+                    area[3].min(y1),
+                ];
+            }
+            DsmGrid::covering(area, options.cell.unwrap_or(gsd))?
+        }
+    };
+    let pairs = select_pairs(block, &plane, &options.pairs);
+    let margin = options.prior_margin_m
+        + match prior {
+            Surface::Plane { sigma_m, .. } => *sigma_m,
+            Surface::Dem { .. } => 0.0,
+        };
+    let origin = Vector3::from(block.origin);
+    let mut fusion = Fusion::new(grid);
+    let mut reports = Vec::with_capacity(pairs.len());
+    // The photos of the last pairs: pairs come in photo order, so a photo is mostly
+    // needed again by the next few pairs.
+    let mut cache: Vec<(PhotoId, std::sync::Arc<GreyImage>)> = Vec::new();
+    let mut load = |p: &Photo| -> Result<std::sync::Arc<GreyImage>> {
+        if let Some((_, img)) = cache.iter().find(|(id, _)| *id == p.id) {
+            return Ok(img.clone());
+        }
+        let img = std::sync::Arc::new(image(p).map_err(|e| invalid(&p.name, e))?);
+        if cache.len() == 3 {
+            cache.remove(0);
+        }
+        cache.push((p.id, img.clone()));
+        Ok(img)
+    };
+    for (k, sp) in pairs.iter().enumerate() {
+        let t0 = Instant::now();
+        let photo = |id: PhotoId| {
+            block
+                .photos
+                .get(&id)
+                .ok_or_else(|| invalid("pair", format!("photo {id} is not in the block")))
+        };
+        let (pl, pr) = (photo(sp.left)?, photo(sp.right)?);
+        let camera = |p: &Photo| {
+            block
+                .camera_of(p)
+                .map(|c| &c.model)
+                .ok_or_else(|| invalid(&p.name, format!("camera {} is not in the block", p.camera)))
+        };
+        let mut report = PairReport {
+            pair: *sp,
+            rectified: [0, 0],
+            matched: 0.0,
+            points: 0,
+            seconds: 0.0,
+        };
+        let rectified = RectifiedPair::new((camera(pl)?, &pl.pose), (camera(pr)?, &pr.pose));
+        let band = rectified
+            .as_ref()
+            .ok()
+            .map(|pair| pair.band_from_surface(prior, margin, 16));
+        let range = band.as_ref().and_then(|b| band_range(&b.min, &b.max));
+        if let (Ok(pair), Some(band), Some([lo, hi])) = (rectified, &band, range) {
+            let (left, right) = (load(pl)?, load(pr)?);
+            let disparity = DisparityPrior {
+                range: [lo, hi],
+                grid: Some(band),
+                first_row: 0,
+                grid_only: matches!(prior, Surface::Dem { .. }),
+            };
+            // Only the rows whose band nodes see the prior (± a node).
+            let rows = band_rows(band);
+            let (mut valid, mut total) = (0usize, 0usize);
+            let before = fusion.len();
+            match_pair(
+                &pair,
+                &left,
+                &right,
+                &disparity,
+                &options.sgm,
+                Tiling {
+                    rows: (options.tile_pixels / pair.left.width.max(1)).max(32),
+                    overlap: options.tile_overlap,
+                    within: rows,
+                },
+                |tile| {
+                    let w = tile.map.width;
+                    total += tile.map.disparity.len();
+                    let mut pts = Vec::new();
+                    for (i, &d) in tile.map.disparity.iter().enumerate() {
+                        if !d.is_finite() {
+                            continue;
+                        }
+                        valid += 1;
+                        let px = [(i % w) as f64 + 0.5, (tile.rows.start + i / w) as f64 + 0.5];
+                        if let Some(x) = pair.triangulate(px, d as f64) {
+                            let x = x + origin;
+                            pts.push([x.x, x.y, x.z]);
+                        }
+                    }
+                    fusion.extend(pts);
+                    Ok(())
+                },
+            )?;
+            report.rectified = [pair.left.width, pair.height];
+            report.matched = valid as f64 / total.max(1) as f64;
+            report.points = fusion.len() - before;
+        }
+        report.seconds = t0.elapsed().as_secs_f64();
+        progress(k + 1, pairs.len(), &report);
+        reports.push(report);
+    }
+    Ok(EpochDsm {
+        surface: fusion.finish(options.min_count)?,
+        ground_pixel: gsd,
+        grid,
+        pairs: reports,
+    })
+}
+
+/// Rectified rows within a node of the band grid's rows that hold a finite node.
+fn band_rows(band: &BandGrid) -> std::ops::Range<usize> {
+    let finite = |j: usize| (0..band.cols).any(|i| band.min[j * band.cols + i].is_finite());
+    let first = (0..band.rows).find(|&j| finite(j));
+    let last = (0..band.rows).rev().find(|&j| finite(j));
+    match (first, last) {
+        (Some(a), Some(b)) => a.saturating_sub(1) * band.step..(b + 2) * band.step,
+        _ => 0..0,
+    }
+}
+
+/// The range of a band grid's finite nodes; `None` when none is (the pair does not see
+/// the prior).
+fn band_range(min: &[f32], max: &[f32]) -> Option<[f32; 2]> {
+    let lo = min
+        .iter()
+        .copied()
+        .filter(|v| v.is_finite())
+        .fold(f32::INFINITY, f32::min);
+    let hi = max
+        .iter()
+        .copied()
+        .filter(|v| v.is_finite())
+        .fold(f32::NEG_INFINITY, f32::max);
+    (lo <= hi).then(|| [lo.floor(), hi.ceil()])
+}
