@@ -3,6 +3,8 @@
 //!
 //!     cargo bench --bench dense_epochs [-- --preset small --seeds 1,2,3,4,5
 //!                                          --epochs film_1978 --prior dem|plane]
+//!     cargo bench --bench dense_epochs -- --run RUN --block BLOCK   (a pipeline run's
+//!                                          surfaces, from its adjusted orientations)
 //!
 //! Per block (generated once into target/dense-epochs/<preset>-<seed>/) and epoch, the
 //! true orientation (`synth::reading::synth_truth_block`: the matching, pairing and
@@ -15,6 +17,7 @@
 //! each column is named at the end.
 
 use cloudcontrol::dense::epoch::{epoch_dsm, DsmOptions};
+use cloudcontrol::dense::products::DsmReport;
 use cloudcontrol::formats::raster::read_dem;
 use cloudcontrol::matching::oriented::Surface;
 use cloudcontrol::matching::GreyImage;
@@ -145,6 +148,40 @@ fn one(dir: &Path, epoch: &str, plane: bool) {
     println!("ROW {}", serde_json::to_string(&row).unwrap());
 }
 
+/// The surfaces a pipeline run made (`RUN/surface-<epoch>/`, from its adjusted
+/// orientations) scored against the truth of the synthetic block `BLOCK` it ran on.
+fn score_run(run: &Path, block_dir: &Path) {
+    println!(
+        "pipeline run {}: each epoch's dsm.tif against its truth",
+        run.display()
+    );
+    for epoch in EPOCHS {
+        let sdir = run.join(format!("surface-{epoch}"));
+        let Ok(report) = DsmReport::read(&sdir.join("dsm.json")) else {
+            println!("{epoch:<15} no surface");
+            continue;
+        };
+        let block =
+            cloudcontrol::pipeline::epoch_files::load_block(&run.join(format!("epoch-{epoch}")))
+                .unwrap();
+        let (dsm, _) = read_dem(&sdir.join("dsm.tif")).unwrap();
+        let pairs = report.pair_ids();
+        let gsd = report.ground_pixel_m;
+        let s = score_surface(block_dir, epoch, &dsm, &block, &pairs, gsd).unwrap();
+        println!(
+            "{epoch:<15} {:>3} pairs, {:>6.1} s: median {:+.3} GSD, NMAD {:.3} GSD, completeness {:.3}, changed NMAD {:.3} GSD ({} cells, {:.1} GSD from the present)",
+            pairs.len(),
+            report.seconds,
+            s.median_gsd,
+            s.nmad_gsd,
+            s.completeness,
+            s.changed_nmad_gsd,
+            s.changed_cells,
+            s.changed_nmad_vs_present_gsd
+        );
+    }
+}
+
 fn main() {
     let args: Vec<String> = std::env::args().collect();
     let arg = |k: &str| {
@@ -152,6 +189,10 @@ fn main() {
             .position(|a| a == k)
             .and_then(|i| args.get(i + 1).cloned())
     };
+    if let (Some(run), Some(block)) = (arg("--run"), arg("--block")) {
+        score_run(Path::new(&run), Path::new(&block));
+        return;
+    }
     let plane = arg("--prior").is_some_and(|p| p == "plane");
     if let (Some(dir), Some(epoch)) = (arg("--one-dir"), arg("--one-epoch")) {
         one(Path::new(&dir), &epoch, plane);

@@ -135,6 +135,16 @@ typedef struct CcpDcpExportOptions {
   double lidar_cell_m;
 } CcpDcpExportOptions;
 
+// One photo of a pair: its camera handle, exterior orientation and grey values
+// (row-major f32, `width × height`, the camera's size).
+typedef struct CcpPairPhoto {
+  const struct CcpCamera *camera;
+  struct CcpPose pose;
+  const float *pixels;
+  uint32_t width;
+  uint32_t height;
+} CcpPairPhoto;
+
 // Statistics of a checkpoint evaluation (dz = LiDAR − checkpoint, metres).
 typedef struct CcpCheckpointStats {
   // Checkpoints with a LiDAR height.
@@ -423,6 +433,31 @@ enum CcpStatus ccp_predict(const struct CcpCamera *camera,
                            size_t out_len,
                            double *out_covariance,
                            size_t cov_len);
+
+// Dense matching of one stereo pair: the pair is rectified, matched by semi-global
+// matching for object heights between `z_min` and `z_max` (the poses' frame), and every
+// matched pixel of the left photo triangulated. The object points (x, y, z interleaved,
+// the poses' frame) go to `*out_points`, an array the library allocates and
+// `ccp_points_free` releases; `*out_count` receives their number (0 with a NULL array
+// when nothing matched). Memory: one tile of about 2²⁰ rectified pixels is matched at a
+// time, beside the two images.
+//
+// # Safety
+// Pointers must be null or valid: photos' `pixels` of `width·height` values, the outputs
+// writable.
+enum CcpStatus ccp_match_pair(const struct CcpPairPhoto *left,
+                              const struct CcpPairPhoto *right,
+                              double z_min,
+                              double z_max,
+                              double **out_points,
+                              size_t *out_count);
+
+// Releases an array of `count` points from `ccp_match_pair` (NULL is fine).
+//
+// # Safety
+// `points` must be NULL or exactly what `ccp_match_pair` returned with this `count`, not
+// yet released.
+enum CcpStatus ccp_points_free(double *points, size_t count);
 
 // Converts a block: `input` and `output` are a COLMAP model folder or a BlocksExchange
 // `.xml` (by extension). COLMAP output is binary unless `text` ≠ 0, in COLMAP 4's 5-file

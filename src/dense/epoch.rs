@@ -11,7 +11,7 @@ use super::pair::{match_pair, Tiling};
 use super::pairs::{select_pairs, PairOptions, StereoPair};
 use super::rectify::{BandGrid, RectifiedPair};
 use super::sgm::{DisparityPrior, SgmOptions};
-use super::{invalid, Result};
+use super::{invalid, DenseError, Result};
 use crate::block::{Block, Photo, PhotoId, PointKind};
 use crate::geometry::back_project;
 use crate::matching::oriented::Surface;
@@ -54,7 +54,7 @@ impl Default for DsmOptions {
 }
 
 /// What one pair gave.
-#[derive(Debug, Clone, Serialize)]
+#[derive(Debug, Clone, Serialize, Deserialize)]
 pub struct PairReport {
     pub pair: StereoPair,
     /// Rectified size of the left view.
@@ -209,15 +209,20 @@ pub fn epoch_dsm(
 ) -> Result<EpochDsm> {
     let plane = plane_of(prior).ok_or_else(|| invalid("prior", "holds no height"))?;
     let gsd = ground_pixel(block, &plane)
-        .ok_or_else(|| invalid("block", "no ground pixel: no oriented photo sees the prior"))?;
+        .ok_or_else(|| DenseError::NoSurface("no oriented photo sees the prior surface".into()))?;
     let grid = match grid {
         Some(g) => g,
         None => {
-            let mut area = footprint_area(block, &plane)
-                .ok_or_else(|| invalid("block", "no oriented photo sees the prior surface"))?;
+            let mut area = footprint_area(block, &plane).ok_or_else(|| {
+                DenseError::NoSurface("no oriented photo sees the prior surface".into())
+            })?;
             // Where a DEM bounds the search, the surface is made within it.
-            if let Surface::Dem { dem, .. } = prior {
+            if let Surface::Dem { dem, origin, .. } = prior {
+                // The DEM's world extent: it holds world coordinates less `origin` (a
+                // block-local DEM has the block's origin there, a world one zero).
+                let shift = Vector3::from(block.origin) - origin;
                 let (x0, y0, x1, y1) = dem.extent();
+                let (x0, y0, x1, y1) = (x0 + shift.x, y0 + shift.y, x1 + shift.x, y1 + shift.y);
                 area = [
                     area[0].max(x0),
                     area[1].max(y0),
@@ -229,6 +234,15 @@ pub fn epoch_dsm(
         }
     };
     let pairs = select_pairs(block, &plane, &options.pairs);
+    if pairs.is_empty() {
+        let n = block.photos.values().filter(|p| p.is_oriented()).count();
+        return Err(DenseError::NoSurface(format!(
+            "no stereo pair among {n} oriented photo(s) (overlap ≥ {:.0} %, base-to-height {}–{})",
+            100.0 * options.pairs.min_overlap,
+            options.pairs.base_to_height[0],
+            options.pairs.base_to_height[1]
+        )));
+    }
     let margin = options.prior_margin_m
         + match prior {
             Surface::Plane { sigma_m, .. } => *sigma_m,
@@ -274,60 +288,30 @@ pub fn epoch_dsm(
             seconds: 0.0,
         };
         let rectified = RectifiedPair::new((camera(pl)?, &pl.pose), (camera(pr)?, &pr.pose));
-        let band = rectified
-            .as_ref()
-            .ok()
-            .map(|pair| pair.band_from_surface(prior, margin, 16));
-        let range = band.as_ref().and_then(|b| band_range(&b.min, &b.max));
-        if let (Ok(pair), Some(band), Some([lo, hi])) = (rectified, &band, range) {
+        if let Ok(pair) = rectified {
             let (left, right) = (load(pl)?, load(pr)?);
-            let disparity = DisparityPrior {
-                range: [lo, hi],
-                grid: Some(band),
-                first_row: 0,
-                grid_only: matches!(prior, Surface::Dem { .. }),
-            };
-            // Only the rows whose band nodes see the prior (± a node).
-            let rows = band_rows(band);
-            let (mut valid, mut total) = (0usize, 0usize);
             let before = fusion.len();
-            match_pair(
-                &pair,
-                &left,
-                &right,
-                &disparity,
-                &options.sgm,
-                Tiling {
-                    rows: (options.tile_pixels / pair.left.width.max(1)).max(32),
-                    overlap: options.tile_overlap,
-                    within: rows,
-                },
-                |tile| {
-                    let w = tile.map.width;
-                    total += tile.map.disparity.len();
-                    let mut pts = Vec::new();
-                    for (i, &d) in tile.map.disparity.iter().enumerate() {
-                        if !d.is_finite() {
-                            continue;
-                        }
-                        valid += 1;
-                        let px = [(i % w) as f64 + 0.5, (tile.rows.start + i / w) as f64 + 0.5];
-                        if let Some(x) = pair.triangulate(px, d as f64) {
-                            let x = x + origin;
-                            pts.push([x.x, x.y, x.z]);
-                        }
-                    }
-                    fusion.extend(pts);
-                    Ok(())
-                },
-            )?;
-            report.rectified = [pair.left.width, pair.height];
-            report.matched = valid as f64 / total.max(1) as f64;
-            report.points = fusion.len() - before;
+            let matched = match_stereo(&pair, &left, &right, prior, margin, options, |pts| {
+                fusion.extend(pts.into_iter().map(|x| {
+                    let x = x + origin;
+                    [x.x, x.y, x.z]
+                }))
+            })?;
+            if let Some(m) = matched {
+                report.rectified = m.rectified;
+                report.matched = m.matched;
+                report.points = fusion.len() - before;
+            }
         }
         report.seconds = t0.elapsed().as_secs_f64();
         progress(k + 1, pairs.len(), &report);
         reports.push(report);
+    }
+    if fusion.is_empty() {
+        return Err(DenseError::NoSurface(format!(
+            "none of the {} pair(s) matched a pixel within the prior's band",
+            pairs.len()
+        )));
     }
     Ok(EpochDsm {
         surface: fusion.finish(options.min_count)?,
@@ -335,6 +319,73 @@ pub fn epoch_dsm(
         grid,
         pairs: reports,
     })
+}
+
+/// What matching one pair gave.
+#[derive(Debug, Clone, Copy)]
+pub struct PairMatch {
+    /// Columns and rows of the left rectified view.
+    pub rectified: [usize; 2],
+    /// Share of the matched rows' left rectified pixels with a disparity.
+    pub matched: f64,
+}
+
+/// Matches the rectified `pair` (photos `left`, `right`, the size of their cameras) within
+/// `margin` (vertical, object units) of `prior` (in the pair's coordinates) and hands the
+/// object point of every matched pixel to `sink`, tile by tile. Only the rows that see the
+/// prior are matched, and beyond a DEM prior no pixel is; `None` when the pair does not
+/// see the prior at all.
+pub fn match_stereo(
+    pair: &RectifiedPair,
+    left: &GreyImage,
+    right: &GreyImage,
+    prior: &Surface,
+    margin: f64,
+    options: &DsmOptions,
+    mut sink: impl FnMut(Vec<Vector3<f64>>),
+) -> Result<Option<PairMatch>> {
+    let band = pair.band_from_surface(prior, margin, 16);
+    let Some([lo, hi]) = band_range(&band.min, &band.max) else {
+        return Ok(None);
+    };
+    let disparity = DisparityPrior {
+        range: [lo, hi],
+        grid: Some(&band),
+        first_row: 0,
+        grid_only: matches!(prior, Surface::Dem { .. }),
+    };
+    let (mut valid, mut total) = (0usize, 0usize);
+    match_pair(
+        pair,
+        left,
+        right,
+        &disparity,
+        &options.sgm,
+        Tiling {
+            rows: (options.tile_pixels / pair.left.width.max(1)).max(32),
+            overlap: options.tile_overlap,
+            within: band_rows(&band),
+        },
+        |tile| {
+            let w = tile.map.width;
+            total += tile.map.disparity.len();
+            let mut pts = Vec::new();
+            for (i, &d) in tile.map.disparity.iter().enumerate() {
+                if !d.is_finite() {
+                    continue;
+                }
+                valid += 1;
+                let px = [(i % w) as f64 + 0.5, (tile.rows.start + i / w) as f64 + 0.5];
+                pts.extend(pair.triangulate(px, d as f64));
+            }
+            sink(pts);
+            Ok(())
+        },
+    )?;
+    Ok(Some(PairMatch {
+        rectified: [pair.left.width, pair.height],
+        matched: valid as f64 / total.max(1) as f64,
+    }))
 }
 
 /// Rectified rows within a node of the band grid's rows that hold a finite node.

@@ -45,6 +45,10 @@ pub enum DenseError {
     InvalidInput { what: String, message: String },
     #[error("rectification: {0}")]
     Rectification(String),
+    /// Nothing to make a surface of: fewer than two oriented photos, no stereo pair, or
+    /// no pair matched a pixel.
+    #[error("no surface: {0}")]
+    NoSurface(String),
     #[error(transparent)]
     Geometry(#[from] crate::geometry::GeometryError),
     #[error(transparent)]

@@ -35,7 +35,7 @@ impl Default for PairOptions {
 
 /// A pair to match: `left` and `right` photos of the block, with the overlap and
 /// base-to-height ratio it was chosen by.
-#[derive(Debug, Clone, Copy, PartialEq, Serialize)]
+#[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
 pub struct StereoPair {
     pub left: PhotoId,
     pub right: PhotoId,

@@ -14,7 +14,7 @@ use crate::formats::{write_bytes_atomically, FormatError};
 use crate::matching::oriented::Surface;
 use crate::matching::GreyImage;
 use nalgebra::Vector3;
-use serde::Serialize;
+use serde::{Deserialize, Serialize};
 use std::path::Path;
 
 /// The surface model.
@@ -27,7 +27,7 @@ pub const DSM_SPREAD_FILE: &str = "dsm_spread.tif";
 pub const DSM_REPORT_FILE: &str = "dsm.json";
 
 /// `dsm.json`.
-#[derive(Debug, Clone, Serialize)]
+#[derive(Debug, Clone, Serialize, Deserialize)]
 pub struct DsmReport {
     /// World coordinates of the grid's upper-left corner, cell (m), columns, rows.
     pub x_min: f64,
@@ -46,6 +46,23 @@ pub struct DsmReport {
     pub prior_margin_m: f64,
     pub pairs: Vec<PairReport>,
     pub seconds: f64,
+}
+
+impl DsmReport {
+    /// `dsm.json` of a surface folder.
+    pub fn read(path: &Path) -> Result<Self> {
+        let text = std::fs::read(path).map_err(|e| FormatError::io(path, e))?;
+        serde_json::from_slice(&text)
+            .map_err(|e| DenseError::Format(FormatError::invalid(path, e.to_string())))
+    }
+
+    /// The photos of each pair the surface was made from (left, right).
+    pub fn pair_ids(&self) -> Vec<(crate::block::PhotoId, crate::block::PhotoId)> {
+        self.pairs
+            .iter()
+            .map(|p| (p.pair.left, p.pair.right))
+            .collect()
+    }
 }
 
 /// Writes `result` into `dir` (which exists) in `crs`; returns its report.

@@ -78,7 +78,12 @@ impl From<&MatchResult> for CcpMatchResult {
 /// A copy of the caller's grey values as an image, within the photo memory budget
 /// (`formats::image_open::photo_memory`: the copy and its pyramid are counted before
 /// anything is copied; beyond it the status is `CCP_STATUS_INVALID_ARGUMENT`).
-fn image_from(ptr: *const f32, width: u32, height: u32, name: &str) -> FfiResult<GreyImage> {
+pub(crate) fn image_from(
+    ptr: *const f32,
+    width: u32,
+    height: u32,
+    name: &str,
+) -> FfiResult<GreyImage> {
     let (w, h) = (width as usize, height as usize);
     if w == 0 || h == 0 {
         return Err(FfiError::invalid(format!("{name}: size {w}×{h} is empty")));

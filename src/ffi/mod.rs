@@ -18,6 +18,7 @@
 mod adjust;
 mod camera;
 mod control;
+mod dense;
 mod formats;
 mod handles;
 mod lidar;
@@ -29,6 +30,7 @@ mod synth;
 pub use adjust::*;
 pub use camera::*;
 pub use control::*;
+pub use dense::*;
 pub use formats::*;
 pub use lidar::*;
 pub use matching::*;

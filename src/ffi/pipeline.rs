@@ -42,6 +42,7 @@ impl From<WorkError> for FfiError {
             WorkError::Lidar(e) => e.into(),
             WorkError::Format(e) => e.into(),
             WorkError::Dcp(e) => e.into(),
+            WorkError::Dense(e) => e.into(),
             WorkError::Checkpoints(e) => {
                 let status = match &e {
                     Eval::UnknownPhoto { .. } | Eval::UnknownPoint { .. } => {

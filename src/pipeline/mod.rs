@@ -12,6 +12,7 @@ pub mod project;
 pub mod report;
 pub mod run;
 pub mod stages;
+pub(crate) mod surface;
 pub mod tasks;
 pub mod tie_statistics;
 pub mod validate;

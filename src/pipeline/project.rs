@@ -223,6 +223,9 @@ pub struct Outputs {
     pub blocks_exchange: bool,
     pub orthophoto: bool,
     pub dem: bool,
+    /// Each epoch's own surface by dense matching of its photos (`surface-<epoch>/`:
+    /// dsm.tif, dsm_count.tif, dsm_spread.tif, dsm.json).
+    pub dsm: bool,
     pub html_report: bool,
     /// Ground pixel of orthophotos, as a multiple of the epoch's GSD.
     pub ortho_gsd_factor: f64,
@@ -238,6 +241,7 @@ impl Default for Outputs {
             blocks_exchange: true,
             orthophoto: true,
             dem: true,
+            dsm: true,
             html_report: true,
             ortho_gsd_factor: 1.0,
             film_pixel_um: None,

@@ -517,7 +517,7 @@ fn run_stages(
     let want_outputs = o.colmap || o.blocks_exchange || o.orthophoto || o.dem;
     let total = 1
         + usize::from(project.control.orthophoto.is_some())
-        + epochs.len() * (2 + usize::from(want_outputs));
+        + epochs.len() * (2 + usize::from(want_outputs) + usize::from(o.dsm));
     let mut index = 0;
     let mut products: BTreeMap<String, Vec<PathBuf>> = BTreeMap::new();
     let mut stage_seconds = Vec::new();
@@ -1039,6 +1039,45 @@ fn run_stages(
                 if let Some(extent) = extent {
                     ortho_preview = Some(OrthoPreview { png, extent });
                 }
+            }
+        }
+    }
+
+    // 6. Each epoch's own surface, searched around the control's surface model.
+    if o.dsm {
+        let crs = Crs::parse(&project.crs).map_err(|e| StageError::Failed {
+            stage: "surface".into(),
+            source: Box::new(e.into()),
+        })?;
+        let prior = if with_lidar {
+            "lidar_surface"
+        } else {
+            "control_dem"
+        };
+        for (k, e) in epochs.iter().enumerate() {
+            let _epoch = tracing::error_span!("epoch", name = %e.name).entered();
+            let edir = epoch_dirs[k].clone();
+            let options = crate::dense::epoch::DsmOptions::default();
+            let sdir = stage!(
+                format!("surface-{}", e.name),
+                Inputs::new()
+                    .file(&sources)
+                    .file(&edir)
+                    .param("dsm", &options),
+                |dir: &Path| {
+                    super::surface::write_epoch_surface(
+                        &edir,
+                        lidar.surface()?,
+                        prior,
+                        &crs,
+                        &options,
+                        dir,
+                    )
+                }
+            );
+            let dsm = sdir.join(crate::dense::products::DSM_FILE);
+            if dsm.exists() {
+                products.entry(e.name.clone()).or_default().push(dsm);
             }
         }
     }

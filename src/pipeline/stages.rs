@@ -67,6 +67,8 @@ pub enum WorkError {
     Dcp(#[from] crate::control::DcpError),
     #[error(transparent)]
     Checkpoints(#[from] crate::control::checkpoints::EvaluationError),
+    #[error(transparent)]
+    Dense(#[from] crate::dense::DenseError),
     /// Inputs that are each valid but do not fit together (LiDAR in another CRS, no tile
     /// under the photos).
     #[error("{0}")]

@@ -118,17 +118,8 @@ fn the_dsm_command_makes_the_surface_of_a_colmap_block() {
     );
     // Against the truth.
     let (dsm, _) = read_dem(&out.join("dsm.tif")).unwrap();
-    let pairs: Vec<(u32, u32)> = report["pairs"]
-        .as_array()
-        .unwrap()
-        .iter()
-        .map(|p| {
-            (
-                p["pair"]["left"].as_u64().unwrap() as u32,
-                p["pair"]["right"].as_u64().unwrap() as u32,
-            )
-        })
-        .collect();
+    let parsed = cloudcontrol::dense::products::DsmReport::read(&out.join("dsm.json")).unwrap();
+    let pairs = parsed.pair_ids();
     let gsd = report["ground_pixel_m"].as_f64().unwrap();
     let s = score_surface(&blk, "digital_2012", &dsm, &block, &pairs, gsd).unwrap();
     eprintln!("dsm command: {s:?}");

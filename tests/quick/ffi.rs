@@ -338,3 +338,84 @@ fn dcp_export_and_import_refuse_bad_arguments_and_import_the_sample() {
         assert_eq!(ccp_dcp_path(null(), &mut path), CcpStatus::NullPointer);
     }
 }
+
+/// `ccp_match_pair`: NULL photos and outputs, an image of another size than its camera, a
+/// huge claimed size, NaN heights, an inverted height range and a pair with one centre are
+/// refused with a status and a message naming the argument; nothing is allocated then.
+#[test]
+fn match_pair_refuses_bad_arguments() {
+    let cam = camera();
+    let pose = nadir_pose();
+    let pixels = vec![100f32; 1000 * 800];
+    let photo = |pose: CcpPose, px: &[f32], w: u32, h: u32| CcpPairPhoto {
+        camera: cam,
+        pose,
+        pixels: px.as_ptr(),
+        width: w,
+        height: h,
+    };
+    let mut right_pose = pose;
+    right_pose.center[0] += 300.0;
+    let (l, r) = (
+        photo(pose, &pixels, 1000, 800),
+        photo(right_pose, &pixels, 1000, 800),
+    );
+    let (mut pts, mut n) = (null_mut(), 0usize);
+    unsafe {
+        assert_eq!(
+            ccp_match_pair(null(), &r, 0.0, 1.0, &mut pts, &mut n),
+            CcpStatus::NullPointer
+        );
+        assert!(last_error().contains("left"), "{}", last_error());
+        assert_eq!(
+            ccp_match_pair(&l, &r, 0.0, 1.0, null_mut(), &mut n),
+            CcpStatus::NullPointer
+        );
+        assert!(last_error().contains("out_points"), "{}", last_error());
+        assert_eq!(
+            ccp_match_pair(&l, &r, f64::NAN, 1.0, &mut pts, &mut n),
+            CcpStatus::NotFinite
+        );
+        assert_eq!(
+            ccp_match_pair(&l, &r, 2.0, 1.0, &mut pts, &mut n),
+            CcpStatus::InvalidArgument
+        );
+        assert!(last_error().contains("z_min"), "{}", last_error());
+        let small = photo(pose, &pixels, 500, 400);
+        assert_eq!(
+            ccp_match_pair(&small, &r, 0.0, 1.0, &mut pts, &mut n),
+            CcpStatus::InvalidArgument
+        );
+        assert!(
+            last_error().contains("left: image of 500×400 px for a camera of 1000×800"),
+            "{}",
+            last_error()
+        );
+        // A size far beyond the photo memory budget: refused before reading the pixels.
+        let huge = photo(pose, &pixels, 200_000, 200_000);
+        assert_eq!(
+            ccp_match_pair(&huge, &r, 0.0, 1.0, &mut pts, &mut n),
+            CcpStatus::InvalidArgument
+        );
+        assert!(last_error().contains("left.pixels"), "{}", last_error());
+        let same = photo(pose, &pixels, 1000, 800);
+        assert_eq!(
+            ccp_match_pair(&l, &same, 0.0, 1.0, &mut pts, &mut n),
+            CcpStatus::Numeric
+        );
+        assert!(
+            last_error().contains("centres coincide"),
+            "{}",
+            last_error()
+        );
+        assert!(pts.is_null() && n == 0);
+        // A flat grey pair matches nothing: no array, no error.
+        assert_eq!(
+            ccp_match_pair(&l, &r, -10.0, 10.0, &mut pts, &mut n),
+            CcpStatus::Ok
+        );
+        assert!(pts.is_null() && n == 0);
+        assert_eq!(ccp_points_free(null_mut(), 0), CcpStatus::Ok);
+        ccp_camera_free(cam);
+    }
+}

@@ -15,11 +15,12 @@ use cloudcontrol::pipeline::stages::DIGESTS;
 use std::path::{Path, PathBuf};
 use std::time::{Duration, SystemTime};
 
-const STAGES: [&str; 5] = [
+const STAGES: [&str; 6] = [
     "sources",
     "dcp-orthophoto",
     "epoch-digital_2012",
     "outputs-digital_2012",
+    "surface-digital_2012",
     "report",
 ];
 const PHOTO: &str = "epochs/digital_2012/images/digital_s01_001.png";

@@ -220,3 +220,37 @@ def test_a_bad_project_fails_naming_the_key(block):
     bad.write_text(PROJECT.replace('chip_size_px = 193', 'chip_size_px = 193\nnot_a_key = 1'))
     with pytest.raises(cloudcontrol.CloudControlError, match="not_a_key"):
         cloudcontrol.run(bad)
+
+
+def test_each_epoch_surface_read_with_gdal_matches_its_truth(block):
+    """Every epoch's dsm.tif, read with GDAL (rasterio), against the epoch's true surface
+    (truth/epochs/<epoch>/dsm.tif) sampled at the DSM's cell centres, away from height
+    edges: the run's own orientations, so their datum error is in the median."""
+    import rasterio
+
+    res = cloudcontrol.run(block / "project.toml", partial_ok=True)
+    out = pathlib.Path(res["output"])
+    for name in ("reference_2024", "film_1978"):
+        with rasterio.open(out / f"surface-{name}" / "dsm.tif") as ds:
+            assert ds.crs.to_epsg() == 4547
+            z = ds.read(1, masked=True)
+            transform = ds.transform
+        with rasterio.open(block / "truth" / "epochs" / name / "dsm.tif") as ts:
+            truth = ts.read(1)
+            tinv = ~ts.transform
+        gsd = json.loads((out / f"surface-{name}" / "dsm.json").read_text())["ground_pixel_m"]
+        rows, cols = np.nonzero(~np.ma.getmaskarray(z))
+        xs, ys = rasterio.transform.xy(transform, rows, cols)
+        tc, tr = tinv * (np.asarray(xs), np.asarray(ys))
+        tc, tr = np.floor(tc).astype(int), np.floor(tr).astype(int)
+        inside = (tc >= 2) & (tr >= 2) & (tc < truth.shape[1] - 2) & (tr < truth.shape[0] - 2)
+        tc, tr, zz = tc[inside], tr[inside], z.data[rows[inside], cols[inside]]
+        t = truth[tr, tc]
+        # Away from height edges: the truth's 5 x 5 neighbourhood spans less than 0.5 m.
+        win = np.stack([truth[tr + a, tc + b] for a in range(-2, 3) for b in range(-2, 3)])
+        flat = win.max(0) - win.min(0) < 0.5
+        dz = (zz[flat] - t[flat]) / gsd
+        med = float(np.median(dz))
+        nmad = float(1.4826 * np.median(np.abs(dz - med)))
+        assert len(dz) > 10000, (name, len(dz))
+        assert abs(med) <= 0.3 and nmad <= 1.0, (name, med, nmad)
