@@ -98,6 +98,7 @@ const WORKFLOW: &[&str] = &[
     "dcp import",
     "convert",
     "ortho",
+    "dsm",
     "adjust",
     "resect",
     "io",

@@ -241,7 +241,7 @@ def test_each_epoch_surface_read_with_gdal_matches_its_truth(block):
         gsd = json.loads((out / f"surface-{name}" / "dsm.json").read_text())["ground_pixel_m"]
         rows, cols = np.nonzero(~np.ma.getmaskarray(z))
         xs, ys = rasterio.transform.xy(transform, rows, cols)
-        tc, tr = tinv * (np.asarray(xs), np.asarray(ys))
+        tc, tr = tinv @ (np.asarray(xs), np.asarray(ys))
         tc, tr = np.floor(tc).astype(int), np.floor(tr).astype(int)
         inside = (tc >= 2) & (tr >= 2) & (tc < truth.shape[1] - 2) & (tr < truth.shape[0] - 2)
         tc, tr, zz = tc[inside], tr[inside], z.data[rows[inside], cols[inside]]

@@ -13,7 +13,7 @@ use std::process::ExitCode;
 /// DEM ± --margin, or without one a plane at the block's tie points ± their relief), and
 /// every pair's points fused per cell (median). Cells without a match stay nodata.
 ///
-/// Example: cloudcontrol dsm --block sparse/0 --images photos/ --dem lidar_dem.tif --out dsm/
+/// Example: cloudcontrol dsm --block sparse/0 --images photos/ --dem dem.tif --out dsm/
 #[derive(clap::Args)]
 pub struct Args {
     /// Block: COLMAP model folder or BlocksExchange .xml (oriented photos).
