@@ -240,6 +240,7 @@ fn demo_runs_the_workflow_and_a_killed_run_resumes_identically() {
         "report.json",
         "report.html",
         "reference.json",
+        "dsm.json",
     ];
     for dir in std::fs::read_dir(&run).unwrap() {
         let dir = dir.unwrap().path();
