@@ -10,6 +10,12 @@
 //! (Gruen 1985, reduced to one shift along the epipolar line), has no such bias: the
 //! shift is estimated from the images, not from the cost curve. Started from the
 //! sub-pixel fit, it is kept only when it converges within half a pixel of it.
+//!
+//! Written here rather than calling the project's least-squares matcher
+//! (`matching::lsm`, 2-D, bicubic, a template image per call): on the 274 688 matched
+//! pixels of a 640 × 480 pair, `lsm` with shifts and radiometry only took 1.51 s CPU, this
+//! one-dimensional version 0.16 s, the whole semi-global match around it 0.25 s
+//! (`tests/units/dense_sgm.rs`, `refinement_cost`, run by hand).
 
 use super::sgm::PixelStatus;
 use crate::matching::GreyImage;

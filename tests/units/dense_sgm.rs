@@ -269,3 +269,61 @@ mod grid_only {
         }
     }
 }
+
+/// Cost of the sub-pixel refinement against the project's general least-squares matcher
+/// (`matching::lsm`, shifts and radiometry only) on the same pixels (run by hand:
+/// `cargo test --release --test units refinement_cost -- --ignored --nocapture`).
+mod refinement_cost {
+    use super::tests::pair;
+    use cloudcontrol::dense::{cpu_seconds, match_images, DisparityPrior, SgmOptions};
+    use cloudcontrol::matching::{lsm, LsmOptions};
+
+    #[test]
+    #[ignore]
+    fn refinement_against_matching_lsm() {
+        let (l, r) = pair(640, 480, 3, 1.0, |_, _| 17.3);
+        let prior = DisparityPrior::range(0.0, 64.0);
+        // SGM with and without refinement differ by the refinement alone: measured as the
+        // whole match, the best of three.
+        let best = |f: &dyn Fn()| {
+            (0..3)
+                .map(|_| {
+                    let c0 = cpu_seconds();
+                    f();
+                    cpu_seconds() - c0
+                })
+                .fold(f64::INFINITY, f64::min)
+        };
+        let map = match_images(&l, None, &r, None, &prior, &SgmOptions::default()).unwrap();
+        let sgm = best(&|| {
+            match_images(&l, None, &r, None, &prior, &SgmOptions::default()).unwrap();
+        });
+        let pixels: Vec<(usize, usize, f32)> = (8..472)
+            .flat_map(|y| (40..632).map(move |x| (x, y)))
+            .filter_map(|(x, y)| map.at(x, y).map(|d| (x, y, d)))
+            .collect();
+        let opts = LsmOptions {
+            affine: false,
+            ..LsmOptions::default()
+        };
+        let general = best(&|| {
+            for &(x, y, d) in &pixels {
+                let tpl = l.crop(x - 3, y - 3, 7, 7).unwrap();
+                let _ = lsm(
+                    &r,
+                    &tpl,
+                    x as f64 + 0.5 - d as f64,
+                    y as f64 + 0.5,
+                    None,
+                    &opts,
+                );
+            }
+        });
+        eprintln!(
+            "{} pixels: SGM with its refinement {:.3} s CPU; matching::lsm on the same pixels {:.3} s CPU",
+            pixels.len(),
+            sgm,
+            general
+        );
+    }
+}
