@@ -92,6 +92,24 @@ fn json() -> bool {
     JSON.load(Ordering::Relaxed)
 }
 
+/// A command's result: its report as JSON on stdout with `--json`, else `summary()` as one
+/// line (nothing with `-q`).
+pub fn report<T: serde::Serialize>(
+    json: bool,
+    quiet: bool,
+    value: &T,
+    summary: impl FnOnce() -> String,
+) {
+    if json {
+        outln!(
+            "{}",
+            serde_json::to_string_pretty(value).expect("report serialises")
+        );
+    } else if !quiet {
+        outln!("{}", summary());
+    }
+}
+
 /// A failed command: the message on stderr (`cloudcontrol CMD: message`), and with
 /// `--json` on stdout as `{"error": {"command", "message", "input", "exit_status"}}`,
 /// `input` being the file the message names (or null); exits with `status`.

@@ -98,13 +98,8 @@ pub fn run(a: Args, json: bool, quiet: bool) -> ExitCode {
     }
     match result {
         Ok(r) => {
-            if json {
-                outln!(
-                    "{}",
-                    serde_json::to_string_pretty(&r).expect("report serialises")
-                );
-            } else if !quiet {
-                outln!(
+            crate::console::report(json, quiet, &r, || {
+                format!(
                     "{}: {}×{} cells of {:.3} m, {} with a height, from {} pairs in {:.1} s",
                     a.out
                         .join(cloudcontrol::dense::products::DSM_FILE)
@@ -115,8 +110,8 @@ pub fn run(a: Args, json: bool, quiet: bool) -> ExitCode {
                     r.cells_with_height,
                     r.pairs.len(),
                     r.seconds
-                );
-            }
+                )
+            });
             ExitCode::SUCCESS
         }
         Err(e) => crate::console::fail("dsm", e, crate::EXIT_FAILED),

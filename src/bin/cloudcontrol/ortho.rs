@@ -65,13 +65,8 @@ pub fn run(a: Args, json: bool, quiet: bool) -> ExitCode {
     }
     match result {
         Ok(r) => {
-            if json {
-                outln!(
-                    "{}",
-                    serde_json::to_string_pretty(&r).expect("report serialises")
-                );
-            } else if !quiet {
-                outln!(
+            crate::console::report(json, quiet, &r, || {
+                format!(
                     "{}: {}×{} px at {:.3} m, {} cells filled, {} taken from a farther photo because of occlusion",
                     a.out.display(),
                     r.width,
@@ -79,8 +74,8 @@ pub fn run(a: Args, json: bool, quiet: bool) -> ExitCode {
                     r.gsd,
                     r.filled,
                     r.occluded_fallbacks
-                );
-            }
+                )
+            });
             ExitCode::SUCCESS
         }
         Err(e) => crate::console::fail("ortho", e, crate::EXIT_FAILED),
