@@ -263,3 +263,28 @@ fn tiff_whose_block_exceeds_the_photo_budget_is_refused() {
         "{e}"
     );
 }
+
+/// A 193-byte PNG declaring a `tEXt` chunk of 2 GB: libpng (GDAL's PNG driver) allocated
+/// the declared length, 2.1 GB resident under the fuzzer. Refused from the chunk headers
+/// before GDAL opens it, naming the chunk; the orthophoto and DEM readers share the check.
+#[test]
+fn png_chunk_longer_than_the_file_is_refused_before_gdal() {
+    let dir = tempfile::tempdir().unwrap();
+    let path = dir.path().join("photo.png");
+    std::fs::write(&path, reproducer("image_decode", "png_text_chunk_2_gb")).unwrap();
+    let e = cloudcontrol::matching::GreyImage::load(&path)
+        .map(|_| ())
+        .unwrap_err()
+        .to_string();
+    assert!(
+        e.contains("photo.png") && e.contains("PNG chunk \"tEXt\"") && e.contains("truncated"),
+        "{e}"
+    );
+    let e = cloudcontrol::formats::image_open::open_raster(&path)
+        .map(|_| ())
+        .unwrap_err();
+    assert!(
+        matches!(e, cloudcontrol::formats::FormatError::TooLarge { claimed, .. } if claimed == 12 + 0x7ff0_0000),
+        "{e}"
+    );
+}

@@ -166,7 +166,9 @@ pub fn open_raster(path: &Path) -> Result<Dataset> {
         ));
     }
     // A regular file only (links followed): GDAL opening a FIFO would wait for a writer.
-    super::input::check_file(path, None)?;
+    let (mut file, meta) = super::input::open_file(path, super::input::Links::Follow)?;
+    check_png_chunks(path, &mut file, meta.len())?;
+    drop(file);
     Dataset::open_raster(path, RASTER_DRIVERS).map_err(|e| {
         FormatError::invalid(
             path,
@@ -176,6 +178,46 @@ pub fn open_raster(path: &Path) -> Result<Dataset> {
             ),
         )
     })
+}
+
+/// The PNG signature.
+const PNG_SIGNATURE: [u8; 8] = [0x89, b'P', b'N', b'G', 0x0D, 0x0A, 0x1A, 0x0A];
+
+/// Refuses a PNG (other files pass) with a chunk longer than what the file holds after its
+/// header: libpng, under GDAL's PNG driver, allocates a chunk's declared length before
+/// reading it, and a 193-byte PNG declaring a 2 GB `tEXt` chunk took a fuzzed reader past
+/// 2 GB resident (fuzz/artifacts-fixed/image_decode/png_text_chunk_2_gb). Only chunk
+/// headers are read (a seek over each chunk's data), up to `IEND`.
+fn check_png_chunks<R: Read + Seek>(path: &Path, r: &mut R, file_len: u64) -> Result<()> {
+    let mut head = [0u8; 8];
+    if r.read_exact(&mut head).is_err() || head != PNG_SIGNATURE {
+        return Ok(());
+    }
+    let mut at = 8u64;
+    while at + 8 <= file_len {
+        r.seek(SeekFrom::Start(at))
+            .and_then(|_| r.read_exact(&mut head))
+            .map_err(|e| FormatError::io(path, e))?;
+        let len = u64::from(u32::from_be_bytes([head[0], head[1], head[2], head[3]]));
+        let kind = String::from_utf8_lossy(&head[4..8]).into_owned();
+        // Length, type, data and CRC.
+        let end = at + 12 + len;
+        if end > file_len {
+            return Err(FormatError::TooLarge {
+                path: path.to_path_buf(),
+                what: format!("PNG chunk {kind:?} at byte {at}, in bytes with its header and CRC"),
+                claimed: 12 + len,
+                limit: file_len - at,
+                basis: "what the file holds after the chunk's start (a truncated or corrupt PNG)"
+                    .into(),
+            });
+        }
+        if &head[4..8] == b"IEND" {
+            break;
+        }
+        at = end;
+    }
+    Ok(())
 }
 
 fn reader(path: &Path) -> Result<image::ImageReader<std::io::BufReader<std::fs::File>>> {
