@@ -653,57 +653,16 @@ pub fn rewrite_las(
         .map_err(|e| LidarError::io(input, e))?;
     let mut reader = las::Reader::new(BufReader::new(f)).map_err(|e| las_err(input, e))?;
     check_transforms(input, reader.header().transforms())?;
-    let transforms = *reader.header().transforms();
     let mut builder = las::Builder::from(reader.header().clone());
     // The LAZ writer adds its own laszip VLR.
     builder.vlrs.retain(|v| v.user_id != "laszip encoded");
     let header = builder.into_header().map_err(|e| las_err(input, e))?;
-    let written = crate::formats::write_atomically(output, |tmp| {
-        let fail = |m: String| crate::formats::FormatError::invalid(output, m);
-        // The writer closes itself when dropped and panics if that fails (after a failed
-        // point, say): caught here, so that the temporary file is removed like after any
-        // other failure and the caller gets an error, not a panic.
-        let write = std::panic::AssertUnwindSafe(|| {
-            let out = File::create(tmp).map_err(|e| crate::formats::FormatError::io(output, e))?;
-            let mut w = las::Writer::new(std::io::BufWriter::new(out), header)
-                .map_err(|e| fail(format!("cannot write LAS: {e}")))?;
-            let mut n = 0u64;
-            for (i, p) in reader.points().enumerate() {
-                let p =
-                    p.map_err(|e| fail(format!("reading {}: point {i}: {e}", input.display())))?;
-                if let Some(q) = edit(i as u64, p) {
-                    for (axis, v, t) in [
-                        ("x", q.x, transforms.x),
-                        ("y", q.y, transforms.y),
-                        ("z", q.z, transforms.z),
-                    ] {
-                        if t.inverse(v).is_err() || !v.is_finite() {
-                            return Err(fail(format!(
-                                "point {i} of {}: {axis} = {v} cannot be written with the \
-                                 header's scale {} and offset {}",
-                                input.display(),
-                                t.scale,
-                                t.offset
-                            )));
-                        }
-                    }
-                    w.write_point(q)
-                        .map_err(|e| fail(format!("cannot write point {i}: {e}")))?;
-                    n += 1;
-                }
-            }
-            w.close()
-                .map_err(|e| fail(format!("cannot finish LAS: {e}")))?;
-            Ok(n)
-        });
-        std::panic::catch_unwind(write).unwrap_or_else(|panic| {
-            let what = panic
-                .downcast_ref::<&str>()
-                .map(|s| s.to_string())
-                .or_else(|| panic.downcast_ref::<String>().cloned())
-                .unwrap_or_default();
-            Err(fail(format!("the LAS writer failed: {what}")))
-        })
-    })?;
-    Ok(written)
+    let points = reader.points().enumerate().filter_map(|(i, p)| match p {
+        Err(e) => Some(Err(crate::formats::FormatError::invalid(
+            output,
+            format!("reading {}: point {i}: {e}", input.display()),
+        ))),
+        Ok(p) => edit(i as u64, p).map(Ok),
+    });
+    Ok(super::las_write::write_points(output, header, points)?)
 }

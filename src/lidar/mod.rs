@@ -14,6 +14,7 @@ pub mod grid_index;
 pub mod icp;
 pub mod las;
 mod las_guard;
+pub mod las_write;
 pub mod planes;
 pub mod points_io;
 pub mod store;

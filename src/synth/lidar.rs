@@ -188,72 +188,26 @@ pub fn write_tiles(
             if laz { "laz" } else { "las" }
         );
         let path = dir.join(&name);
-        let mut builder = las::Builder::from((1, 4));
-        builder.point_format =
-            las::point::Format::new(6).map_err(|e| SynthError::Las(e.to_string()))?;
-        builder.point_format.is_compressed = laz;
-        // Fixed header fields keep the files byte-identical between runs.
-        builder.date = chrono_date();
-        builder.generating_software = format!("cloudcontrol {}", crate::VERSION);
-        builder.system_identifier = "cloudcontrol synth".into();
-        builder.gps_time_type = las::GpsTimeType::Standard;
-        builder.transforms = las::Vector {
-            x: las::Transform {
-                scale: 0.001,
-                offset: x0,
-            },
-            y: las::Transform {
-                scale: 0.001,
-                offset: y0,
-            },
-            z: las::Transform {
-                scale: 0.001,
-                offset: 0.0,
-            },
-        };
-        builder.has_wkt_crs = true;
-        builder.vlrs.push(las::Vlr {
-            user_id: "LASF_Projection".into(),
-            record_id: 2112,
-            description: "OGC WKT coordinate system".into(),
-            data: {
-                let mut d = wkt.as_bytes().to_vec();
-                d.push(0);
-                d
-            },
-        });
-        let header = builder
-            .into_header()
+        let header = crate::lidar::las_write::new_header([x0, y0, 0.0], laz, wkt)
             .map_err(|e| SynthError::Las(format!("{name}: {e}")))?;
-        formats::write_atomically(&path, |tmp| {
-            let file = std::fs::File::create(tmp).map_err(|e| formats::FormatError::io(tmp, e))?;
-            let mut writer = las::Writer::new(std::io::BufWriter::new(file), header.clone())
-                .map_err(|e| formats::FormatError::invalid(&path, e.to_string()))?;
-            for &k in &idx {
-                let p = &points[k];
-                let point = las::Point {
-                    x: p.xyz[0] + origin[0],
-                    y: p.xyz[1] + origin[1],
-                    z: p.xyz[2] + origin[2],
-                    intensity: p.intensity,
-                    return_number: p.return_number,
-                    number_of_returns: p.number_of_returns,
-                    classification: las::point::Classification::new(p.class)
-                        .map_err(|e| formats::FormatError::invalid(&path, e.to_string()))?,
-                    scan_angle: p.scan_angle_deg,
-                    point_source_id: p.source,
-                    gps_time: Some(p.gps_time),
-                    ..Default::default()
-                };
-                writer
-                    .write_point(point)
-                    .map_err(|e| formats::FormatError::invalid(&path, e.to_string()))?;
-            }
-            writer
-                .close()
-                .map_err(|e| formats::FormatError::invalid(&path, e.to_string()))?;
-            Ok(())
-        })?;
+        let points = idx.iter().map(|&k| {
+            let p = &points[k];
+            Ok(las::Point {
+                x: p.xyz[0] + origin[0],
+                y: p.xyz[1] + origin[1],
+                z: p.xyz[2] + origin[2],
+                intensity: p.intensity,
+                return_number: p.return_number,
+                number_of_returns: p.number_of_returns,
+                classification: las::point::Classification::new(p.class)
+                    .map_err(|e| formats::FormatError::invalid(&path, e.to_string()))?,
+                scan_angle: p.scan_angle_deg,
+                point_source_id: p.source,
+                gps_time: Some(p.gps_time),
+                ..Default::default()
+            })
+        });
+        crate::lidar::las_write::write_points(&path, header, points)?;
         out.push(LidarTile {
             path: format!("{rel_prefix}/{name}"),
             points: idx.len() as u64,
@@ -261,8 +215,4 @@ pub fn write_tiles(
         });
     }
     Ok(out)
-}
-
-fn chrono_date() -> Option<chrono::NaiveDate> {
-    chrono::NaiveDate::from_yo_opt(2024, 150)
 }
