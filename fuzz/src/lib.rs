@@ -523,8 +523,8 @@ fn image_decode_reads(data: &[u8]) -> bool {
 
 /// The task files a `task_files` input may be, by its first byte (modulo their number):
 /// every kind's result, a round's result, a round's file and a photo's part of it, the
-/// strip offsets (src/pipeline/tasks/).
-pub const TASK_FILES: [&str; 16] = [
+/// strip offsets, a stereo pair's samples (src/pipeline/tasks/).
+pub const TASK_FILES: [&str; 17] = [
     "screen-00000.msgpack",
     "clean-00000.msgpack",
     "strip_offsets.msgpack",
@@ -541,6 +541,7 @@ pub const TASK_FILES: [&str; 16] = [
     "chips-00000.msgpack",
     "resample-00000.msgpack",
     "ortho-00000.msgpack",
+    "stereo-00000.msgpack",
 ];
 
 /// A task file (MessagePack) read as its stage reads it back

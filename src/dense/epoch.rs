@@ -194,19 +194,30 @@ pub fn tie_point_plane(block: &Block) -> Option<Surface<'static>> {
     })
 }
 
-/// The surface of `block`'s oriented photos on `grid` (world; `None`: the photos'
-/// footprint at the ground pixel or `options.cell`), searched around `prior`
-/// (block-local) ± `options.prior_margin_m` (plus a plane prior's relief); `image` gives
-/// a photo's pixels (the size of its camera). Pairs that fail to rectify are reported
-/// with nothing matched; an error of `image` stops the run.
-pub fn epoch_dsm(
+/// What an epoch's surface is made from, decided before any pixel is matched: the grid,
+/// the ground pixel, the stereo pairs and the search margin. The same block, prior and
+/// options give the same plan wherever it is made (a worker matching one pair rebuilds it).
+#[derive(Debug, Clone)]
+pub struct SurfacePlan {
+    /// The block's ground pixel (m, median over its photos).
+    pub ground_pixel: f64,
+    pub grid: DsmGrid,
+    pub pairs: Vec<StereoPair>,
+    /// Vertical margin of the search around the prior (object units): the options' margin
+    /// plus a plane prior's relief.
+    pub margin: f64,
+}
+
+/// The plan of the surface of `block`'s oriented photos on `grid` (world; `None`: the
+/// photos' footprint at the ground pixel or `options.cell`, within a DEM prior's extent),
+/// searched around `prior` (block-local). [`DenseError::NoSurface`] when the block has no
+/// stereo pair over the prior.
+pub fn plan_surface(
     block: &Block,
-    image: &(dyn Fn(&Photo) -> std::result::Result<GreyImage, String> + Sync),
     prior: &Surface,
     grid: Option<DsmGrid>,
     options: &DsmOptions,
-    mut progress: impl FnMut(usize, usize, &PairReport),
-) -> Result<EpochDsm> {
+) -> Result<SurfacePlan> {
     let plane = plane_of(prior).ok_or_else(|| invalid("prior", "holds no height"))?;
     let gsd = ground_pixel(block, &plane)
         .ok_or_else(|| DenseError::NoSurface("no oriented photo sees the prior surface".into()))?;
@@ -248,75 +259,126 @@ pub fn epoch_dsm(
             Surface::Plane { sigma_m, .. } => *sigma_m,
             Surface::Dem { .. } => 0.0,
         };
+    Ok(SurfacePlan {
+        ground_pixel: gsd,
+        grid,
+        pairs,
+        margin,
+    })
+}
+
+/// Matches stereo pair `pair` of `plan` and hands its points, as samples of the plan's
+/// grid (cell, height: [`DsmGrid::sample`]), to `sink` tile by tile. `load` gives a
+/// photo's pixels (the size of its camera), asked only once the pair has rectified; a
+/// pair that fails to rectify or does not see the prior is reported with nothing matched.
+pub fn match_plan_pair(
+    block: &Block,
+    plan: &SurfacePlan,
+    pair: &StereoPair,
+    prior: &Surface,
+    options: &DsmOptions,
+    mut load: impl FnMut(&Photo) -> Result<std::sync::Arc<GreyImage>>,
+    mut sink: impl FnMut(&[(u32, f32)]),
+) -> Result<PairReport> {
+    let t0 = Instant::now();
+    let photo = |id: PhotoId| {
+        block
+            .photos
+            .get(&id)
+            .ok_or_else(|| invalid("pair", format!("photo {id} is not in the block")))
+    };
+    let (pl, pr) = (photo(pair.left)?, photo(pair.right)?);
+    let camera = |p: &Photo| {
+        block
+            .camera_of(p)
+            .map(|c| &c.model)
+            .ok_or_else(|| invalid(&p.name, format!("camera {} is not in the block", p.camera)))
+    };
+    let mut report = PairReport {
+        pair: *pair,
+        rectified: [0, 0],
+        matched: 0.0,
+        points: 0,
+        seconds: 0.0,
+    };
     let origin = Vector3::from(block.origin);
-    let mut fusion = Fusion::new(grid);
-    let mut reports = Vec::with_capacity(pairs.len());
+    let rectified = RectifiedPair::new((camera(pl)?, &pl.pose), (camera(pr)?, &pr.pose));
+    if let Ok(rect) = rectified {
+        let (left, right) = (load(pl)?, load(pr)?);
+        let mut points = 0;
+        let mut samples = Vec::new();
+        let matched = match_stereo(&rect, &left, &right, prior, plan.margin, options, |pts| {
+            samples.clear();
+            samples.extend(pts.into_iter().filter_map(|x| {
+                let x = x + origin;
+                plan.grid.sample(x.x, x.y, x.z)
+            }));
+            points += samples.len();
+            sink(&samples);
+        })?;
+        if let Some(m) = matched {
+            report.rectified = m.rectified;
+            report.matched = m.matched;
+            report.points = points;
+        }
+    }
+    report.seconds = t0.elapsed().as_secs_f64();
+    Ok(report)
+}
+
+/// The surface of `block`'s oriented photos ([`plan_surface`]; `grid` as there), every
+/// pair matched in turn ([`match_plan_pair`]) and fused; `image` gives a photo's pixels
+/// (the size of its camera). An error of `image` stops the run.
+pub fn epoch_dsm(
+    block: &Block,
+    image: &(dyn Fn(&Photo) -> std::result::Result<GreyImage, String> + Sync),
+    prior: &Surface,
+    grid: Option<DsmGrid>,
+    options: &DsmOptions,
+    mut progress: impl FnMut(usize, usize, &PairReport),
+) -> Result<EpochDsm> {
+    let plan = plan_surface(block, prior, grid, options)?;
+    let mut fusion = Fusion::new(plan.grid);
+    let mut reports = Vec::with_capacity(plan.pairs.len());
     // The photos of the last pairs: pairs come in photo order, so a photo is mostly
     // needed again by the next few pairs.
     let mut cache: Vec<(PhotoId, std::sync::Arc<GreyImage>)> = Vec::new();
-    let mut load = |p: &Photo| -> Result<std::sync::Arc<GreyImage>> {
-        if let Some((_, img)) = cache.iter().find(|(id, _)| *id == p.id) {
-            return Ok(img.clone());
-        }
-        let img = std::sync::Arc::new(image(p).map_err(|e| invalid(&p.name, e))?);
-        if cache.len() == 3 {
-            cache.remove(0);
-        }
-        cache.push((p.id, img.clone()));
-        Ok(img)
-    };
-    for (k, sp) in pairs.iter().enumerate() {
-        let t0 = Instant::now();
-        let photo = |id: PhotoId| {
-            block
-                .photos
-                .get(&id)
-                .ok_or_else(|| invalid("pair", format!("photo {id} is not in the block")))
-        };
-        let (pl, pr) = (photo(sp.left)?, photo(sp.right)?);
-        let camera = |p: &Photo| {
-            block
-                .camera_of(p)
-                .map(|c| &c.model)
-                .ok_or_else(|| invalid(&p.name, format!("camera {} is not in the block", p.camera)))
-        };
-        let mut report = PairReport {
-            pair: *sp,
-            rectified: [0, 0],
-            matched: 0.0,
-            points: 0,
-            seconds: 0.0,
-        };
-        let rectified = RectifiedPair::new((camera(pl)?, &pl.pose), (camera(pr)?, &pr.pose));
-        if let Ok(pair) = rectified {
-            let (left, right) = (load(pl)?, load(pr)?);
-            let before = fusion.len();
-            let matched = match_stereo(&pair, &left, &right, prior, margin, options, |pts| {
-                fusion.extend(pts.into_iter().map(|x| {
-                    let x = x + origin;
-                    [x.x, x.y, x.z]
-                }))
-            })?;
-            if let Some(m) = matched {
-                report.rectified = m.rectified;
-                report.matched = m.matched;
-                report.points = fusion.len() - before;
+    for (k, sp) in plan.pairs.iter().enumerate() {
+        let load = |p: &Photo| -> Result<std::sync::Arc<GreyImage>> {
+            if let Some((_, img)) = cache.iter().find(|(id, _)| *id == p.id) {
+                return Ok(img.clone());
             }
-        }
-        report.seconds = t0.elapsed().as_secs_f64();
-        progress(k + 1, pairs.len(), &report);
+            let img = std::sync::Arc::new(image(p).map_err(|e| invalid(&p.name, e))?);
+            if cache.len() == 3 {
+                cache.remove(0);
+            }
+            cache.push((p.id, img.clone()));
+            Ok(img)
+        };
+        let report = match_plan_pair(block, &plan, sp, prior, options, load, |s| fusion.push(s))?;
+        progress(k + 1, plan.pairs.len(), &report);
         reports.push(report);
     }
+    fuse(&plan, fusion, reports, options)
+}
+
+/// The epoch's surface from the samples of every pair of `plan` (`reports` in pair order).
+pub fn fuse(
+    plan: &SurfacePlan,
+    fusion: Fusion,
+    reports: Vec<PairReport>,
+    options: &DsmOptions,
+) -> Result<EpochDsm> {
     if fusion.is_empty() {
         return Err(DenseError::NoSurface(format!(
             "none of the {} pair(s) matched a pixel within the prior's band",
-            pairs.len()
+            plan.pairs.len()
         )));
     }
     Ok(EpochDsm {
         surface: fusion.finish(options.min_count)?,
-        ground_pixel: gsd,
-        grid,
+        ground_pixel: plan.ground_pixel,
+        grid: plan.grid,
         pairs: reports,
     })
 }

@@ -61,6 +61,20 @@ impl DsmGrid {
         (c >= 0.0 && r >= 0.0 && (c as usize) < self.width && (r as usize) < self.height)
             .then(|| (r as usize * self.width + c as usize) as u32)
     }
+
+    /// A world point as a sample of the grid (its cell's index, its height); `None`
+    /// outside the grid or when a coordinate is not finite.
+    pub fn sample(&self, x: f64, y: f64, z: f64) -> Option<(u32, f32)> {
+        if !z.is_finite() {
+            return None;
+        }
+        self.cell_of(x, y).map(|c| (c, z as f32))
+    }
+
+    /// Cells of the grid.
+    pub fn cells(&self) -> usize {
+        self.width * self.height
+    }
 }
 
 /// The fused surface: median height, point count and spread (1.4826 × the median
@@ -104,12 +118,12 @@ impl Fusion {
     pub fn extend(&mut self, points: impl IntoIterator<Item = [f64; 3]>) {
         let g = self.grid;
         self.samples
-            .extend(points.into_iter().filter_map(|[x, y, z]| {
-                if !z.is_finite() {
-                    return None;
-                }
-                g.cell_of(x, y).map(|c| (c, z as f32))
-            }));
+            .extend(points.into_iter().filter_map(|[x, y, z]| g.sample(x, y, z)));
+    }
+
+    /// Adds samples of the grid ([`DsmGrid::sample`]).
+    pub fn push(&mut self, samples: &[(u32, f32)]) {
+        self.samples.extend_from_slice(samples);
     }
 
     /// Cells with at least `min_count` points get the median of their heights.

@@ -11,6 +11,7 @@ use crate::formats::convert::{image_files, read_block};
 use crate::formats::crs::Crs;
 use crate::formats::raster::{read_dem, write_dem, GeoTiffOptions};
 use crate::formats::{write_bytes_atomically, FormatError};
+use crate::geometry::Dem;
 use crate::matching::oriented::Surface;
 use crate::matching::GreyImage;
 use nalgebra::Vector3;
@@ -25,6 +26,8 @@ pub const DSM_COUNT_FILE: &str = "dsm_count.tif";
 pub const DSM_SPREAD_FILE: &str = "dsm_spread.tif";
 /// What the surface was made from.
 pub const DSM_REPORT_FILE: &str = "dsm.json";
+/// The surface as points (LAZ, optional): a point a cell with a height.
+pub const DSM_POINTS_FILE: &str = "dsm_points.laz";
 
 /// `dsm.json`.
 #[derive(Debug, Clone, Serialize, Deserialize)]
@@ -46,6 +49,9 @@ pub struct DsmReport {
     pub prior_margin_m: f64,
     pub pairs: Vec<PairReport>,
     pub seconds: f64,
+    /// Points written to [`DSM_POINTS_FILE`], when it was asked for.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub points: Option<u64>,
 }
 
 impl DsmReport {
@@ -65,7 +71,8 @@ impl DsmReport {
     }
 }
 
-/// Writes `result` into `dir` (which exists) in `crs`; returns its report.
+/// Writes `result` into `dir` (which exists) in `crs`, with [`DSM_POINTS_FILE`] when
+/// `points`; returns its report.
 pub fn write_dsm(
     dir: &Path,
     result: &EpochDsm,
@@ -73,6 +80,7 @@ pub fn write_dsm(
     prior: &str,
     options: &DsmOptions,
     seconds: f64,
+    points: bool,
 ) -> Result<DsmReport> {
     let opts = GeoTiffOptions::default();
     let s = &result.surface;
@@ -93,6 +101,16 @@ pub fn write_dsm(
         prior_margin_m: options.prior_margin_m,
         pairs: result.pairs.clone(),
         seconds,
+        points: if points {
+            Some(write_dsm_points(
+                &dir.join(DSM_POINTS_FILE),
+                &s.dsm,
+                &s.count,
+                crs,
+            )?)
+        } else {
+            None
+        },
     };
     let json = serde_json::to_vec_pretty(&report).expect("the DSM report serialises");
     let path = dir.join(DSM_REPORT_FILE);
@@ -100,15 +118,45 @@ pub fn write_dsm(
     Ok(report)
 }
 
+/// Writes the surface `dsm` as points at `path` (LAZ): one at the centre of each cell
+/// with a height, its intensity the number of points fused there (`count`, at most
+/// 65 535), in `crs`. For the point-cloud tools (CloudCompare, PDAL) that take no raster.
+fn write_dsm_points(path: &Path, dsm: &Dem, count: &Dem, crs: &Crs) -> Result<u64> {
+    let wkt = crs.to_wkt()?;
+    let t = &dsm.transform;
+    let (x0, y1) = (t.0[0], t.0[3]);
+    let header = crate::lidar::las_write::new_header([x0.floor(), y1.floor(), 0.0], true, &wkt)
+        .map_err(|e| FormatError::invalid(path, e))?;
+    let points = dsm.data.iter().enumerate().filter_map(|(i, &z)| {
+        if !z.is_finite() {
+            return None;
+        }
+        let (c, r) = ((i % dsm.width) as f64 + 0.5, (i / dsm.width) as f64 + 0.5);
+        let (x, y) = t.pixel_to_world(c, r);
+        Some(Ok(las::Point {
+            x,
+            y,
+            z: f64::from(z),
+            intensity: count.data[i].clamp(0.0, 65_535.0) as u16,
+            return_number: 1,
+            number_of_returns: 1,
+            // Format 6 has a time: none here (a surface, not a flight).
+            gps_time: Some(0.0),
+            ..Default::default()
+        }))
+    });
+    Ok(crate::lidar::las_write::write_points(path, header, points)?)
+}
+
 /// The surface of a block file (COLMAP model folder or BlocksExchange XML) whose photos are
 /// in `images_dir`, searched around `prior_dem` (a GeoTIFF in the block's CRS; without
 /// it, around a plane at the block's tie points), written into `out_dir` (made if
-/// missing).
+/// missing), with [`DSM_POINTS_FILE`] when `points`.
 pub fn dsm_from_files(
     block_path: &Path,
     images_dir: &Path,
     prior_dem: Option<&Path>,
-    out_dir: &Path,
+    (out_dir, points): (&Path, bool),
     options: &DsmOptions,
     progress: impl FnMut(usize, usize, &PairReport),
 ) -> Result<DsmReport> {
@@ -152,6 +200,7 @@ pub fn dsm_from_files(
         name,
         options,
         t0.elapsed().as_secs_f64(),
+        points,
     )
 }
 

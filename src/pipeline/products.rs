@@ -163,17 +163,80 @@ pub(crate) fn ortho_ground(
     ))
 }
 
+/// What an orthophoto was rectified onto (`surface` in `orthophoto.json`).
+#[derive(Debug, Clone, serde::Serialize, serde::Deserialize)]
+pub struct OrthoSurfaceReport {
+    /// `control` (the control's ground) or `dsm` (the epoch's own surface).
+    pub surface: String,
+    /// Cells of the DSM with their own height, and holes given the control's ground.
+    pub cells_from_dsm: usize,
+    pub cells_from_control: usize,
+    /// Why the control's ground stands in for a DSM that was asked for.
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub reason: Option<String>,
+}
+
+/// The ground an epoch's orthophoto is rectified onto: `control` (world), or with
+/// `surface_dir` (the epoch's surface stage folder) its own DSM where the photos gave a
+/// height and the control's ground in its holes (an orthophoto has a value everywhere;
+/// the DSM itself keeps its holes).
+pub(crate) fn ortho_surface(
+    control: &crate::geometry::Dem,
+    surface_dir: Option<&Path>,
+) -> Result<(crate::geometry::Dem, OrthoSurfaceReport), WorkError> {
+    let of_control = |reason: Option<String>| OrthoSurfaceReport {
+        surface: "control".into(),
+        cells_from_dsm: 0,
+        cells_from_control: control.data.len(),
+        reason,
+    };
+    let Some(dir) = surface_dir else {
+        return Ok((control.clone(), of_control(None)));
+    };
+    let path = dir.join(crate::dense::products::DSM_FILE);
+    if !path.is_file() {
+        let reason = "the epoch has no surface of its own (surface stage skipped.json)";
+        tracing::warn!(reason, "orthophoto on the control's ground");
+        return Ok((control.clone(), of_control(Some(reason.into()))));
+    }
+    let (mut dsm, _) = formats::raster::read_dem(&path)?;
+    let (mut own, mut filled) = (0, 0);
+    for i in 0..dsm.data.len() {
+        if dsm.data[i].is_finite() {
+            own += 1;
+            continue;
+        }
+        let (c, r) = ((i % dsm.width) as f64 + 0.5, (i / dsm.width) as f64 + 0.5);
+        let (x, y) = dsm.transform.pixel_to_world(c, r);
+        if let Some(z) = control.height_at(x, y) {
+            dsm.data[i] = z as f32;
+            filled += 1;
+        }
+    }
+    Ok((
+        dsm,
+        OrthoSurfaceReport {
+            surface: "dsm".into(),
+            cells_from_dsm: own,
+            cells_from_control: filled,
+            reason: None,
+        },
+    ))
+}
+
 /// COLMAP model, BlocksExchange XML, orthophoto and LiDAR DEM of the oriented epoch
 /// `epoch` in `edir`, written into `dir`; `surface` is the LiDAR ground (block-local with
-/// `origin`), `checkpoints` the project's, added to the models as check points. A film
-/// epoch's frame images and the orthophoto's tiles are made as `tasks` (here, or returned
-/// as pending in `mode` Plan) before anything is written.
+/// `origin`), `checkpoints` the project's, added to the models as check points;
+/// `surface_dir` the epoch's surface folder when the orthophoto is rectified onto its own
+/// DSM ([`ortho_surface`]). A film epoch's frame images and the orthophoto's tiles are
+/// made as `tasks` (here, or returned as pending in `mode` Plan) before anything is
+/// written.
 #[allow(clippy::too_many_arguments)]
 pub(crate) fn write_products(
     project: &Project,
     epoch: &Epoch,
     checkpoints: Option<&Checkpoints>,
-    (surface, dem_file): (&GroundSurface, &str),
+    (surface, dem_file, surface_dir): (&GroundSurface, &str, Option<&Path>),
     origin: [f64; 3],
     edir: &Path,
     dir: &Path,
@@ -181,7 +244,8 @@ pub(crate) fn write_products(
 ) -> Result<(), WorkError> {
     let o = &project.outputs;
     let (mut named, frames) = product_block(project, epoch, checkpoints, edir, &tasks.resampled())?;
-    let (dem, ortho_opts) = ortho_ground(project, &named, surface, origin)?;
+    let (control_dem, ortho_opts) = ortho_ground(project, &named, surface, origin)?;
+    let (dem, surface_report) = ortho_surface(&control_dem, surface_dir)?;
     let film = frames.is_some();
     // An epoch that oriented no photo still has its LiDAR DEM, but nothing to orthorectify.
     let orthophoto = o.orthophoto && !named.photos.is_empty();
@@ -283,7 +347,7 @@ pub(crate) fn write_products(
         let crs = Crs::parse(&project.crs)?;
         formats::raster::write_dem(
             &dir.join(dem_file),
-            &ctx.dem,
+            &control_dem,
             &crs,
             &formats::raster::GeoTiffOptions::default(),
         )?;
@@ -294,7 +358,11 @@ pub(crate) fn write_products(
             formats::ortho::write_tiles(&ortho_path, grid, &crs, &ctx.ortho, |k| tiles.tile(k))?;
         rep.image_loads = tiles.image_loads;
         rep.peak_image_bytes = tiles.peak_image_bytes;
-        write_json(&dir.join("orthophoto.json"), &rep)?;
+        let mut json = serde_json::to_value(&rep)
+            .map_err(|e| FormatError::invalid(dir.join("orthophoto.json"), e.to_string()))?;
+        json["surface"] = serde_json::to_value(&surface_report)
+            .map_err(|e| FormatError::invalid(dir.join("orthophoto.json"), e.to_string()))?;
+        write_json(&dir.join("orthophoto.json"), &json)?;
         let (png, extent) = formats::ortho::preview(&ortho_path, 800)?;
         std::fs::write(dir.join("preview.png"), png)
             .map_err(|e| FormatError::io(dir.join("preview.png"), e))?;

@@ -215,6 +215,18 @@ impl Default for Thresholds {
     }
 }
 
+/// The surface an epoch's orthophoto is rectified onto.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Default, Serialize, Deserialize)]
+#[serde(rename_all = "snake_case")]
+pub enum OrthoSurface {
+    /// The control's ground (the LiDAR's, or the project's DEM): the same for every epoch.
+    #[default]
+    Control,
+    /// The epoch's own DSM (`surface-<epoch>/dsm.tif`), the control's ground in its holes:
+    /// what stood at the time is where the photo shows it, not where today's ground is.
+    Dsm,
+}
+
 /// Which products to write for each epoch.
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 #[serde(deny_unknown_fields, default)]
@@ -226,9 +238,13 @@ pub struct Outputs {
     /// Each epoch's own surface by dense matching of its photos (`surface-<epoch>/`:
     /// dsm.tif, dsm_count.tif, dsm_spread.tif, dsm.json).
     pub dsm: bool,
+    /// The DSM also as points (`surface-<epoch>/dsm_points.laz`, a point a cell).
+    pub dsm_points: bool,
     pub html_report: bool,
     /// Ground pixel of orthophotos, as a multiple of the epoch's GSD.
     pub ortho_gsd_factor: f64,
+    /// What orthophotos are rectified onto (`control` or `dsm`, which needs `dsm`).
+    pub ortho_surface: OrthoSurface,
     /// Pixel size (µm) of the fiducial-frame images film scans are resampled into for
     /// the products; by default the mean scan pixel of the epoch's interior orientations.
     pub film_pixel_um: Option<f64>,
@@ -242,8 +258,10 @@ impl Default for Outputs {
             orthophoto: true,
             dem: true,
             dsm: true,
+            dsm_points: false,
             html_report: true,
             ortho_gsd_factor: 1.0,
+            ortho_surface: OrthoSurface::Control,
             film_pixel_um: None,
         }
     }
@@ -650,6 +668,13 @@ impl Project {
         }
         if let Some(um) = self.outputs.film_pixel_um {
             check_scan_pixel_um(um).map_err(|m| key_err("outputs.film_pixel_um", m))?;
+        }
+        if self.outputs.ortho_surface == OrthoSurface::Dsm && !self.outputs.dsm {
+            return Err(key_err(
+                "outputs.ortho_surface",
+                "\"dsm\" rectifies onto each epoch's own surface: it needs outputs.dsm = true"
+                    .into(),
+            ));
         }
         Ok(())
     }

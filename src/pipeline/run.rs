@@ -17,13 +17,14 @@
 
 use super::epoch_files::{epoch_report, load_block, read_json, save_epoch, write_json};
 use super::ground::{control_dem, ControlGround};
-use super::project::{Epoch, Project, ProjectError};
+use super::project::{Epoch, OrthoSurface, Project, ProjectError};
 use super::report::{self, EpochReport, IcpIteration, OrthoPreview, Warning, WarningKind};
 use super::stages::{resolved_path, Inputs, OutputFolder, Runner, StageError, WorkError};
 use super::tasks::dcp::cut_chips;
 use super::tasks::lidar::{clean_sources, LidarPlan};
 use super::tasks::outputs::{OutputTasks, OutputsPlan};
 use super::tasks::reference::ReferenceTasks;
+use super::tasks::surface::{SurfaceTaskPlan, SurfaceTasks};
 use super::tasks::{open_packages, EpochContext, EpochPlan, EpochTasks, Task, TaskMode};
 use crate::block::Block;
 use crate::control::archive::{self, ArchiveContext, ArchiveOptions};
@@ -987,12 +988,68 @@ fn run_stages(
         }
     }
 
-    // 5. Products per epoch.
+    // 5. Each epoch's own surface, searched around the control's surface model (before
+    // the products: an orthophoto may be rectified onto it).
+    let mut surface_dirs: Vec<Option<PathBuf>> = vec![None; epochs.len()];
+    if o.dsm {
+        let crs = Crs::parse(&project.crs).map_err(|e| StageError::Failed {
+            stage: "surface".into(),
+            source: Box::new(e.into()),
+        })?;
+        let prior = if with_lidar {
+            "lidar_surface"
+        } else {
+            "control_dem"
+        };
+        for (k, e) in epochs.iter().enumerate() {
+            let _epoch = tracing::error_span!("epoch", name = %e.name).entered();
+            let edir = epoch_dirs[k].clone();
+            let options = crate::dense::epoch::DsmOptions::default();
+            let sdir = stage!(
+                keyed format!("surface-{}", e.name),
+                Inputs::new()
+                    .file(&sources)
+                    .file(&edir)
+                    .param("dsm", &options)
+                    .param("dsm_points", &o.dsm_points),
+                |dir: &Path, key: &str| {
+                    let stage = format!("surface-{}", e.name);
+                    let plan = SurfaceTaskPlan {
+                        project: project.clone(),
+                        epoch: e.name.clone(),
+                        sources: sources.clone(),
+                        epoch_dir: edir.clone(),
+                        origin: lidar.origin,
+                        options: options.clone(),
+                    };
+                    let tasks = SurfaceTasks::new(out, &stage, key, &plan)?;
+                    super::surface::write_epoch_surface(
+                        &plan,
+                        prior,
+                        &crs,
+                        dir,
+                        (&tasks, task_mode),
+                    )
+                }
+            );
+            let dsm = sdir.join(crate::dense::products::DSM_FILE);
+            surface_dirs[k] = Some(sdir.clone());
+            if dsm.exists() {
+                products.entry(e.name.clone()).or_default().push(dsm);
+            }
+        }
+    }
+
+    // 6. Products per epoch.
     let mut ortho_preview: Option<OrthoPreview> = None;
     if want_outputs {
         for (k, e) in epochs.iter().enumerate() {
             let _epoch = tracing::error_span!("epoch", name = %e.name).entered();
             let edir = epoch_dirs[k].clone();
+            // The epoch's own surface, when its orthophoto is rectified onto it.
+            let surface_dir = surface_dirs[k]
+                .clone()
+                .filter(|_| project.outputs.ortho_surface == OrthoSurface::Dsm);
             // The camera definition gives a film epoch's format (its frame images).
             let odir = stage!(
                 keyed format!("outputs-{}", e.name),
@@ -1003,6 +1060,7 @@ fn run_stages(
                     }
                     .file(&sources)
                     .file(&edir)
+                    .file_if(surface_dir.as_deref())
                     .param("outputs", &project.outputs)
                 ),
                 |dir: &Path, key: &str| {
@@ -1013,13 +1071,14 @@ fn run_stages(
                         sources: sources.clone(),
                         epoch_dir: edir.clone(),
                         origin: lidar.origin,
+                        surface_dir: surface_dir.clone(),
                     };
                     let tasks = OutputTasks::new(out, &stage, key, &plan)?;
                     super::products::write_products(
                         project,
                         e,
                         checkpoints.as_ref(),
-                        (lidar.surface()?, lidar.dem_file()),
+                        (lidar.surface()?, lidar.dem_file(), surface_dir.as_deref()),
                         lidar.origin,
                         &edir,
                         dir,
@@ -1039,45 +1098,6 @@ fn run_stages(
                 if let Some(extent) = extent {
                     ortho_preview = Some(OrthoPreview { png, extent });
                 }
-            }
-        }
-    }
-
-    // 6. Each epoch's own surface, searched around the control's surface model.
-    if o.dsm {
-        let crs = Crs::parse(&project.crs).map_err(|e| StageError::Failed {
-            stage: "surface".into(),
-            source: Box::new(e.into()),
-        })?;
-        let prior = if with_lidar {
-            "lidar_surface"
-        } else {
-            "control_dem"
-        };
-        for (k, e) in epochs.iter().enumerate() {
-            let _epoch = tracing::error_span!("epoch", name = %e.name).entered();
-            let edir = epoch_dirs[k].clone();
-            let options = crate::dense::epoch::DsmOptions::default();
-            let sdir = stage!(
-                format!("surface-{}", e.name),
-                Inputs::new()
-                    .file(&sources)
-                    .file(&edir)
-                    .param("dsm", &options),
-                |dir: &Path| {
-                    super::surface::write_epoch_surface(
-                        &edir,
-                        lidar.surface()?,
-                        prior,
-                        &crs,
-                        &options,
-                        dir,
-                    )
-                }
-            );
-            let dsm = sdir.join(crate::dense::products::DSM_FILE);
-            if dsm.exists() {
-                products.entry(e.name.clone()).or_default().push(dsm);
             }
         }
     }

@@ -95,6 +95,13 @@ impl Inputs {
         self.files.push(path.into());
         self
     }
+    /// [`Self::file`] when there is one.
+    pub fn file_if(self, path: Option<&Path>) -> Self {
+        match path {
+            Some(p) => self.file(p),
+            None => self,
+        }
+    }
     pub fn param(mut self, name: &str, value: &impl Serialize) -> Self {
         self.params.push((
             name.into(),

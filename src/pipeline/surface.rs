@@ -1,81 +1,67 @@
 //! The surface stage of an epoch (`surface-<epoch>/`): the epoch's own DSM by dense
 //! matching of its oriented photos ([`crate::dense`]), searched within a margin around
 //! the control's surface model (the LiDAR's first-return surface, or the project's DEM),
-//! never filled from it. Film epochs are matched from their scans through each scan's
-//! interior orientation (rectification goes through the camera model, so the resampled
-//! fiducial-frame images would only add a resampling).
+//! never filled from it. Each stereo pair is a task ([`super::tasks::surface`]), so a
+//! Dask run fans the pairs out; the stage fuses them. Film epochs are matched from their
+//! scans through each scan's interior orientation (rectification goes through the camera
+//! model, so the resampled fiducial-frame images would only add a resampling).
 
-use super::epoch_files::{load_block, write_json};
+use super::epoch_files::write_json;
 use super::stages::WorkError;
-use crate::dense::epoch::{epoch_dsm, DsmOptions};
+use super::tasks::surface::{SurfaceContext, SurfaceTaskPlan, SurfaceTasks};
+use super::tasks::TaskMode;
+use crate::dense::epoch::fuse;
+use crate::dense::fusion::Fusion;
 use crate::dense::products::write_dsm;
 use crate::dense::DenseError;
 use crate::formats::crs::Crs;
-use crate::lidar::GroundSurface;
-use crate::matching::oriented::Surface;
-use crate::matching::GreyImage;
-use nalgebra::Vector3;
 use std::path::Path;
 
 /// Written instead of the DSM when the epoch has none (its reason inside).
 pub(crate) const SKIPPED_FILE: &str = "skipped.json";
 
-/// Writes the DSM of the epoch oriented in `epoch_dir` into `dir`; `ground` is the
-/// control's surface (block-local), `prior` names it in dsm.json.
+/// Writes the DSM of the epoch of `plan` into `dir`; `prior` names the control's surface
+/// in dsm.json. The pairs are matched by `tasks` (here, or returned as pending).
 pub(crate) fn write_epoch_surface(
-    epoch_dir: &Path,
-    ground: &GroundSurface,
+    plan: &SurfaceTaskPlan,
     prior: &str,
     crs: &Crs,
-    options: &DsmOptions,
     dir: &Path,
+    (tasks, mode): (&SurfaceTasks, TaskMode),
 ) -> Result<(), WorkError> {
     let t0 = std::time::Instant::now();
-    let block = load_block(epoch_dir)?;
-    let surface = Surface::Dem {
-        dem: &ground.surface,
-        origin: Vector3::zeros(),
-        sigma_m: 0.0,
+    let ctx = SurfaceContext::load(plan)?;
+    // An epoch with too few oriented photos or pairs has no surface of its own: said in
+    // the stage folder, and the run goes on (as an epoch without DCPs does).
+    let skipped = |reason: &str| -> Result<(), WorkError> {
+        tracing::warn!(%reason, "no surface");
+        write_json(
+            &dir.join(SKIPPED_FILE),
+            &serde_json::json!({ "reason": reason }),
+        )?;
+        tasks.clear();
+        Ok(())
     };
-    let image = |p: &crate::block::Photo| {
-        let path = p
-            .image
-            .as_ref()
-            .ok_or_else(|| format!("photo {} has no image file", p.name))?;
-        GreyImage::load(path).map_err(|e| e.to_string())
+    let surface_plan = match &ctx.plan {
+        Ok(p) => p,
+        Err(reason) => return skipped(reason),
     };
-    let result = epoch_dsm(&block, &image, &surface, None, options, |k, n, r| {
-        tracing::info!(
-            pair = k,
-            of = n,
-            left = r.pair.left,
-            right = r.pair.right,
-            matched = r.matched,
-            seconds = r.seconds,
-            "pair matched"
-        );
-    });
-    match result {
+    let mut fusion = Fusion::new(surface_plan.grid);
+    let mut reports = Vec::with_capacity(surface_plan.pairs.len());
+    tasks.stereo(&ctx, surface_plan, mode, |report, samples| {
+        fusion.push(&samples);
+        reports.push(report);
+    })?;
+    // The work of the pairs (wherever they ran) and the fusion here.
+    let seconds = reports.iter().map(|r| r.seconds).sum::<f64>() + t0.elapsed().as_secs_f64();
+    match fuse(surface_plan, fusion, reports, &plan.options) {
         Ok(result) => {
-            write_dsm(
-                dir,
-                &result,
-                crs,
-                prior,
-                options,
-                t0.elapsed().as_secs_f64(),
-            )?;
+            let points = plan.project.outputs.dsm_points;
+            write_dsm(dir, &result, crs, prior, &plan.options, seconds, points)?;
+            tasks.clear();
+            Ok(())
         }
-        // An epoch with too few oriented photos or pairs has no surface of its own: said
-        // in the stage folder, and the run goes on (as an epoch without DCPs does).
-        Err(DenseError::NoSurface(reason)) => {
-            tracing::warn!(%reason, "no surface");
-            write_json(
-                &dir.join(SKIPPED_FILE),
-                &serde_json::json!({ "reason": reason }),
-            )?;
-        }
-        Err(e) => return Err(e.into()),
+        Err(DenseError::NoSurface(reason)) => skipped(&reason),
+        Err(e) => Err(e.into()),
     }
-    Ok(())
 }

@@ -92,11 +92,18 @@ fn the_dsm_command_makes_the_surface_of_a_colmap_block() {
         blk.join("orthophoto/dem.tif").to_str().unwrap(),
         "--out",
         out.to_str().unwrap(),
+        "--points",
     ]);
     assert!(ok, "{stdout}{stderr}");
     let report: serde_json::Value = serde_json::from_str(&stdout).unwrap();
     assert!(!report["pairs"].as_array().unwrap().is_empty());
-    for f in ["dsm.tif", "dsm_count.tif", "dsm_spread.tif", "dsm.json"] {
+    for f in [
+        "dsm.tif",
+        "dsm_count.tif",
+        "dsm_spread.tif",
+        "dsm.json",
+        "dsm_points.laz",
+    ] {
         assert!(out.join(f).is_file(), "{f}");
     }
     // Independent reader: gdalinfo.
@@ -123,8 +130,109 @@ fn the_dsm_command_makes_the_surface_of_a_colmap_block() {
     let gsd = report["ground_pixel_m"].as_f64().unwrap();
     let s = score_surface(&blk, "digital_2012", &dsm, &block, &pairs, gsd).unwrap();
     eprintln!("dsm command: {s:?}");
+    // The points, read by the las crate: one a cell with a height, at its centre, with
+    // the cell's height and count, in the block's CRS.
+    let (count, _) = read_dem(&out.join("dsm_count.tif")).unwrap();
+    let mut reader = las::Reader::from_path(out.join("dsm_points.laz")).unwrap();
+    let wkt = reader
+        .header()
+        .all_vlrs()
+        .find(|v| v.record_id == 2112)
+        .unwrap();
+    assert!(String::from_utf8_lossy(&wkt.data).contains("4547"));
+    let mut n = 0;
+    for p in reader.points() {
+        let p = p.unwrap();
+        let t = &dsm.transform.0;
+        let (c, r) = ((p.x - t[0]) / t[1], (p.y - t[3]) / t[5]);
+        // Stored in millimetres.
+        let off = |v: f64| (v.fract() - 0.5).abs() * t[1];
+        assert!(off(c) <= 0.000_501 && off(r) <= 0.000_501, "{c} {r}");
+        let i = r as usize * dsm.width + c as usize;
+        assert!(
+            (p.z - f64::from(dsm.data[i])).abs() <= 0.000_501,
+            "{} {}",
+            p.z,
+            dsm.data[i]
+        );
+        assert_eq!(f32::from(p.intensity), count.data[i]);
+        n += 1;
+    }
+    assert_eq!(n, report["cells_with_height"].as_u64().unwrap());
+    assert_eq!(report["points"].as_u64(), Some(n));
     assert!(
         s.median_gsd.abs() <= 0.2 && s.nmad_gsd <= 1.0 && s.completeness >= 0.9,
         "{s:?}"
+    );
+}
+
+/// `[outputs] ortho_surface = "dsm"`: the tiny block's reference epoch (the one its
+/// photos orient; its archive epochs are too small to) gets its orthophoto rectified onto
+/// its own surface. Its report's cells, set against the DSM read back with GDAL: every
+/// cell with a height is the DSM's own, the others the LiDAR DEM's; the DEM product is
+/// still the LiDAR's. A project asking for it without `dsm` is refused, naming the key.
+#[test]
+fn the_orthophoto_can_be_rectified_onto_the_epochs_own_surface() {
+    let tmp = tempfile::tempdir().unwrap();
+    let blk = tmp.path().join("blk");
+    common::block_copy("tiny", 2, "good", &blk);
+    let toml = std::fs::read_to_string(blk.join("project.toml"))
+        .unwrap()
+        .replace("output = \"../run\"", "output = \"run\"");
+    let project = blk.join("ortho_on_dsm.toml");
+    std::fs::write(
+        &project,
+        format!("{toml}\n[outputs]\northo_surface = \"dsm\"\n"),
+    )
+    .unwrap();
+    let out = std::process::Command::new(common::exe())
+        .args(["--json", "run", project.to_str().unwrap()])
+        .output()
+        .unwrap();
+    // Done, or partial: the tiny block's film scans are too small to orient.
+    assert!(
+        matches!(out.status.code(), Some(0 | 3)),
+        "{}",
+        String::from_utf8_lossy(&out.stderr)
+    );
+    let run = blk.join("run");
+    let outputs = run.join("outputs-reference_2024");
+    let ortho: serde_json::Value =
+        serde_json::from_slice(&std::fs::read(outputs.join("orthophoto.json")).unwrap()).unwrap();
+    let s = &ortho["surface"];
+    assert_eq!(s["surface"], "dsm", "{ortho}");
+    let (dsm, _) = read_dem(&run.join("surface-reference_2024/dsm.tif")).unwrap();
+    let own = dsm.data.iter().filter(|v| v.is_finite()).count();
+    assert_eq!(s["cells_from_dsm"].as_u64(), Some(own as u64));
+    // The holes are filled from the LiDAR DEM where it has a height (all but a rim at
+    // its edge).
+    let holes = (dsm.data.len() - own) as f64;
+    let filled = s["cells_from_control"].as_f64().unwrap();
+    assert!(
+        filled <= holes && filled >= 0.99 * holes,
+        "{filled} of {holes}"
+    );
+    assert!(
+        own as f64 >= 0.5 * dsm.data.len() as f64,
+        "{own} of {}",
+        dsm.data.len()
+    );
+    // The DEM product is still the LiDAR's (its grid, not the DSM's).
+    let (lidar, _) = read_dem(&outputs.join("lidar_dem.tif")).unwrap();
+    assert_ne!(
+        (lidar.width, lidar.height, lidar.transform.0[1]),
+        (dsm.width, dsm.height, dsm.transform.0[1])
+    );
+
+    std::fs::write(
+        &project,
+        format!("{toml}\n[outputs]\ndsm = false\northo_surface = \"dsm\"\n"),
+    )
+    .unwrap();
+    let (ok, stdout, stderr) = common::cli(&["--json", "run", project.to_str().unwrap()]);
+    assert!(!ok);
+    assert!(
+        stdout.contains("outputs.ortho_surface") && stdout.contains("outputs.dsm"),
+        "{stdout}{stderr}"
     );
 }

@@ -19,8 +19,8 @@ const STAGES: [&str; 6] = [
     "sources",
     "dcp-orthophoto",
     "epoch-digital_2012",
-    "outputs-digital_2012",
     "surface-digital_2012",
+    "outputs-digital_2012",
     "report",
 ];
 const PHOTO: &str = "epochs/digital_2012/images/digital_s01_001.png";

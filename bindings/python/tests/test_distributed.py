@@ -85,7 +85,7 @@ def test_dask_run_with_a_killed_worker_gives_the_products_of_a_plain_run(shared_
     # pose; the film epoch's second pass (the bad scan tried with its oriented photos'
     # chips; no tie pass, since ties cannot help a scan that cannot be read); both epochs'
     # tie points (chips, tracks on the DEM, tracks beyond it). Each DCP export cut its
-    # chips photo by photo.
+    # chips photo by photo; each epoch's surface matched its stereo pairs.
     kinds = [(r["stage"], r["kind"]) for r in res["rounds"]]
     ties = ["cut", "match", "match"]
     digital = ["orient", "cut", "reorient", "cut", "reorient", "match", "reorient", *ties]
@@ -97,6 +97,9 @@ def test_dask_run_with_a_killed_worker_gives_the_products_of_a_plain_run(shared_
                      ("epoch-film_1978", "scan"), ("epoch-film_1978", "orient"),
                      ("epoch-film_1978", "cut"), ("epoch-film_1978", "reorient"),
                      *[("epoch-film_1978", k) for k in ties],
+                     # Each epoch's surface, a stereo pair a task, then its products.
+                     ("surface-reference_2024", "stereo"), ("surface-digital_2012", "stereo"),
+                     ("surface-film_1978", "stereo"),
                      ("outputs-reference_2024", "ortho"),
                      ("outputs-digital_2012", "ortho"), ("outputs-film_1978", "resample"),
                      ("outputs-film_1978", "ortho")]

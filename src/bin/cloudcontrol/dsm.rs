@@ -6,7 +6,7 @@ use std::path::PathBuf;
 use std::process::ExitCode;
 
 /// Dense matching of an oriented block's stereo pairs into a DSM (dsm.tif, dsm_count.tif,
-/// dsm_spread.tif, dsm.json in OUT).
+/// dsm_spread.tif, dsm.json in OUT; dsm_points.laz with --points).
 ///
 /// Pairs are chosen from the orientations (overlap ≥ 25 %, base-to-height 0.05–1),
 /// rectified, matched by semi-global matching within a band around the prior surface (a
@@ -36,6 +36,10 @@ pub struct Args {
     /// or removed since it was measured.
     #[arg(long, default_value_t = DsmOptions::default().prior_margin_m)]
     margin: f64,
+    /// Also write the surface as points (dsm_points.laz: a point a cell with a height,
+    /// its intensity the number of points fused there).
+    #[arg(long)]
+    points: bool,
 }
 
 pub fn run(a: Args, json: bool, quiet: bool) -> ExitCode {
@@ -76,7 +80,7 @@ pub fn run(a: Args, json: bool, quiet: bool) -> ExitCode {
         &a.block,
         &images,
         a.dem.as_deref(),
-        &a.out,
+        (&a.out, a.points),
         &options,
         |k, n, r| {
             tracing::info!(

@@ -302,7 +302,8 @@ fn execute_with(
             | TaskKind::Resample
             | TaskKind::Ortho
             | TaskKind::Chips
-            | TaskKind::Pairs,
+            | TaskKind::Pairs
+            | TaskKind::Stereo,
             _,
         ) => return Err(not_of(task, "an archive epoch")),
         (TaskKind::Cut | TaskKind::Match | TaskKind::Reorient, _) => {

@@ -22,7 +22,9 @@
 //!   photos it overlaps);
 //! - `dcp-<epoch>` ([`dcp`]): `chips` (one photo's chips of the package, cut and encoded);
 //! - an epoch's products ([`outputs`]): a film epoch's `resample` (a scan into its frame
-//!   image), then `ortho` (a run of orthophoto tiles).
+//!   image), then `ortho` (a run of orthophoto tiles);
+//! - `surface-<epoch>` ([`surface`]): `stereo` (a stereo pair matched into samples of the
+//!   epoch's DSM grid), one pair at a time in this process (each uses every thread).
 
 pub mod dcp;
 pub mod epoch;
@@ -30,6 +32,7 @@ pub mod lidar;
 pub mod outputs;
 pub mod reference;
 pub mod rounds;
+pub mod surface;
 
 pub(crate) use epoch::EpochTasks;
 pub use epoch::{open_packages, EpochContext, EpochPlan};
@@ -69,10 +72,12 @@ pub enum TaskKind {
     Chips,
     /// The reference epoch's tie matching of a photo with the later photos it overlaps.
     Pairs,
+    /// A stereo pair of an epoch matched into samples of its surface.
+    Stereo,
 }
 
 impl TaskKind {
-    const ALL: [TaskKind; 11] = [
+    const ALL: [TaskKind; 12] = [
         TaskKind::Scan,
         TaskKind::Orient,
         TaskKind::Screen,
@@ -84,6 +89,7 @@ impl TaskKind {
         TaskKind::Reorient,
         TaskKind::Chips,
         TaskKind::Pairs,
+        TaskKind::Stereo,
     ];
 
     fn of_label(label: &str) -> Option<Self> {
@@ -103,6 +109,7 @@ impl TaskKind {
             TaskKind::Reorient => "reorient",
             TaskKind::Chips => "chips",
             TaskKind::Pairs => "pairs",
+            TaskKind::Stereo => "stereo",
         }
     }
 }
@@ -258,12 +265,33 @@ impl StageTasks {
             .collect()
     }
 
-    /// Makes sure every task has its result: runs the missing ones here with `exec`, or
-    /// returns them as pending.
+    /// Makes sure every task has its result: runs the missing ones here with `exec`, as
+    /// many at a time as rayon has threads, or returns them as pending.
     pub(crate) fn ensure(
         &self,
         tasks: &[Task],
         mode: TaskMode,
+        exec: impl Fn(&Task) -> Result<TaskSummary, WorkError> + Sync,
+    ) -> Result<(), WorkError> {
+        self.ensure_with(tasks, mode, true, exec)
+    }
+
+    /// [`Self::ensure`] running the missing tasks here one at a time: for tasks that use
+    /// every thread themselves and whose memory must not be doubled (a stereo pair).
+    pub(crate) fn ensure_in_turn(
+        &self,
+        tasks: &[Task],
+        mode: TaskMode,
+        exec: impl Fn(&Task) -> Result<TaskSummary, WorkError> + Sync,
+    ) -> Result<(), WorkError> {
+        self.ensure_with(tasks, mode, false, exec)
+    }
+
+    fn ensure_with(
+        &self,
+        tasks: &[Task],
+        mode: TaskMode,
+        parallel: bool,
         exec: impl Fn(&Task) -> Result<TaskSummary, WorkError> + Sync,
     ) -> Result<(), WorkError> {
         let missing: Vec<Task> = tasks
@@ -280,21 +308,23 @@ impl StageTasks {
                 // Each task in the caller's span (its epoch), and its end as a progress
                 // event (target `cloudcontrol::progress`: the CLI's per-photo progress).
                 let (span, done) = (tracing::Span::current(), AtomicUsize::new(0));
-                missing
-                    .par_iter()
-                    .map(|t| {
-                        let _in = span.enter();
-                        exec(t)?;
-                        tracing::info!(
-                            target: "cloudcontrol::progress",
-                            work = t.kind.label(),
-                            item = %t.item,
-                            done = done.fetch_add(1, Ordering::Relaxed) + 1,
-                            total = missing.len(),
-                        );
-                        Ok(())
-                    })
-                    .collect()
+                let run = |t: &Task| {
+                    let _in = span.enter();
+                    exec(t)?;
+                    tracing::info!(
+                        target: "cloudcontrol::progress",
+                        work = t.kind.label(),
+                        item = %t.item,
+                        done = done.fetch_add(1, Ordering::Relaxed) + 1,
+                        total = missing.len(),
+                    );
+                    Ok(())
+                };
+                if parallel {
+                    missing.par_iter().map(run).collect()
+                } else {
+                    missing.iter().try_for_each(run)
+                }
             }
         }
     }
@@ -381,6 +411,7 @@ pub fn read_task_file(path: &Path) -> Result<(), WorkError> {
             k @ (TaskKind::Resample | TaskKind::Ortho) => outputs::read_result_file(k, path),
             TaskKind::Chips => dcp::read_result_file(path),
             TaskKind::Pairs => reference::read_result_file(path),
+            TaskKind::Stereo => surface::read_result_file(path),
             TaskKind::Cut | TaskKind::Match | TaskKind::Reorient => Err(not_task()),
         },
         _ => Err(not_task()),
@@ -453,5 +484,6 @@ pub fn run_task(task: &Task) -> Result<TaskSummary, WorkError> {
         TaskKind::Resample | TaskKind::Ortho => outputs::run_task(task),
         TaskKind::Chips => dcp::run_task(task),
         TaskKind::Pairs => reference::run_task(task),
+        TaskKind::Stereo => surface::run_task(task),
     }
 }

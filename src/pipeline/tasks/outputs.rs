@@ -39,6 +39,9 @@ pub struct OutputsPlan {
     /// The epoch stage's folder (the oriented block).
     pub epoch_dir: PathBuf,
     pub origin: [f64; 3],
+    /// The epoch's surface stage folder, when the orthophoto is rectified onto its DSM.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub surface_dir: Option<PathBuf>,
 }
 
 /// Everything the tasks of one products stage read: the block of the products (a film
@@ -72,8 +75,9 @@ impl OutputsContext {
             &folder.join(RESAMPLED_DIR),
         )?;
         let ground = ControlGround::new(&plan.project, &plan.sources, plan.origin);
-        let (dem, ortho) =
+        let (control, ortho) =
             products::ortho_ground(&plan.project, &block, ground.surface()?, plan.origin)?;
+        let (dem, _) = products::ortho_surface(&control, plan.surface_dir.as_deref())?;
         Ok(Self {
             block,
             frames,
