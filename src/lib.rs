@@ -9,6 +9,7 @@
 pub mod adjust;
 pub mod block;
 pub mod cache;
+pub mod change;
 pub mod control;
 pub mod dense;
 pub mod estimators;

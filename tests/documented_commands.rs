@@ -99,6 +99,7 @@ const WORKFLOW: &[&str] = &[
     "convert",
     "ortho",
     "dsm",
+    "change",
     "adjust",
     "resect",
     "io",

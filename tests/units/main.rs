@@ -10,6 +10,7 @@ mod adjust_selinv;
 mod adjust_support;
 mod adjust_tie_prior;
 mod cache;
+mod change;
 mod control_checkpoints;
 mod control_chips;
 mod control_epoch;

@@ -6,6 +6,7 @@ mod console;
 
 mod adjust;
 mod bench;
+mod change;
 mod convert;
 mod dcp;
 mod dsm;
@@ -98,6 +99,7 @@ enum Command {
     Convert(convert::Args),
     Ortho(ortho::Args),
     Dsm(dsm::Args),
+    Change(change::Args),
     /// Robust bundle adjustment of a COLMAP model with control, check points and LiDAR planes.
     ///
     /// Example: cloudcontrol adjust --model sparse/0 --control gcp.csv --measurements gcp_img.csv --self-calibrate f,k1,k2 --out adjusted
@@ -225,6 +227,7 @@ fn main() -> ExitCode {
         Command::Convert(a) => convert::run(a, cli.json, cli.quiet),
         Command::Ortho(a) => ortho::run(a, cli.json, cli.quiet),
         Command::Dsm(a) => dsm::run(a, cli.json, cli.quiet),
+        Command::Change(a) => change::run(a, cli.json, cli.quiet),
         Command::Io(a) => matching::io(a, cli.quiet),
         Command::Match(a) => matching::matching(a),
         Command::Ties(a) => matching::ties(a, cli.quiet),

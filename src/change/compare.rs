@@ -1,0 +1,220 @@
+//! Two surface models compared: B − A on A's grid (B sampled bilinearly where the grids
+//! differ, said in the report), A's terrain, the stable terrain, B's Nuth & Kääb shift
+//! and remaining tilt against A there, and the statistics of dh before and after the
+//! shift. The shift is a check of B's orientation: applied to the written dh only when
+//! asked (`apply_shift`). The one call `cloudcontrol change` makes.
+
+use super::nuth_kaab::{dh_moved, nuth_kaab, NuthKaab, NuthKaabOptions};
+use super::stable::{stable_terrain, StableOptions, StableStep};
+use super::stats::{dh_statistics, DhStatistics};
+use super::terrain::slope_aspect;
+use super::{invalid, ChangeError, Result};
+use crate::formats::raster::{read_dem, write_dem, GeoTiffOptions};
+use crate::formats::{write_bytes_atomically, FormatError};
+use crate::geometry::Dem;
+use nalgebra::{Matrix3, Vector3};
+use serde::{Deserialize, Serialize};
+use std::path::Path;
+
+/// DEM of difference, B − A (m).
+pub const DH_FILE: &str = "dh.tif";
+/// Stable terrain: 1 stable, 0 not, nodata without dh.
+pub const STABLE_FILE: &str = "stable.tif";
+/// The report.
+pub const CHANGE_REPORT_FILE: &str = "change.json";
+
+#[derive(Debug, Clone, PartialEq, Default, Serialize, Deserialize)]
+#[serde(default)]
+pub struct ChangeOptions {
+    pub stable: StableOptions,
+    pub nuth_kaab: NuthKaabOptions,
+    /// Write dh of B moved by its shift (the co-registered difference).
+    pub apply_shift: bool,
+}
+
+/// A plane fitted to dh on stable terrain: what remains after the shift when B is tilted.
+#[derive(Debug, Clone, Serialize, Deserialize)]
+pub struct Tilt {
+    /// dh gradient (m per km) east and north.
+    pub east_m_per_km: f64,
+    pub north_m_per_km: f64,
+    /// Largest height the tilt makes over the compared extent, from its centre (m).
+    pub max_over_extent_m: f64,
+}
+
+#[derive(Debug, Clone, Serialize, Deserialize)]
+pub struct ChangeReport {
+    /// A's grid: upper-left corner, cell (m), columns, rows.
+    pub x_min: f64,
+    pub y_max: f64,
+    pub cell_m: f64,
+    pub width: usize,
+    pub height: usize,
+    /// Whether B was sampled onto A's grid (bilinear) rather than sharing it.
+    pub resampled: bool,
+    pub stable_steps: Vec<StableStep>,
+    pub stable_cells: usize,
+    pub nuth_kaab: NuthKaab,
+    pub tilt: Tilt,
+    /// Whether `dh.tif` is of B moved by the shift.
+    pub shift_applied: bool,
+    /// dh on stable terrain as written, and after the shift.
+    pub statistics: DhStatistics,
+    pub statistics_after_shift: DhStatistics,
+}
+
+/// What [`compare_dems`] computes: the report, dh (as written) and the stable mask.
+pub struct Comparison {
+    pub report: ChangeReport,
+    pub dh: Vec<f64>,
+    pub stable: Vec<bool>,
+}
+
+/// B compared with the reference A (both world coordinates, the same CRS); `exclude`
+/// marks cells of A's grid known not to be stable.
+pub fn compare_dems(
+    a: &Dem,
+    b: &Dem,
+    exclude: Option<&[bool]>,
+    options: &ChangeOptions,
+) -> Result<Comparison> {
+    if !(a.transform.is_north_up() && b.transform.is_north_up()) {
+        return Err(invalid("surface models", "not north-up grids"));
+    }
+    let terrain = slope_aspect(a);
+    let raw = dh_moved(a, b, [0.0, 0.0]);
+    if raw.iter().all(|v| !v.is_finite()) {
+        return Err(ChangeError::TooLittle(
+            "the two surface models share no cell with a height".into(),
+        ));
+    }
+    let stable = stable_terrain(&raw, &terrain, exclude, &options.stable);
+    let nk = nuth_kaab(a, b, &terrain, &stable.mask, &options.nuth_kaab)?;
+    let shifted: Vec<f64> = dh_moved(a, b, [nk.shift_m[0], nk.shift_m[1]])
+        .into_iter()
+        .map(|v| v + nk.shift_m[2])
+        .collect();
+    let tilt = fit_tilt(a, &shifted, &stable.mask);
+    let statistics_after_shift = dh_statistics(&shifted, &stable.mask, &terrain);
+    let (dh, statistics) = if options.apply_shift {
+        (shifted, statistics_after_shift.clone())
+    } else {
+        let s = dh_statistics(&raw, &stable.mask, &terrain);
+        (raw, s)
+    };
+    let same_grid = a.transform == b.transform && (a.width, a.height) == (b.width, b.height);
+    let (x_min, y_max) = (a.transform.0[0], a.transform.0[3]);
+    Ok(Comparison {
+        report: ChangeReport {
+            x_min,
+            y_max,
+            cell_m: a.transform.0[1],
+            width: a.width,
+            height: a.height,
+            resampled: !same_grid,
+            stable_cells: stable.cells(),
+            stable_steps: stable.steps,
+            nuth_kaab: nk,
+            tilt,
+            shift_applied: options.apply_shift,
+            statistics,
+            statistics_after_shift,
+        },
+        dh,
+        stable: stable.mask,
+    })
+}
+
+/// Plane dh = c + e·(x − x̄) + n·(y − ȳ) by least squares over the stable cells.
+fn fit_tilt(a: &Dem, dh: &[f64], stable: &[bool]) -> Tilt {
+    let centre = |i: usize| {
+        let (c, r) = ((i % a.width) as f64 + 0.5, (i / a.width) as f64 + 0.5);
+        a.transform.pixel_to_world(c, r)
+    };
+    let (x0, y1, x1, y0) = {
+        let (a0, b0, a1, b1) = a.extent();
+        (a0, b1, a1, b0)
+    };
+    let (xm, ym) = ((x0 + x1) / 2.0, (y0 + y1) / 2.0);
+    let mut n = Matrix3::zeros();
+    let mut rhs = Vector3::zeros();
+    for (i, (&v, &m)) in dh.iter().zip(stable).enumerate() {
+        if !(m && v.is_finite()) {
+            continue;
+        }
+        let (x, y) = centre(i);
+        let row = Vector3::new(1.0, (x - xm) / 1000.0, (y - ym) / 1000.0);
+        n += row * row.transpose();
+        rhs += row * v;
+    }
+    let p = n.lu().solve(&rhs).unwrap_or_else(Vector3::zeros);
+    let (hx, hy) = ((x1 - x0) / 2000.0, (y1 - y0) / 2000.0);
+    Tilt {
+        east_m_per_km: p.y,
+        north_m_per_km: p.z,
+        max_over_extent_m: p.y.abs() * hx + p.z.abs() * hy,
+    }
+}
+
+/// Compares the rasters `b` and the reference `a` (GeoTIFF or any DEM GDAL reads, the
+/// same CRS) and writes `dh.tif`, `stable.tif` and `change.json` into `out_dir` (made if
+/// missing).
+pub fn write_change(
+    a: &Path,
+    b: &Path,
+    out_dir: &Path,
+    options: &ChangeOptions,
+) -> Result<ChangeReport> {
+    let (dem_a, crs_a) = read_dem(a)?;
+    let (dem_b, crs_b) = read_dem(b)?;
+    let crs = match (crs_a, crs_b) {
+        (Some(x), Some(y)) => {
+            if let (Some(ex), Some(ey)) = (x.epsg(), y.epsg()) {
+                if ex != ey {
+                    return Err(invalid(
+                        &b.display().to_string(),
+                        format!(
+                            "is in EPSG:{ey} but {} in EPSG:{ex}; reproject it",
+                            a.display()
+                        ),
+                    ));
+                }
+            }
+            x
+        }
+        (Some(x), None) | (None, Some(x)) => x,
+        (None, None) => {
+            return Err(invalid(
+                &a.display().to_string(),
+                "neither surface model has a CRS (heights need a projected one in metres)",
+            ))
+        }
+    };
+    if crs.is_geographic() {
+        return Err(invalid(
+            &a.display().to_string(),
+            "is in a geographic CRS: slopes and shifts need a projected CRS in metres",
+        ));
+    }
+    let cmp = compare_dems(&dem_a, &dem_b, None, options)?;
+    std::fs::create_dir_all(out_dir).map_err(|e| FormatError::io(out_dir, e))?;
+    let grid = |data: Vec<f32>| Dem::new(dem_a.width, dem_a.height, dem_a.transform, data);
+    let dh = grid(cmp.dh.iter().map(|&v| v as f32).collect())?;
+    let stable = grid(
+        cmp.dh
+            .iter()
+            .zip(&cmp.stable)
+            .map(|(v, &m)| match (v.is_finite(), m) {
+                (false, _) => f32::NAN,
+                (true, true) => 1.0,
+                (true, false) => 0.0,
+            })
+            .collect(),
+    )?;
+    let opts = GeoTiffOptions::default();
+    write_dem(&out_dir.join(DH_FILE), &dh, &crs, &opts)?;
+    write_dem(&out_dir.join(STABLE_FILE), &stable, &crs, &opts)?;
+    let json = serde_json::to_vec_pretty(&cmp.report).expect("the change report serialises");
+    write_bytes_atomically(&out_dir.join(CHANGE_REPORT_FILE), &json)?;
+    Ok(cmp.report)
+}

@@ -1,0 +1,121 @@
+//! Elevation change (src/change/): Nuth & Kääb against a known shift of an analytic
+//! terrain, the stable terrain leaving out what changed, and the statistics by hand.
+
+use cloudcontrol::change::{compare_dems, dh_statistics, slope_aspect, ChangeOptions};
+use cloudcontrol::geometry::{Dem, GeoTransform};
+
+/// Hills of every aspect: a sum of sines and a cone, smooth at the 1 m cell.
+fn terrain(x: f64, y: f64) -> f64 {
+    100.0
+        + 6.0 * (x / 23.0).sin() * (y / 31.0).cos()
+        + 4.0 * ((x + y) / 17.0).sin()
+        + 0.02 * ((x - 120.0).powi(2) + (y - 90.0).powi(2)).sqrt()
+}
+
+/// A `w × h` grid of 1 m cells from (0, h) of `f`, sampled at cell centres.
+fn grid(w: usize, h: usize, cell: f64, f: impl Fn(f64, f64) -> f64) -> Dem {
+    let t = GeoTransform::north_up(0.0, h as f64 * cell, cell);
+    let data = (0..w * h)
+        .map(|i| {
+            let (x, y) = t.pixel_to_world((i % w) as f64 + 0.5, (i / w) as f64 + 0.5);
+            f(x, y) as f32
+        })
+        .collect();
+    Dem::new(w, h, t, data).unwrap()
+}
+
+/// B is A moved by (1.3, −0.7, +0.45) m with a 12 m block built on it: the shift found is
+/// the one that moves B back (to 0.05 cells and 1 cm; 0.006 cells measured), the block is
+/// not stable terrain, and after the shift dh is zero there (median and NMAD below 1 cm).
+#[test]
+fn nuth_kaab_finds_a_known_shift_and_the_change_is_not_stable() {
+    let (sx, sy, sz) = (1.3, -0.7, 0.45);
+    let a = grid(240, 180, 1.0, terrain);
+    let building = |x: f64, y: f64| (60.0..90.0).contains(&x) && (40.0..75.0).contains(&y);
+    let b = grid(240, 180, 1.0, |x, y| {
+        terrain(x - sx, y - sy) + sz + if building(x, y) { 12.0 } else { 0.0 }
+    });
+    let cmp = compare_dems(&a, &b, None, &ChangeOptions::default()).unwrap();
+    let nk = &cmp.report.nuth_kaab;
+    eprintln!("{nk:?}");
+    assert!(nk.converged, "{nk:?}");
+    assert!(
+        (nk.shift_m[0] + sx).abs() < 0.05 && (nk.shift_m[1] + sy).abs() < 0.05,
+        "{nk:?}"
+    );
+    assert!((nk.shift_m[2] + sz).abs() < 0.01, "{nk:?}");
+    // Not one cell of the block's inside is stable.
+    let inside = (0..a.data.len()).filter(|&i| {
+        let (x, y) = a
+            .transform
+            .pixel_to_world((i % 240) as f64 + 0.5, (i / 240) as f64 + 0.5);
+        building(x - 3.0, y - 3.0) && building(x + 3.0, y + 3.0)
+    });
+    for i in inside {
+        assert!(!cmp.stable[i], "cell {i} of the block is stable");
+    }
+    let after = &cmp.report.statistics_after_shift;
+    assert!(
+        after.median_m.abs() < 0.01 && after.nmad_m < 0.01,
+        "{after:?}"
+    );
+    // Before the shift, dh carries it: the median is about sz, the spread the slopes'.
+    let before = &cmp.report.statistics;
+    assert!(
+        (before.median_m - sz).abs() < 0.1 && before.nmad_m > 0.1,
+        "{before:?}"
+    );
+    assert!(!cmp.report.resampled && !cmp.report.shift_applied);
+    // No tilt was put in; what the plane finds is the bilinear sampling of curved terrain.
+    assert!(
+        cmp.report.tilt.max_over_extent_m < 0.05,
+        "{:?}",
+        cmp.report.tilt
+    );
+}
+
+/// The statistics of a hand-made dh: median, NMAD, mean, std, quantiles as numpy gives.
+#[test]
+fn statistics_of_a_hand_made_difference() {
+    let a = grid(4, 2, 1.0, |_, _| 0.0);
+    let terrain = slope_aspect(&a);
+    let dh = [1.0, -2.0, 3.0, 0.5, f64::NAN, 10.0, -1.0, 0.0];
+    let mask = [true, true, true, true, true, false, true, true];
+    let s = dh_statistics(&dh, &mask, &terrain);
+    // Values: -2, -1, 0, 0.5, 1, 3.
+    assert_eq!(s.cells, 6);
+    assert!((s.median_m - 0.25).abs() < 1e-12);
+    // |v − 0.25|: 2.25, 1.25, 0.25, 0.25, 0.75, 2.75 → median 1.0.
+    assert!((s.nmad_m - 1.4826).abs() < 1e-12);
+    assert!((s.mean_m - 1.5 / 6.0).abs() < 1e-12);
+    let var = [-2.0f64, -1.0, 0.0, 0.5, 1.0, 3.0]
+        .iter()
+        .map(|v| (v - 0.25).powi(2))
+        .sum::<f64>()
+        / 6.0;
+    assert!((s.std_m - var.sqrt()).abs() < 1e-12);
+    // numpy.quantile(values, 0.16) = -2 + ... linear: position 0.8 → -2 + 0.8 = -1.2.
+    assert!(
+        (s.quantiles_m[1] + 1.2).abs() < 1e-12,
+        "{:?}",
+        s.quantiles_m
+    );
+    // Flat terrain: every cell in the first slope class.
+    assert_eq!(s.by_slope[0].cells, 6);
+}
+
+/// Slope and aspect of a plane rising to the east at 10 %: tan 0.1, aspect 90°.
+#[test]
+fn slope_and_aspect_of_a_plane() {
+    let a = grid(6, 5, 2.0, |x, _| 0.1 * x);
+    let t = slope_aspect(&a);
+    for i in 0..30 {
+        assert!((t.slope_tan[i] - 0.1).abs() < 1e-6);
+        assert!((t.aspect[i].to_degrees() - 90.0).abs() < 1e-4);
+    }
+    let n = grid(6, 5, 2.0, |_, y| 0.2 * y);
+    let t = slope_aspect(&n);
+    assert!(
+        t.aspect[7].to_degrees().abs() < 1e-4 || (t.aspect[7].to_degrees() - 360.0).abs() < 1e-4
+    );
+}
