@@ -16,6 +16,7 @@
 //! present (NMAD against the epoch's truth and against the present's). The worst case of
 //! each column is named at the end.
 
+use cloudcontrol::change::{compare_dems, ChangeOptions};
 use cloudcontrol::dense::epoch::{epoch_dsm, DsmOptions};
 use cloudcontrol::dense::products::DsmReport;
 use cloudcontrol::formats::raster::read_dem;
@@ -55,6 +56,23 @@ struct Row {
     changed_cells: usize,
     #[serde(deserialize_with = "nan_from_null")]
     changed_nmad_vs_present_gsd: f64,
+    /// Nuth & Kääb shift of the DSM to its truth (east, north, up; GSD): what the matching
+    /// itself misplaces, with true orientations.
+    shift_gsd: [f64; 3],
+}
+
+/// The Nuth & Kääb shift (GSD) of `dsm` to the truth of `epoch` in the block `dir`.
+fn shift_to_truth(
+    dir: &Path,
+    epoch: &str,
+    dsm: &cloudcontrol::geometry::Dem,
+    gsd: f64,
+) -> [f64; 3] {
+    let (truth, _) = read_dem(&dir.join(format!("truth/epochs/{epoch}/dsm.tif"))).unwrap();
+    match compare_dems(&truth, dsm, None, &ChangeOptions::default()) {
+        Ok(c) => c.report.nuth_kaab.shift_m.map(|v| v / gsd),
+        Err(_) => [f64::NAN; 3],
+    }
 }
 
 fn block_dir(preset: &str, seed: u64) -> PathBuf {
@@ -144,6 +162,7 @@ fn one(dir: &Path, epoch: &str, plane: bool) {
         changed_nmad_gsd: s.changed_nmad_gsd,
         changed_cells: s.changed_cells,
         changed_nmad_vs_present_gsd: s.changed_nmad_vs_present_gsd,
+        shift_gsd: shift_to_truth(dir, epoch, &out.surface.dsm, gsd),
     };
     println!("ROW {}", serde_json::to_string(&row).unwrap());
 }
@@ -168,8 +187,9 @@ fn score_run(run: &Path, block_dir: &Path) {
         let pairs = report.pair_ids();
         let gsd = report.ground_pixel_m;
         let s = score_surface(block_dir, epoch, &dsm, &block, &pairs, gsd).unwrap();
+        let shift = shift_to_truth(block_dir, epoch, &dsm, gsd);
         println!(
-            "{epoch:<15} {:>3} pairs, {:>6.1} s: median {:+.3} GSD, NMAD {:.3} GSD, completeness {:.3}, changed NMAD {:.3} GSD ({} cells, {:.1} GSD from the present)",
+            "{epoch:<15} {:>3} pairs, {:>6.1} s: median {:+.3} GSD, NMAD {:.3} GSD, completeness {:.3}, changed NMAD {:.3} GSD ({} cells, {:.1} GSD from the present), shift to truth {:+.2} {:+.2} {:+.2} GSD",
             pairs.len(),
             report.seconds,
             s.median_gsd,
@@ -177,7 +197,10 @@ fn score_run(run: &Path, block_dir: &Path) {
             s.completeness,
             s.changed_nmad_gsd,
             s.changed_cells,
-            s.changed_nmad_vs_present_gsd
+            s.changed_nmad_vs_present_gsd,
+            shift[0],
+            shift[1],
+            shift[2]
         );
     }
 }
@@ -216,7 +239,7 @@ fn main() {
         }
     );
     println!(
-        "{:<6} {:<15} {:>5} {:>6} {:>7} {:>7} {:>8} {:>8} {:>7} {:>7} {:>8} {:>8} {:>7}",
+        "{:<6} {:<15} {:>5} {:>6} {:>7} {:>7} {:>8} {:>8} {:>7} {:>7} {:>8} {:>8} {:>7} {:>6} {:>6} {:>6}",
         "seed",
         "epoch",
         "pairs",
@@ -229,7 +252,10 @@ fn main() {
         "compl",
         "chg NMAD",
         "vs now",
-        "chg n"
+        "chg n",
+        "dE",
+        "dN",
+        "dZ"
     );
     let mut worst: Vec<(String, f64, String)> = Vec::new();
     let mut note = |what: &str, v: f64, at: String, higher_is_worse: bool| {
@@ -263,16 +289,22 @@ fn main() {
             };
             let r: Row = serde_json::from_str(json).unwrap();
             println!(
-                "{:<6} {:<15} {:>5} {:>6.3} {:>7.1} {:>7.1} {:>8.0} {:>+8.3} {:>7.3} {:>7.3} {:>8.3} {:>8.3} {:>7}",
+                "{:<6} {:<15} {:>5} {:>6.3} {:>7.1} {:>7.1} {:>8.0} {:>+8.3} {:>7.3} {:>7.3} {:>8.3} {:>8.3} {:>7} {:>+6.2} {:>+6.2} {:>+6.2}",
                 seed, epoch, r.pairs, r.gsd, r.seconds, r.cpu_seconds, r.peak_mib, r.median_gsd,
                 r.nmad_gsd, r.completeness, r.changed_nmad_gsd, r.changed_nmad_vs_present_gsd,
-                r.changed_cells
+                r.changed_cells, r.shift_gsd[0], r.shift_gsd[1], r.shift_gsd[2]
             );
             let at = format!("seed {seed} {epoch}");
             note("|median| GSD", r.median_gsd.abs(), at.clone(), true);
             note("NMAD GSD", r.nmad_gsd, at.clone(), true);
             note("completeness", r.completeness, at.clone(), false);
             note("changed NMAD GSD", r.changed_nmad_gsd, at.clone(), true);
+            note(
+                "plan shift GSD",
+                r.shift_gsd[0].hypot(r.shift_gsd[1]),
+                at.clone(),
+                true,
+            );
             note("peak MiB", r.peak_mib, at.clone(), true);
             note("wall s", r.seconds, at, true);
         }

@@ -9,6 +9,7 @@ use super::stable::{stable_terrain, StableOptions, StableStep};
 use super::stats::{dh_statistics, DhStatistics};
 use super::terrain::slope_aspect;
 use super::{invalid, ChangeError, Result};
+use crate::formats::crs::Crs;
 use crate::formats::raster::{read_dem, write_dem, GeoTiffOptions};
 use crate::formats::{write_bytes_atomically, FormatError};
 use crate::geometry::Dem;
@@ -198,9 +199,18 @@ pub fn write_change(
     }
     let cmp = compare_dems(&dem_a, &dem_b, None, options)?;
     std::fs::create_dir_all(out_dir).map_err(|e| FormatError::io(out_dir, e))?;
-    let grid = |data: Vec<f32>| Dem::new(dem_a.width, dem_a.height, dem_a.transform, data);
-    let dh = grid(cmp.dh.iter().map(|&v| v as f32).collect())?;
-    let stable = grid(
+    write_rasters(out_dir, &dem_a, &cmp, &crs)?;
+    let json = serde_json::to_vec_pretty(&cmp.report).expect("the change report serialises");
+    write_bytes_atomically(&out_dir.join(CHANGE_REPORT_FILE), &json)?;
+    Ok(cmp.report)
+}
+
+/// Writes [`DH_FILE`] and [`STABLE_FILE`] of `cmp` into `dir`, on the grid of its reference
+/// `grid`, in `crs`.
+pub fn write_rasters(dir: &Path, grid: &Dem, cmp: &Comparison, crs: &Crs) -> Result<()> {
+    let on_grid = |data: Vec<f32>| Dem::new(grid.width, grid.height, grid.transform, data);
+    let dh = on_grid(cmp.dh.iter().map(|&v| v as f32).collect())?;
+    let stable = on_grid(
         cmp.dh
             .iter()
             .zip(&cmp.stable)
@@ -212,9 +222,7 @@ pub fn write_change(
             .collect(),
     )?;
     let opts = GeoTiffOptions::default();
-    write_dem(&out_dir.join(DH_FILE), &dh, &crs, &opts)?;
-    write_dem(&out_dir.join(STABLE_FILE), &stable, &crs, &opts)?;
-    let json = serde_json::to_vec_pretty(&cmp.report).expect("the change report serialises");
-    write_bytes_atomically(&out_dir.join(CHANGE_REPORT_FILE), &json)?;
-    Ok(cmp.report)
+    write_dem(&dir.join(DH_FILE), &dh, crs, &opts)?;
+    write_dem(&dir.join(STABLE_FILE), &stable, crs, &opts)?;
+    Ok(())
 }

@@ -35,6 +35,11 @@ impl Default for NuthKaabOptions {
     }
 }
 
+/// A last step at least this long (reference cells) after the iterations leaves the shift
+/// undetermined ([`NuthKaab::note`]); a shorter one is a shift known better than the
+/// 0.05 cell users ask of it, though short of xdem's stopping rule.
+pub const UNDETERMINED_STEP_PX: f64 = 0.05;
+
 /// The shift that aligns B to A: B moved by `shift_m` (east, north, up) matches A.
 #[derive(Debug, Clone, Serialize, Deserialize)]
 pub struct NuthKaab {
@@ -45,8 +50,9 @@ pub struct NuthKaab {
     pub converged: bool,
     /// Stable cells the fit used (finite dh and slope).
     pub cells: usize,
-    /// Why the shift is not to be trusted, when it is not (no convergence: the terrain
-    /// does not determine it, too flat or too few sloped cells).
+    /// Why the shift is not to be trusted, when it is not: the iterations ended with a step
+    /// of [`UNDETERMINED_STEP_PX`] or more (the terrain does not determine the shift: too
+    /// flat, too few sloped cells).
     #[serde(skip_serializing_if = "Option::is_none")]
     pub note: Option<String>,
 }
@@ -146,13 +152,15 @@ pub fn nuth_kaab(
         ));
     }
     let dz = median(&mut stable_dh);
+    // NaN (no step, or a fit that failed) is not determined either.
+    let determined = last_step < UNDETERMINED_STEP_PX;
     Ok(NuthKaab {
         shift_m: [t[0], t[1], -dz],
         shift_px: [t[0] / cell, t[1] / cell],
         iterations,
         converged,
         cells,
-        note: (!converged).then(|| {
+        note: (!converged && !determined).then(|| {
             format!(
                 "not converged in {iterations} iterations (last step {last_step:.3} cells, \
                  {cells} sloped stable cells): the terrain does not determine the shift"

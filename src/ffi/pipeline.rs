@@ -43,6 +43,15 @@ impl From<WorkError> for FfiError {
             WorkError::Format(e) => e.into(),
             WorkError::Dcp(e) => e.into(),
             WorkError::Dense(e) => e.into(),
+            WorkError::Change(e) => {
+                use crate::change::ChangeError as C;
+                match e {
+                    C::Geometry(g) => g.into(),
+                    C::Format(f) => f.into(),
+                    C::TooLittle(_) => FfiError::new(CcpStatus::Numeric, e.to_string()),
+                    C::InvalidInput { .. } => FfiError::invalid(e.to_string()),
+                }
+            }
             WorkError::Checkpoints(e) => {
                 let status = match &e {
                     Eval::UnknownPhoto { .. } | Eval::UnknownPoint { .. } => {

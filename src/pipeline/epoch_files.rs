@@ -158,6 +158,7 @@ pub fn epoch_report(
             .map(|a| a.variance_components.clone())
             .unwrap_or_default(),
         warnings: Vec::new(),
+        surface_change: Vec::new(),
     };
     rep.set_check_statistics();
     rep.warnings = gather::epoch_warnings(result, &rep);

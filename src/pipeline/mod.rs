@@ -2,6 +2,7 @@
 //! `demo` that runs on built-in data.
 
 pub mod bench;
+pub mod change;
 pub mod demo;
 pub mod epoch_files;
 pub mod film_frames;

@@ -240,6 +240,9 @@ pub struct Outputs {
     pub dsm: bool,
     /// The DSM also as points (`surface-<epoch>/dsm_points.laz`, a point a cell).
     pub dsm_points: bool,
+    /// Each epoch's surface against the control's and the next younger epoch's
+    /// (`change-<epoch>/`: dh, stable terrain, Nuth & Kääb shift, statistics); needs `dsm`.
+    pub change: bool,
     pub html_report: bool,
     /// Ground pixel of orthophotos, as a multiple of the epoch's GSD.
     pub ortho_gsd_factor: f64,
@@ -259,6 +262,7 @@ impl Default for Outputs {
             dem: true,
             dsm: true,
             dsm_points: false,
+            change: true,
             html_report: true,
             ortho_gsd_factor: 1.0,
             ortho_surface: OrthoSurface::Control,

@@ -1040,6 +1040,53 @@ fn run_stages(
         }
     }
 
+    // 5b. Each epoch's surface against the control's (today) and the next younger epoch's.
+    if o.dsm && o.change {
+        let crs = Crs::parse(&project.crs).map_err(|e| StageError::Failed {
+            stage: "change".into(),
+            source: Box::new(e.into()),
+        })?;
+        let against = if with_lidar {
+            "lidar_surface"
+        } else {
+            "control_dem"
+        };
+        let options = crate::change::ChangeOptions::default();
+        for (k, e) in epochs.iter().enumerate() {
+            let _epoch = tracing::error_span!("epoch", name = %e.name).entered();
+            let Some(sdir) = surface_dirs[k].clone() else {
+                continue;
+            };
+            let younger = k
+                .checked_sub(1)
+                .and_then(|j| Some((epochs[j].name.clone(), surface_dirs[j].clone()?)));
+            let cdir = stage!(
+                format!("change-{}", e.name),
+                Inputs::new()
+                    .file(&sources)
+                    .file(&sdir)
+                    .file_if(younger.as_ref().map(|y| y.1.as_path()))
+                    .param("change", &options),
+                |dir: &Path| {
+                    super::change::write_epoch_change(
+                        &e.name,
+                        &sdir,
+                        younger.as_ref().map(|(n, d)| (n.as_str(), d.as_path())),
+                        (lidar.surface()?, against),
+                        lidar.origin,
+                        &crs,
+                        &options,
+                        dir,
+                    )
+                }
+            );
+            let dh = cdir.join(crate::change::compare::DH_FILE);
+            if dh.exists() {
+                products.entry(e.name.clone()).or_default().push(dh);
+            }
+        }
+    }
+
     // 6. Products per epoch.
     let mut ortho_preview: Option<OrthoPreview> = None;
     if want_outputs {
@@ -1113,6 +1160,7 @@ fn run_stages(
                 epoch: d.clone(),
                 dcp: runner.dir(&format!("dcp-{}", e.name)),
                 outputs: runner.dir(&format!("outputs-{}", e.name)),
+                change: runner.dir(&format!("change-{}", e.name)),
             })
             .collect(),
     };

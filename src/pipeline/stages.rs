@@ -69,6 +69,8 @@ pub enum WorkError {
     Checkpoints(#[from] crate::control::checkpoints::EvaluationError),
     #[error(transparent)]
     Dense(#[from] crate::dense::DenseError),
+    #[error(transparent)]
+    Change(#[from] crate::change::ChangeError),
     /// Inputs that are each valid but do not fit together (LiDAR in another CRS, no tile
     /// under the photos).
     #[error("{0}")]

@@ -173,6 +173,20 @@ fn sample_report() -> Report {
             } else {
                 Vec::new()
             },
+            surface_change: if film {
+                vec![SurfaceChange {
+                    against: "lidar_surface".into(),
+                    shift_gsd: [0.41, -0.12, 0.05],
+                    shift_plan_gsd: 0.4272,
+                    converged: true,
+                    stable_cells: 45_431,
+                    median_m: -0.113,
+                    nmad_m: 0.141,
+                    flag: Some("shift 0.43 GSD in plan".into()),
+                }]
+            } else {
+                Vec::new()
+            },
         };
         e.set_check_statistics();
         epochs.push(e);
@@ -581,6 +595,10 @@ fn html_report_renders_in_headless_chromium() {
     );
     // Each epoch says what controlled it.
     assert!(html.contains("<td>LiDAR (tie points by ICP and plane constraints)</td>"));
+    // The film epoch's surface against the LiDAR, flagged.
+    assert!(html.contains(
+        "<tr class=\"bad\"><td>film-1985</td><td>1985</td><td>lidar_surface</td><td>0.41</td>"
+    ));
     assert!(html.contains("<td>DCPs of epoch reference</td>"));
     // Tie statistics: points × photos, σ0 of each group, and the standard positions short
     // of points (i % 5 < 3 at top-left for photos 1, 2, 5, 6, 7, 10, 11: photo 0's is not

@@ -297,10 +297,12 @@ pub fn existing_warnings(r: &ExistingReport) -> Vec<Warning> {
 /// Folders of one epoch's stages.
 pub struct EpochFolders {
     pub name: String,
-    /// `epoch-<name>/`, `dcp-<name>/`, `outputs-<name>/` (the last two need not exist).
+    /// `epoch-<name>/`, `dcp-<name>/`, `outputs-<name>/`, `change-<name>/` (the last
+    /// three need not exist).
     pub epoch: PathBuf,
     pub dcp: PathBuf,
     pub outputs: PathBuf,
+    pub change: PathBuf,
 }
 
 /// The folders of a run the report reads.
@@ -323,6 +325,7 @@ impl RunFolders {
             f.push(e.epoch.join("epoch.json"));
             f.push(e.dcp.join("skipped.json"));
             f.push(e.outputs.join("skipped.json"));
+            f.push(e.change.join(crate::change::compare::CHANGE_REPORT_FILE));
         }
         f.retain(|p| p.is_file());
         f
@@ -421,6 +424,29 @@ pub fn make_report(
                     WarningKind::Products,
                     format!("{product} not written: {reason}"),
                 ));
+            }
+        }
+        if let Some(c) = read_if_file::<crate::pipeline::change::EpochChange>(
+            f.change.join(crate::change::compare::CHANGE_REPORT_FILE),
+        )? {
+            for cmp in std::iter::once(&c.control).chain(c.younger.as_ref()) {
+                let r = &cmp.change;
+                if let Some(flag) = &cmp.flag {
+                    e.warnings.push(Warning::new(
+                        WarningKind::SurfaceShift,
+                        format!("surface against {}: {flag}", cmp.against),
+                    ));
+                }
+                e.surface_change.push(SurfaceChange {
+                    against: cmp.against.clone(),
+                    shift_gsd: cmp.shift_gsd,
+                    shift_plan_gsd: cmp.shift_plan_gsd,
+                    converged: r.nuth_kaab.converged,
+                    stable_cells: r.stable_cells,
+                    median_m: r.statistics.median_m,
+                    nmad_m: r.statistics.nmad_m,
+                    flag: cmp.flag.clone(),
+                });
             }
         }
         epochs.push(e);

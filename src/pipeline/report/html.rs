@@ -251,6 +251,50 @@ fn lidar_html(report: &Report) -> String {
 }
 
 /// The accuracy table, one row per epoch.
+/// Each epoch's own surface against the control's and the next younger epoch's: the
+/// Nuth & Kääb shift in ground pixels (a check of the orientation) and dh on stable
+/// terrain. Empty when no epoch has a comparison.
+fn surface_change_table(report: &Report) -> String {
+    if report.epochs.iter().all(|e| e.surface_change.is_empty()) {
+        return String::new();
+    }
+    let mut h = String::from(
+        "<section id=\"surface-change\"><h2>Surfaces through time</h2>\
+         <p>Each epoch's own surface (dense matching) against the control's surface and the \
+         next younger epoch's: the Nuth &amp; Kääb shift that would move it onto the other \
+         (in the epoch's ground pixels; not applied) and the height difference on stable \
+         terrain (change-&lt;epoch&gt;/).</p>\
+         <table id=\"surface-change-table\"><tr><th>epoch</th><th>date</th><th>against</th>\
+         <th>shift E (GSD)</th><th>N (GSD)</th><th>up (GSD)</th><th>plan (GSD)</th>\
+         <th>stable cells</th><th>median dh (m)</th><th>NMAD (m)</th><th>flag</th></tr>",
+    );
+    for e in &report.epochs {
+        for c in &e.surface_change {
+            let bad = if c.flag.is_some() {
+                " class=\"bad\""
+            } else {
+                ""
+            };
+            h.push_str(&format!(
+                "<tr{bad}><td>{}</td><td>{}</td><td>{}</td><td>{}</td><td>{}</td><td>{}</td><td>{}</td><td>{}</td><td>{}</td><td>{}</td><td>{}</td></tr>",
+                esc(&e.name),
+                esc(&e.date),
+                esc(&c.against),
+                fmt(c.shift_gsd[0], 2),
+                fmt(c.shift_gsd[1], 2),
+                fmt(c.shift_gsd[2], 2),
+                fmt(c.shift_plan_gsd, 2),
+                c.stable_cells,
+                fmt(c.median_m, 3),
+                fmt(c.nmad_m, 3),
+                esc(c.flag.as_deref().unwrap_or(""))
+            ));
+        }
+    }
+    h.push_str("</table></section>");
+    h
+}
+
 fn accuracy_table(report: &Report) -> String {
     let mut h = String::from(
         "<table id=\"accuracy-table\"><tr><th>epoch</th><th>date</th><th>GSD (m)</th><th>photos oriented</th>\
@@ -556,6 +600,7 @@ pub fn render_html(report: &Report) -> Result<String, String> {
         ));
     }
     html.push_str("</section>");
+    html.push_str(&surface_change_table(report));
     html.push_str(&lidar_html(report));
     html.push_str("<h2>Control and checkpoints</h2>");
     html.push_str(&figure(

@@ -136,6 +136,29 @@ pub enum WarningKind {
     Lidar,
     /// A product or DCP package not written.
     Products,
+    /// An epoch's surface shifted against the control's beyond the limits, or a shift
+    /// the terrain does not determine (`change-<epoch>/`).
+    SurfaceShift,
+}
+
+/// One comparison of an epoch's own surface (`change-<epoch>/change.json`), in short.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub struct SurfaceChange {
+    /// `lidar_surface`, `control_dem`, or the younger epoch's name.
+    pub against: String,
+    /// Nuth & Kääb shift (east, north, up) of the epoch's surface onto it, in the epoch's
+    /// ground pixels, and its plan length.
+    pub shift_gsd: [f64; 3],
+    pub shift_plan_gsd: f64,
+    pub converged: bool,
+    pub stable_cells: usize,
+    /// dh = epoch − `against` on stable terrain.
+    #[serde(deserialize_with = "nan_if_null")]
+    pub median_m: f64,
+    #[serde(deserialize_with = "nan_if_null")]
+    pub nmad_m: f64,
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub flag: Option<String>,
 }
 
 /// One thing a user should know about the run, recorded where it was decided.
@@ -207,6 +230,9 @@ pub struct EpochReport {
     /// `report.json`) those of its DCP and products stages.
     #[serde(default)]
     pub warnings: Vec<Warning>,
+    /// The epoch's own surface against the control's and the next younger epoch's.
+    #[serde(default)]
+    pub surface_change: Vec<SurfaceChange>,
 }
 
 impl EpochReport {
