@@ -50,6 +50,10 @@ pub struct NuthKaab {
     pub converged: bool,
     /// Stable cells the fit used (finite dh and slope).
     pub cells: usize,
+    /// Standard errors (m) of the horizontal shift east and north, from the last fit's
+    /// residuals over the aspect bins: a shift within about twice them is not determined
+    /// by the data (noisy dh over gentle slopes), whatever its size.
+    pub sigma_m: [f64; 2],
     /// Why the shift is not to be trusted, when it is not: the iterations ended with a step
     /// of [`UNDETERMINED_STEP_PX`] or more (the terrain does not determine the shift: too
     /// flat, too few sloped cells).
@@ -89,6 +93,7 @@ pub fn nuth_kaab(
     let mut cells = 0;
     let mut dh = dh_moved(a, b, t);
     let mut last_step = f64::NAN;
+    let mut sigma_m = [f64::NAN; 2];
     for _ in 0..options.max_iterations {
         iterations += 1;
         let mut used: Vec<(f64, f64, f64)> = stable
@@ -112,7 +117,7 @@ pub fn nuth_kaab(
         // Least squares of y = p1 sin ψ + p2 cos ψ + p3 over the bins' medians.
         let mut n = Matrix3::zeros();
         let mut rhs = Vector3::zeros();
-        let mut filled = 0;
+        let mut points = Vec::with_capacity(bins);
         for (k, ys) in binned.iter_mut().enumerate() {
             if ys.is_empty() {
                 continue;
@@ -122,8 +127,9 @@ pub fn nuth_kaab(
             let row = Vector3::new(psi.sin(), psi.cos(), 1.0);
             n += row * row.transpose();
             rhs += row * y;
-            filled += 1;
+            points.push((row, y));
         }
+        let filled = points.len();
         if filled < 3 {
             return Err(ChangeError::TooLittle(format!(
                 "{cells} stable cells with a slope fill {filled} of {bins} aspect bins (3 needed)"
@@ -132,6 +138,16 @@ pub fn nuth_kaab(
         let p = n.lu().solve(&rhs).ok_or_else(|| {
             ChangeError::TooLittle("the aspect bins do not determine a shift".into())
         })?;
+        if filled > 3 {
+            let rss: f64 = points
+                .iter()
+                .map(|(row, y)| (y - row.dot(&p)).powi(2))
+                .sum();
+            let s2 = rss / (filled - 3) as f64;
+            if let Some(inv) = n.try_inverse() {
+                sigma_m = [(s2 * inv[(0, 0)]).sqrt(), (s2 * inv[(1, 1)]).sqrt()];
+            }
+        }
         t[0] += p.x;
         t[1] += p.y;
         dh = dh_moved(a, b, t);
@@ -160,6 +176,7 @@ pub fn nuth_kaab(
         iterations,
         converged,
         cells,
+        sigma_m,
         note: (!converged && !determined).then(|| {
             format!(
                 "not converged in {iterations} iterations (last step {last_step:.3} cells, \

@@ -657,12 +657,21 @@ pub fn rewrite_las(
     // The LAZ writer adds its own laszip VLR.
     builder.vlrs.retain(|v| v.user_id != "laszip encoded");
     let header = builder.into_header().map_err(|e| las_err(input, e))?;
-    let points = reader.points().enumerate().filter_map(|(i, p)| match p {
-        Err(e) => Some(Err(crate::formats::FormatError::invalid(
-            output,
-            format!("reading {}: point {i}: {e}", input.display()),
-        ))),
-        Ok(p) => edit(i as u64, p).map(Ok),
+    let transforms = *header.transforms();
+    let points = reader.points().enumerate().filter_map(|(i, p)| {
+        let fail = |m: String| crate::formats::FormatError::invalid(output, m);
+        match p {
+            Err(e) => Some(Err(fail(format!(
+                "reading {}: point {i}: {e}",
+                input.display()
+            )))),
+            // Named by its index in the input, which the caller's `edit` knows it by.
+            Ok(p) => edit(i as u64, p).map(|q| {
+                super::las_write::storable(&transforms, &q)
+                    .map(|()| q)
+                    .map_err(|m| fail(format!("point {i} of {}: {m}", input.display())))
+            }),
+        }
     });
     Ok(super::las_write::write_points(output, header, points)?)
 }

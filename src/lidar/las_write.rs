@@ -58,14 +58,7 @@ pub fn write_points(
             let mut n = 0u64;
             for p in points {
                 let p = p?;
-                for (axis, v, t) in [("x", p.x, t.x), ("y", p.y, t.y), ("z", p.z, t.z)] {
-                    if !v.is_finite() || t.inverse(v).is_err() {
-                        return Err(fail(format!(
-                            "point {n} written: {axis} = {v} cannot be stored with scale {} and offset {}",
-                            t.scale, t.offset
-                        )));
-                    }
-                }
+                storable(&t, &p).map_err(|m| fail(format!("point {n} written: {m}")))?;
                 w.write_point(p)
                     .map_err(|e| fail(format!("cannot write point {n}: {e}")))?;
                 n += 1;
@@ -83,4 +76,18 @@ pub fn write_points(
             Err(fail(format!("the LAS writer failed: {what}")))
         })
     })
+}
+
+/// Whether the header's scale and offset `t` can hold point `p` (finite, within the
+/// 32-bit integers of the format); the coordinate that cannot, said.
+pub(crate) fn storable(t: &las::Vector<las::Transform>, p: &las::Point) -> Result<(), String> {
+    for (axis, v, t) in [("x", p.x, t.x), ("y", p.y, t.y), ("z", p.z, t.z)] {
+        if !v.is_finite() || t.inverse(v).is_err() {
+            return Err(format!(
+                "{axis} = {v} cannot be stored with scale {} and offset {}",
+                t.scale, t.offset
+            ));
+        }
+    }
+    Ok(())
 }

@@ -48,9 +48,11 @@ pub struct EpochComparison {
     pub against: String,
     /// The epoch's ground pixel (m).
     pub ground_pixel_m: f64,
-    /// Nuth & Kääb shift (east, north, up) in ground pixels, and its plan length.
+    /// Nuth & Kääb shift (east, north, up) in ground pixels, its plan length, and the
+    /// standard error of that length.
     pub shift_gsd: [f64; 3],
     pub shift_plan_gsd: f64,
+    pub shift_plan_sigma_gsd: f64,
     /// Why the shift is beyond [`ShiftLimits`] (or not determined), when it is.
     #[serde(skip_serializing_if = "Option::is_none")]
     pub flag: Option<String>,
@@ -143,11 +145,25 @@ fn comparison(
     let s = change.nuth_kaab.shift_m;
     let shift_gsd = [s[0] / gsd, s[1] / gsd, s[2] / gsd];
     let plan = shift_gsd[0].hypot(shift_gsd[1]);
+    // The standard error of the plan length, along the shift's direction.
+    let [se, sn] = change.nuth_kaab.sigma_m.map(|v| v / gsd);
+    let sigma = if plan > 0.0 {
+        ((shift_gsd[0] * se).powi(2) + (shift_gsd[1] * sn).powi(2)).sqrt() / plan
+    } else {
+        se.hypot(sn)
+    };
+    let beyond_plan = plan > limits.plan_gsd;
     let flag = if let Some(note) = &change.nuth_kaab.note {
         Some(note.clone())
-    } else if plan > limits.plan_gsd || shift_gsd[2].abs() > limits.height_gsd {
+    } else if beyond_plan || shift_gsd[2].abs() > limits.height_gsd {
+        // Beyond the limits, and said whether the data determine it (twice its σ).
+        let determined = if beyond_plan && plan <= 2.0 * sigma {
+            " — within twice its standard error: not determined by this terrain"
+        } else {
+            ""
+        };
         Some(format!(
-            "shift {plan:.2} GSD in plan, {:+.2} GSD in height against {against} (limits {} and {})",
+            "shift {plan:.2} ± {sigma:.2} GSD in plan, {:+.2} GSD in height against {against} (limits {} and {}){determined}",
             shift_gsd[2], limits.plan_gsd, limits.height_gsd
         ))
     } else {
@@ -158,6 +174,7 @@ fn comparison(
         ground_pixel_m: gsd,
         shift_gsd,
         shift_plan_gsd: plan,
+        shift_plan_sigma_gsd: sigma,
         flag,
         change,
     }

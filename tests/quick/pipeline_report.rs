@@ -178,6 +178,7 @@ fn sample_report() -> Report {
                     against: "lidar_surface".into(),
                     shift_gsd: [0.41, -0.12, 0.05],
                     shift_plan_gsd: 0.4272,
+                    shift_plan_sigma_gsd: 0.05,
                     converged: true,
                     stable_cells: 45_431,
                     median_m: -0.113,

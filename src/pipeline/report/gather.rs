@@ -441,6 +441,7 @@ pub fn make_report(
                     against: cmp.against.clone(),
                     shift_gsd: cmp.shift_gsd,
                     shift_plan_gsd: cmp.shift_plan_gsd,
+                    shift_plan_sigma_gsd: cmp.shift_plan_sigma_gsd,
                     converged: r.nuth_kaab.converged,
                     stable_cells: r.stable_cells,
                     median_m: r.statistics.median_m,

@@ -276,7 +276,7 @@ fn surface_change_table(report: &Report) -> String {
                 ""
             };
             h.push_str(&format!(
-                "<tr{bad}><td>{}</td><td>{}</td><td>{}</td><td>{}</td><td>{}</td><td>{}</td><td>{}</td><td>{}</td><td>{}</td><td>{}</td><td>{}</td></tr>",
+                "<tr{bad}><td>{}</td><td>{}</td><td>{}</td><td>{}</td><td>{}</td><td>{}</td><td>{} ± {}</td><td>{}</td><td>{}</td><td>{}</td><td>{}</td></tr>",
                 esc(&e.name),
                 esc(&e.date),
                 esc(&c.against),
@@ -284,6 +284,7 @@ fn surface_change_table(report: &Report) -> String {
                 fmt(c.shift_gsd[1], 2),
                 fmt(c.shift_gsd[2], 2),
                 fmt(c.shift_plan_gsd, 2),
+                fmt(c.shift_plan_sigma_gsd, 2),
                 c.stable_cells,
                 fmt(c.median_m, 3),
                 fmt(c.nmad_m, 3),

@@ -150,6 +150,9 @@ pub struct SurfaceChange {
     /// ground pixels, and its plan length.
     pub shift_gsd: [f64; 3],
     pub shift_plan_gsd: f64,
+    /// Standard error of the plan length (GSD).
+    #[serde(default, deserialize_with = "nan_if_null")]
+    pub shift_plan_sigma_gsd: f64,
     pub converged: bool,
     pub stable_cells: usize,
     /// dh = epoch − `against` on stable terrain.
