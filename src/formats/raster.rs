@@ -45,36 +45,50 @@ fn creation_options(opts: &GeoTiffOptions, width: usize, height: usize) -> Vec<S
     list
 }
 
-/// Writes a DEM as a float32 GeoTIFF with CRS, geotransform and nodata.
+/// Writes a DEM as a float32 Cloud-Optimised GeoTIFF (GDAL's COG driver: tiled,
+/// DEFLATE with the floating-point predictor, overviews by nodata-aware averaging where
+/// the raster is larger than a tile, the IFDs before the data) with CRS, geotransform and
+/// nodata; `opts.overviews` when given are the overview levels. Built in memory first:
+/// the COG driver writes by copying a whole dataset.
 pub fn write_dem(path: &Path, dem: &Dem, crs: &Crs, opts: &GeoTiffOptions) -> Result<()> {
     write_atomically(path, |tmp| {
-        let driver = Driver::by_name("GTiff").map_err(|e| FormatError::gdal(path, e))?;
-        let co = creation_options(opts, dem.width, dem.height);
-        let mut ds = driver
-            .create::<f32>(tmp, (dem.width, dem.height), 1, &co)
-            .map_err(|e| FormatError::gdal(path, e))?;
-        ds.set_geo_transform(&dem.transform.0)
-            .map_err(|e| FormatError::gdal(path, e))?;
-        ds.set_spatial_ref(crs.spatial_ref())
-            .map_err(|e| FormatError::gdal(path, e))?;
+        let err = |e| FormatError::gdal(path, e);
+        let mem = Driver::by_name("MEM").map_err(err)?;
+        let mut ds = mem
+            .create::<f32>(Path::new(""), (dem.width, dem.height), 1, &[] as &[&str])
+            .map_err(err)?;
+        ds.set_geo_transform(&dem.transform.0).map_err(err)?;
+        ds.set_spatial_ref(crs.spatial_ref()).map_err(err)?;
         {
-            let mut band = ds.rasterband(1).map_err(|e| FormatError::gdal(path, e))?;
-            band.set_no_data_value(DEM_NODATA as f64)
-                .map_err(|e| FormatError::gdal(path, e))?;
+            let mut band = ds.rasterband(1).map_err(err)?;
+            band.set_no_data_value(DEM_NODATA as f64).map_err(err)?;
             let data: Vec<f32> = dem
                 .data
                 .iter()
                 .map(|&v| if v.is_finite() { v } else { DEM_NODATA })
                 .collect();
             band.write((0, 0), (dem.width, dem.height), &data)
-                .map_err(|e| FormatError::gdal(path, e))?;
+                .map_err(err)?;
         }
-        if !opts.overviews.is_empty() {
+        // Overview levels asked for are built here and kept; else the driver's own (halving
+        // until the raster fits a tile).
+        let overviews = if opts.overviews.is_empty() {
+            "OVERVIEWS=AUTO"
+        } else {
             ds.build_overviews("AVERAGE", &opts.overviews)
-                .map_err(|e| FormatError::gdal(path, e))?;
-        }
-        ds.flush_cache().map_err(|e| FormatError::gdal(path, e))?;
-        drop(ds);
+                .map_err(err)?;
+            "OVERVIEWS=FORCE_USE_EXISTING"
+        };
+        let cog = Driver::by_name("COG").map_err(err)?;
+        let co = [
+            format!("COMPRESS={}", opts.compress),
+            "PREDICTOR=YES".into(),
+            format!("BLOCKSIZE={}", opts.tile),
+            "RESAMPLING=AVERAGE".into(),
+            overviews.into(),
+            "BIGTIFF=IF_SAFER".into(),
+        ];
+        ds.create_copy(&cog, tmp, &co).map_err(err)?;
         Ok(())
     })
 }

@@ -119,6 +119,11 @@ fn the_dsm_command_makes_the_surface_of_a_colmap_block() {
         .unwrap()
         .contains("4547"));
     assert!(info["bands"][0]["noDataValue"].is_number());
+    // A Cloud-Optimised GeoTIFF, as GDAL reads its layout.
+    assert_eq!(
+        info["metadata"]["IMAGE_STRUCTURE"]["LAYOUT"], "COG",
+        "{info}"
+    );
     assert_eq!(
         info["geoTransform"][1].as_f64().unwrap(),
         report["cell_m"].as_f64().unwrap()

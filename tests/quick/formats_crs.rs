@@ -226,6 +226,8 @@ fn geotiff_dem_round_trip_is_exact_and_gdalinfo_agrees() {
         info["metadata"]["IMAGE_STRUCTURE"]["COMPRESSION"],
         "DEFLATE"
     );
+    // Cloud-Optimised: GDAL reads the COG layout.
+    assert_eq!(info["metadata"]["IMAGE_STRUCTURE"]["LAYOUT"], "COG");
 }
 
 #[test]
