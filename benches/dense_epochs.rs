@@ -16,7 +16,7 @@
 //! present (NMAD against the epoch's truth and against the present's). The worst case of
 //! each column is named at the end.
 
-use cloudcontrol::change::{compare_dems, ChangeOptions};
+use cloudcontrol::change::{changed_areas, compare_dems, AreaOptions, ChangeOptions};
 use cloudcontrol::dense::epoch::{epoch_dsm, DsmOptions};
 use cloudcontrol::dense::products::DsmReport;
 use cloudcontrol::formats::raster::read_dem;
@@ -203,6 +203,103 @@ fn score_run(run: &Path, block_dir: &Path) {
             shift[2]
         );
     }
+    for epoch in &EPOCHS[1..] {
+        match changed_area_score(run, block_dir, epoch) {
+            Some((found, truth, right, detected)) => println!(
+                "{epoch:<15} changed areas against today: recall {found}/{truth} ({:.2}), precision {right}/{detected} ({:.2})",
+                found as f64 / truth.max(1) as f64,
+                right as f64 / detected.max(1) as f64
+            ),
+            None => println!("{epoch:<15} no change-{epoch}/changed_areas.geojson"),
+        }
+    }
+}
+
+/// The changed areas the run's `change-<epoch>` stage found against the present, scored
+/// against the synthetic truth: the cells of the LiDAR grid where the epoch's true surface
+/// stands 2 m or more from the present's, as 4-connected objects of at least 25 m². An
+/// object is found when half its cells lie in a detected area; a detected area is right
+/// when half its cells are true change. Returns (found, objects, right, detected).
+fn changed_area_score(
+    run: &Path,
+    block_dir: &Path,
+    epoch: &str,
+) -> Option<(usize, usize, usize, usize)> {
+    let dir = run.join(format!("change-{epoch}"));
+    let (dh, _) = read_dem(&dir.join("dh.tif")).ok()?;
+    let geo: serde_json::Value =
+        serde_json::from_slice(&std::fs::read(dir.join("changed_areas.geojson")).ok()?).ok()?;
+    let (then, _) = read_dem(&block_dir.join(format!("truth/epochs/{epoch}/dsm.tif"))).ok()?;
+    let (now, _) = read_dem(&block_dir.join(format!("truth/epochs/{}/dsm.tif", EPOCHS[0]))).ok()?;
+    let n = dh.data.len();
+    let centre = |i: usize| {
+        dh.transform
+            .pixel_to_world((i % dh.width) as f64 + 0.5, (i / dh.width) as f64 + 0.5)
+    };
+    // True change on the dh grid; detected cells: inside a detected polygon's outer ring.
+    let truth: Vec<f64> = (0..n)
+        .map(|i| {
+            let (x, y) = centre(i);
+            match (then.height_at(x, y), now.height_at(x, y)) {
+                (Some(a), Some(b)) if (a - b).abs() >= 2.0 => 10.0,
+                _ => 0.0,
+            }
+        })
+        .collect();
+    let grid = |data: &[f64]| {
+        cloudcontrol::geometry::Dem::new(
+            dh.width,
+            dh.height,
+            dh.transform,
+            data.iter().map(|&v| v as f32).collect(),
+        )
+        .unwrap()
+    };
+    let objects = changed_areas(
+        &truth,
+        &grid(&truth),
+        (0.0, 0.0),
+        &AreaOptions {
+            k_nmad: 0.0,
+            min_dh_m: 1.0,
+            min_area_m2: 25.0,
+        },
+    )
+    .ok()?;
+    let rings: Vec<Vec<[f64; 2]>> = geo["features"]
+        .as_array()?
+        .iter()
+        .filter_map(|f| serde_json::from_value(f["geometry"]["coordinates"][0].clone()).ok())
+        .collect();
+    let inside = |ring: &[[f64; 2]], (x, y): (f64, f64)| {
+        let mut odd = false;
+        for w in ring.windows(2) {
+            let ([x0, y0], [x1, y1]) = (w[0], w[1]);
+            if (y0 > y) != (y1 > y) && x < x0 + (y - y0) * (x1 - x0) / (y1 - y0) {
+                odd = !odd;
+            }
+        }
+        odd
+    };
+    let detected: Vec<bool> = (0..n)
+        .map(|i| rings.iter().any(|r| inside(r, centre(i))))
+        .collect();
+    let found = objects
+        .iter()
+        .filter(|o| {
+            let ring = &o.rings[0];
+            let cells: Vec<usize> = (0..n).filter(|&i| inside(ring, centre(i))).collect();
+            2 * cells.iter().filter(|&&i| detected[i]).count() >= cells.len()
+        })
+        .count();
+    let right = rings
+        .iter()
+        .filter(|ring| {
+            let cells: Vec<usize> = (0..n).filter(|&i| inside(ring, centre(i))).collect();
+            2 * cells.iter().filter(|&&i| truth[i] > 0.0).count() >= cells.len()
+        })
+        .count();
+    Some((found, objects.len(), right, rings.len()))
 }
 
 fn main() {

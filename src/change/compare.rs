@@ -4,6 +4,7 @@
 //! shift. The shift is a check of B's orientation: applied to the written dh only when
 //! asked (`apply_shift`). The one call `cloudcontrol change` makes.
 
+use super::areas::{areas_geojson, changed_areas, AreaOptions, ChangedArea};
 use super::nuth_kaab::{dh_moved, nuth_kaab, NuthKaab, NuthKaabOptions};
 use super::stable::{stable_terrain, StableOptions, StableStep};
 use super::stats::{dh_statistics, DhStatistics};
@@ -23,12 +24,15 @@ pub const DH_FILE: &str = "dh.tif";
 pub const STABLE_FILE: &str = "stable.tif";
 /// The report.
 pub const CHANGE_REPORT_FILE: &str = "change.json";
+/// The changed areas as GeoJSON polygons.
+pub const CHANGED_AREAS_FILE: &str = "changed_areas.geojson";
 
 #[derive(Debug, Clone, PartialEq, Default, Serialize, Deserialize)]
 #[serde(default)]
 pub struct ChangeOptions {
     pub stable: StableOptions,
     pub nuth_kaab: NuthKaabOptions,
+    pub areas: AreaOptions,
     /// Write dh of B moved by its shift (the co-registered difference).
     pub apply_shift: bool,
 }
@@ -62,6 +66,11 @@ pub struct ChangeReport {
     /// dh on stable terrain as written, and after the shift.
     pub statistics: DhStatistics,
     pub statistics_after_shift: DhStatistics,
+    /// The changed areas of the written dh ([`CHANGED_AREAS_FILE`]): how many, their area
+    /// and net volume.
+    pub changed_areas: usize,
+    pub changed_area_m2: f64,
+    pub changed_volume_m3: f64,
 }
 
 /// What [`compare_dems`] computes: the report, dh (as written) and the stable mask.
@@ -69,6 +78,7 @@ pub struct Comparison {
     pub report: ChangeReport,
     pub dh: Vec<f64>,
     pub stable: Vec<bool>,
+    pub areas: Vec<ChangedArea>,
 }
 
 /// B compared with the reference A (both world coordinates, the same CRS); `exclude`
@@ -103,6 +113,12 @@ pub fn compare_dems(
         let s = dh_statistics(&raw, &stable.mask, &terrain);
         (raw, s)
     };
+    let areas = changed_areas(
+        &dh,
+        a,
+        (statistics.median_m, statistics.nmad_m),
+        &options.areas,
+    )?;
     let same_grid = a.transform == b.transform && (a.width, a.height) == (b.width, b.height);
     let (x_min, y_max) = (a.transform.0[0], a.transform.0[3]);
     Ok(Comparison {
@@ -120,9 +136,13 @@ pub fn compare_dems(
             shift_applied: options.apply_shift,
             statistics,
             statistics_after_shift,
+            changed_areas: areas.len(),
+            changed_area_m2: areas.iter().map(|a| a.area_m2).sum(),
+            changed_volume_m3: areas.iter().map(|a| a.volume_m3).sum(),
         },
         dh,
         stable: stable.mask,
+        areas,
     })
 }
 
@@ -205,8 +225,8 @@ pub fn write_change(
     Ok(cmp.report)
 }
 
-/// Writes [`DH_FILE`] and [`STABLE_FILE`] of `cmp` into `dir`, on the grid of its reference
-/// `grid`, in `crs`.
+/// Writes [`DH_FILE`], [`STABLE_FILE`] and [`CHANGED_AREAS_FILE`] of `cmp` into `dir`, on
+/// the grid of its reference `grid`, in `crs`.
 pub fn write_rasters(dir: &Path, grid: &Dem, cmp: &Comparison, crs: &Crs) -> Result<()> {
     let on_grid = |data: Vec<f32>| Dem::new(grid.width, grid.height, grid.transform, data);
     let dh = on_grid(cmp.dh.iter().map(|&v| v as f32).collect())?;
@@ -224,5 +244,9 @@ pub fn write_rasters(dir: &Path, grid: &Dem, cmp: &Comparison, crs: &Crs) -> Res
     let opts = GeoTiffOptions::default();
     write_dem(&dir.join(DH_FILE), &dh, crs, &opts)?;
     write_dem(&dir.join(STABLE_FILE), &stable, crs, &opts)?;
+    let name = crs.epsg().map(|e| format!("urn:ogc:def:crs:EPSG::{e}"));
+    let json = serde_json::to_vec_pretty(&areas_geojson(&cmp.areas, name.as_deref()))
+        .expect("GeoJSON serialises");
+    write_bytes_atomically(&dir.join(CHANGED_AREAS_FILE), &json)?;
     Ok(())
 }

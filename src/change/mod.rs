@@ -6,14 +6,17 @@
 //! statistics of dh there (median, NMAD, quantiles, by slope class).
 //!
 //! The steps compose as xdem's: [`terrain`] (slope and aspect of A) → [`stable`] (the mask)
-//! → [`nuth_kaab`] (the shift) → [`stats`]; [`compare`] runs them on two rasters.
+//! → [`nuth_kaab`] (the shift) → [`stats`] → [`areas`] (what changed, as polygons);
+//! [`compare`] runs them on two rasters.
 
+pub mod areas;
 pub mod compare;
 pub mod nuth_kaab;
 pub mod stable;
 pub mod stats;
 pub mod terrain;
 
+pub use areas::{areas_geojson, changed_areas, AreaOptions, ChangedArea};
 pub use compare::{compare_dems, write_change, ChangeOptions, ChangeReport};
 pub use nuth_kaab::{nuth_kaab, NuthKaab, NuthKaabOptions};
 pub use stable::{stable_terrain, StableOptions, StableTerrain};

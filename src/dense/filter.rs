@@ -94,31 +94,19 @@ pub fn remove_speckles(
             continue;
         }
         seen[start] = true;
-        region.clear();
-        stack.push(start);
-        while let Some(p) = stack.pop() {
-            region.push(p);
-            let d = disparity[p];
-            let (x, y) = (p % width, p / width);
-            let mut visit = |q: usize| {
-                if !seen[q] && disparity[q].is_finite() && (disparity[q] - d).abs() <= max_diff {
-                    seen[q] = true;
-                    stack.push(q);
-                }
-            };
-            if x > 0 {
-                visit(p - 1);
-            }
-            if x + 1 < width {
-                visit(p + 1);
-            }
-            if y > 0 {
-                visit(p - width);
-            }
-            if y + 1 < height {
-                visit(p + width);
-            }
-        }
+        crate::geometry::region::grow_region(
+            (width, height),
+            start,
+            &mut region,
+            &mut stack,
+            |p, q| {
+                let joins = !seen[q]
+                    && disparity[q].is_finite()
+                    && (disparity[q] - disparity[p]).abs() <= max_diff;
+                seen[q] |= joins;
+                joins
+            },
+        );
         if region.len() <= max_size {
             for &p in &region {
                 disparity[p] = f32::NAN;

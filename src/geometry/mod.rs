@@ -11,6 +11,7 @@ mod collinearity;
 mod dem;
 mod hartley;
 mod interior;
+pub mod region;
 mod rotation;
 pub mod serde_matrix;
 mod similarity;

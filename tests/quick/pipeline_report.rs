@@ -183,6 +183,8 @@ fn sample_report() -> Report {
                     stable_cells: 45_431,
                     median_m: -0.113,
                     nmad_m: 0.141,
+                    changed_areas: 3,
+                    changed_area_m2: 412.0,
                     flag: Some("shift 0.43 GSD in plan".into()),
                 }]
             } else {

@@ -119,3 +119,71 @@ fn slope_and_aspect_of_a_plane() {
         t.aspect[7].to_degrees().abs() < 1e-4 || (t.aspect[7].to_degrees() - 360.0).abs() < 1e-4
     );
 }
+
+/// Changed areas by hand: a 6 × 5 block raised 3 m with a 2 × 1 hole, a 2-cell bump below
+/// the least area, and noise below the least dh. One area: 28 cells, its outline the
+/// block's 22-corner boundary walked counter-clockwise, the hole's clockwise; its volume
+/// 28 × 3 m³.
+#[test]
+fn changed_areas_by_hand() {
+    let (w, h) = (12, 10);
+    let grid = grid(w, h, 1.0, |_, _| 0.0);
+    let mut dh = vec![0.0; w * h];
+    for (i, v) in dh.iter_mut().enumerate() {
+        *v = 0.01 * ((i * 7919) % 13) as f64 - 0.06;
+    }
+    for r in 2..7 {
+        for c in 3..9 {
+            dh[r * w + c] = 3.0;
+        }
+    }
+    dh[4 * w + 5] = 0.0;
+    dh[4 * w + 6] = 0.0;
+    dh[9 * w] = -2.0;
+    dh[9 * w + 1] = -2.0;
+    let opts = cloudcontrol::change::AreaOptions {
+        min_area_m2: 4.0,
+        ..Default::default()
+    };
+    let areas = cloudcontrol::change::changed_areas(&dh, &grid, (0.0, 0.05), &opts).unwrap();
+    assert_eq!(areas.len(), 1, "{areas:?}");
+    let a = &areas[0];
+    assert_eq!(a.cells, 28);
+    assert!((a.area_m2 - 28.0).abs() < 1e-9 && (a.volume_m3 - 84.0).abs() < 1e-9);
+    assert_eq!(a.rings.len(), 2);
+    let signed = |ring: &[[f64; 2]]| {
+        ring.windows(2)
+            .map(|p| p[0][0] * p[1][1] - p[1][0] * p[0][1])
+            .sum::<f64>()
+            / 2.0
+    };
+    // Outer ring: the 6 × 5 block, counter-clockwise; hole: 2 × 1, clockwise.
+    assert!(
+        (signed(&a.rings[0]) - 30.0).abs() < 1e-9,
+        "{:?}",
+        a.rings[0]
+    );
+    assert!((signed(&a.rings[1]) + 2.0).abs() < 1e-9, "{:?}", a.rings[1]);
+    assert_eq!(a.rings[0].first(), a.rings[0].last());
+    // Corners of the block in world coordinates (grid origin (0, 10), 1 m cells).
+    let xs: Vec<f64> = a.rings[0].iter().map(|p| p[0]).collect();
+    let ys: Vec<f64> = a.rings[0].iter().map(|p| p[1]).collect();
+    assert_eq!(xs.iter().cloned().fold(f64::MAX, f64::min), 3.0);
+    assert_eq!(xs.iter().cloned().fold(f64::MIN, f64::max), 9.0);
+    assert_eq!(ys.iter().cloned().fold(f64::MAX, f64::min), 3.0);
+    assert_eq!(ys.iter().cloned().fold(f64::MIN, f64::max), 8.0);
+    // Two members touching only at a corner stay two areas (4-neighbours).
+    let mut diag = vec![0.0; w * h];
+    for (r, c) in [(1, 1), (2, 2)] {
+        diag[r * w + c] = 5.0;
+    }
+    let one = cloudcontrol::change::AreaOptions {
+        min_area_m2: 1.0,
+        ..Default::default()
+    };
+    let d = cloudcontrol::change::changed_areas(&diag, &grid, (0.0, 0.05), &one).unwrap();
+    assert_eq!(d.len(), 2);
+    assert!(d
+        .iter()
+        .all(|a| a.rings.len() == 1 && a.rings[0].len() == 5));
+}

@@ -55,6 +55,8 @@ def test_change_agrees_with_xdem(tmp_path):
     with rasterio.open(out / "dh.tif") as d:
         dh = d.read(1)
         assert d.transform == from_origin(x0, y1, cell, cell)
+        # Cloud-Optimised GeoTIFF, by GDAL's reading of its layout.
+        assert d.tags(ns="IMAGE_STRUCTURE").get("LAYOUT") == "COG"
     # The block is not stable terrain.
     assert not stable[block].any()
 
@@ -75,6 +77,15 @@ def test_change_agrees_with_xdem(tmp_path):
     assert abs(st["median_m"] - float(np.median(dh_xdem[stable]))) < 0.001
     assert abs(st["nmad_m"] - float(nmad(dh_xdem[stable]))) < 0.001
     assert st["cells"] == int(stable.sum())
+    # The block is the changed area, read back by geopandas: its polygon covers its
+    # 30 x 35 m and its volume is 12 m over them (within the shift's blur of its edges).
+    gpd = pytest.importorskip("geopandas")
+    areas = gpd.read_file(out / "changed_areas.geojson")
+    big = areas.loc[areas.area.idxmax()]
+    assert abs(big.geometry.area - 30 * 35) < 0.1 * 30 * 35, big
+    assert abs(big["volume_m3"] - 12 * 30 * 35) < 0.1 * 12 * 30 * 35, big
+    assert big.geometry.contains(gpd.points_from_xy([x0 + 75], [y1 - h * cell + 57])[0])
+    assert rep["changed_areas"] == len(areas)
     # After the shift, dh on stable terrain is nothing but the resampling.
     after = rep["statistics_after_shift"]
     assert abs(after["median_m"]) < 0.01 and after["nmad_m"] < 0.01

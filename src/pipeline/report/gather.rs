@@ -446,6 +446,8 @@ pub fn make_report(
                     stable_cells: r.stable_cells,
                     median_m: r.statistics.median_m,
                     nmad_m: r.statistics.nmad_m,
+                    changed_areas: r.changed_areas,
+                    changed_area_m2: r.changed_area_m2,
                     flag: cmp.flag.clone(),
                 });
             }

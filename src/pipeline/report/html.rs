@@ -266,7 +266,8 @@ fn surface_change_table(report: &Report) -> String {
          terrain (change-&lt;epoch&gt;/).</p>\
          <table id=\"surface-change-table\"><tr><th>epoch</th><th>date</th><th>against</th>\
          <th>shift E (GSD)</th><th>N (GSD)</th><th>up (GSD)</th><th>plan (GSD)</th>\
-         <th>stable cells</th><th>median dh (m)</th><th>NMAD (m)</th><th>flag</th></tr>",
+         <th>stable cells</th><th>median dh (m)</th><th>NMAD (m)</th>\
+         <th>changed areas (m²)</th><th>flag</th></tr>",
     );
     for e in &report.epochs {
         for c in &e.surface_change {
@@ -276,7 +277,7 @@ fn surface_change_table(report: &Report) -> String {
                 ""
             };
             h.push_str(&format!(
-                "<tr{bad}><td>{}</td><td>{}</td><td>{}</td><td>{}</td><td>{}</td><td>{}</td><td>{} ± {}</td><td>{}</td><td>{}</td><td>{}</td><td>{}</td></tr>",
+                "<tr{bad}><td>{}</td><td>{}</td><td>{}</td><td>{}</td><td>{}</td><td>{}</td><td>{} ± {}</td><td>{}</td><td>{}</td><td>{}</td><td>{} ({})</td><td>{}</td></tr>",
                 esc(&e.name),
                 esc(&e.date),
                 esc(&c.against),
@@ -288,6 +289,8 @@ fn surface_change_table(report: &Report) -> String {
                 c.stable_cells,
                 fmt(c.median_m, 3),
                 fmt(c.nmad_m, 3),
+                c.changed_areas,
+                fmt(c.changed_area_m2, 0),
                 esc(c.flag.as_deref().unwrap_or(""))
             ));
         }

@@ -160,6 +160,11 @@ pub struct SurfaceChange {
     pub median_m: f64,
     #[serde(deserialize_with = "nan_if_null")]
     pub nmad_m: f64,
+    /// Changed areas (`changed_areas.geojson`): how many and their area (m²).
+    #[serde(default)]
+    pub changed_areas: usize,
+    #[serde(default)]
+    pub changed_area_m2: f64,
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub flag: Option<String>,
 }
