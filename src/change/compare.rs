@@ -5,7 +5,7 @@
 //! asked (`apply_shift`). The one call `cloudcontrol change` makes.
 
 use super::areas::{areas_geojson, changed_areas, AreaOptions, ChangedArea};
-use super::nuth_kaab::{dh_moved, nuth_kaab, NuthKaab, NuthKaabOptions};
+use super::nuth_kaab::{dh_moved, nuth_kaab_from, NuthKaab, NuthKaabOptions};
 use super::stable::{stable_terrain, StableOptions, StableStep};
 use super::stats::{dh_statistics, DhStatistics};
 use super::terrain::slope_aspect;
@@ -100,11 +100,15 @@ pub fn compare_dems(
         ));
     }
     let stable = stable_terrain(&raw, &terrain, exclude, &options.stable);
-    let nk = nuth_kaab(a, b, &terrain, &stable.mask, &options.nuth_kaab)?;
-    let shifted: Vec<f64> = dh_moved(a, b, [nk.shift_m[0], nk.shift_m[1]])
-        .into_iter()
-        .map(|v| v + nk.shift_m[2])
-        .collect();
+    let (nk, moved) = nuth_kaab_from(
+        a,
+        b,
+        &terrain,
+        &stable.mask,
+        &options.nuth_kaab,
+        raw.clone(),
+    )?;
+    let shifted: Vec<f64> = moved.into_iter().map(|v| v + nk.shift_m[2]).collect();
     let tilt = fit_tilt(a, &shifted, &stable.mask);
     let statistics_after_shift = dh_statistics(&shifted, &stable.mask, &terrain);
     let (dh, statistics) = if options.apply_shift {

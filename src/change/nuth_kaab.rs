@@ -85,13 +85,27 @@ pub fn nuth_kaab(
     stable: &[bool],
     options: &NuthKaabOptions,
 ) -> Result<NuthKaab> {
+    nuth_kaab_from(a, b, terrain, stable, options, dh_moved(a, b, [0.0, 0.0])).map(|r| r.0)
+}
+
+/// [`nuth_kaab`] from `dh`, B − A as given ([`dh_moved`] unmoved, which the caller has
+/// already); also returns dh of B moved horizontally by the shift found (its vertical part
+/// not added): each iteration samples B over the whole grid, so neither end is sampled
+/// twice.
+pub fn nuth_kaab_from(
+    a: &Dem,
+    b: &Dem,
+    terrain: &Terrain,
+    stable: &[bool],
+    options: &NuthKaabOptions,
+    mut dh: Vec<f64>,
+) -> Result<(NuthKaab, Vec<f64>)> {
     let cell = a.transform.0[1];
     let bins = options.bins.max(3);
     let mut t = [0.0f64; 2];
     let mut iterations = 0;
     let mut converged = false;
     let mut cells = 0;
-    let mut dh = dh_moved(a, b, t);
     let mut last_step = f64::NAN;
     let mut sigma_m = [f64::NAN; 2];
     for _ in 0..options.max_iterations {
@@ -170,7 +184,7 @@ pub fn nuth_kaab(
     let dz = median(&mut stable_dh);
     // NaN (no step, or a fit that failed) is not determined either.
     let determined = last_step < UNDETERMINED_STEP_PX;
-    Ok(NuthKaab {
+    let found = NuthKaab {
         shift_m: [t[0], t[1], -dz],
         shift_px: [t[0] / cell, t[1] / cell],
         iterations,
@@ -183,5 +197,6 @@ pub fn nuth_kaab(
                  {cells} sloped stable cells): the terrain does not determine the shift"
             )
         }),
-    })
+    };
+    Ok((found, dh))
 }
