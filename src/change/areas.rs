@@ -1,8 +1,15 @@
 //! Changed areas: the connected cells (4-neighbours) whose dh departs from the stable
-//! terrain's median by more than `k_nmad` × its NMAD (and by at least `min_dh_m`), kept
-//! when they cover `min_area_m2`; each with its area, volume change (Σ dh × cell area,
-//! relative to the stable median) and outline, traced along cell edges into GeoJSON
-//! polygons (outer ring counter-clockwise, holes clockwise, as RFC 7946 asks).
+//! terrain's median by more than the level of detection, kept when they cover
+//! `min_area_m2`; each with its area, volume change (Σ dh × cell area, relative to the
+//! stable median) and outline, traced along cell edges into GeoJSON polygons (outer ring
+//! counter-clockwise, holes clockwise, as RFC 7946 asks).
+//!
+//! The level of detection varies by cell where the surfaces say how well each cell is
+//! known (Wheaton et al. 2010, "minimum level of detection" of a DoD):
+//! `max(min_dh_m, k_nmad · sqrt(NMAD² + σ²))`, NMAD that of dh on stable terrain and σ the
+//! cell's own 1σ (e.g. the spread of the pairs a fused DSM took its median of). A cell
+//! whose pairs disagree — a building edge seen half as roof and half as ground, a
+//! mismatch one pair made — is not called changed on a difference its own spread explains.
 
 use super::{ChangeError, Result};
 use crate::geometry::Dem;
@@ -43,24 +50,35 @@ pub struct ChangedArea {
 }
 
 /// The changed areas of `dh` (per cell of `grid`, NaN without data) against the stable
-/// terrain's `median` and `nmad`.
+/// terrain's `median` and `nmad`; `cell_sigma` (per cell, m; NaN or absent: unknown, 0)
+/// raises the level of detection where a cell is known worse than the stable terrain.
 pub fn changed_areas(
     dh: &[f64],
     grid: &Dem,
     (median, nmad): (f64, f64),
+    cell_sigma: Option<&[f64]>,
     options: &AreaOptions,
 ) -> Result<Vec<ChangedArea>> {
     let (w, h) = (grid.width, grid.height);
-    if dh.len() != w * h {
-        return Err(ChangeError::InvalidInput {
-            what: "dh".into(),
-            message: format!("{} values for a grid of {w}×{h}", dh.len()),
-        });
+    for (what, n) in [
+        ("dh", Some(dh.len())),
+        ("cell σ", cell_sigma.map(<[f64]>::len)),
+    ] {
+        if let Some(n) = n.filter(|&n| n != w * h) {
+            return Err(ChangeError::InvalidInput {
+                what: what.into(),
+                message: format!("{n} values for a grid of {w}×{h}"),
+            });
+        }
     }
-    let limit = (options.k_nmad * nmad).max(options.min_dh_m);
     let changed: Vec<bool> = dh
         .iter()
-        .map(|v| v.is_finite() && (v - median).abs() > limit)
+        .enumerate()
+        .map(|(i, v)| {
+            let s = cell_sigma.map_or(0.0, |s| if s[i].is_finite() { s[i] } else { 0.0 });
+            let limit = (options.k_nmad * nmad.hypot(s)).max(options.min_dh_m);
+            v.is_finite() && (v - median).abs() > limit
+        })
         .collect();
     let cell_area = grid.transform.0[1] * -grid.transform.0[5];
     let mut label = vec![usize::MAX; w * h];

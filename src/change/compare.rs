@@ -81,12 +81,47 @@ pub struct Comparison {
     pub areas: Vec<ChangedArea>,
 }
 
-/// B compared with the reference A (both world coordinates, the same CRS); `exclude`
-/// marks cells of A's grid known not to be stable.
+/// What is known of the two surface models cell by cell besides their heights.
+#[derive(Debug, Clone, Copy, Default)]
+pub struct CellKnowledge<'a> {
+    /// Cells of A's grid known not to be stable (A's buildings and trees).
+    pub exclude: Option<&'a [bool]>,
+    /// 1σ of A's heights (m) per cell of A's grid, e.g. the spread a fused DSM wrote.
+    pub sigma_a: Option<&'a Dem>,
+    /// 1σ of B's heights (m) on B's grid.
+    pub sigma_b: Option<&'a Dem>,
+}
+
+impl CellKnowledge<'_> {
+    /// sqrt(σa² + σb²) at each cell of A's grid, B's σ taken where dh took B's height
+    /// (moved by `t`); None when neither is known.
+    fn sigma_on(&self, a: &Dem, t: [f64; 2]) -> Option<Vec<f64>> {
+        if self.sigma_a.is_none() && self.sigma_b.is_none() {
+            return None;
+        }
+        let at = |d: Option<&Dem>, x: f64, y: f64| {
+            d.and_then(|d| d.height_at(x, y)).filter(|v| v.is_finite())
+        };
+        Some(
+            (0..a.data.len())
+                .map(|i| {
+                    let (c, r) = ((i % a.width) as f64 + 0.5, (i / a.width) as f64 + 0.5);
+                    let (x, y) = a.transform.pixel_to_world(c, r);
+                    let sa = at(self.sigma_a, x, y).unwrap_or(0.0);
+                    let sb = at(self.sigma_b, x - t[0], y - t[1]).unwrap_or(0.0);
+                    sa.hypot(sb)
+                })
+                .collect(),
+        )
+    }
+}
+
+/// B compared with the reference A (both world coordinates, the same CRS), with what is
+/// `known` of their cells.
 pub fn compare_dems(
     a: &Dem,
     b: &Dem,
-    exclude: Option<&[bool]>,
+    known: &CellKnowledge,
     options: &ChangeOptions,
 ) -> Result<Comparison> {
     if !(a.transform.is_north_up() && b.transform.is_north_up()) {
@@ -99,7 +134,7 @@ pub fn compare_dems(
             "the two surface models share no cell with a height".into(),
         ));
     }
-    let stable = stable_terrain(&raw, &terrain, exclude, &options.stable);
+    let stable = stable_terrain(&raw, &terrain, known.exclude, &options.stable);
     let (nk, moved) = nuth_kaab_from(
         a,
         b,
@@ -117,10 +152,16 @@ pub fn compare_dems(
         let s = dh_statistics(&raw, &stable.mask, &terrain);
         (raw, s)
     };
+    let moved_by = if options.apply_shift {
+        [nk.shift_m[0], nk.shift_m[1]]
+    } else {
+        [0.0; 2]
+    };
     let areas = changed_areas(
         &dh,
         a,
         (statistics.median_m, statistics.nmad_m),
+        known.sigma_on(a, moved_by).as_deref(),
         &options.areas,
     )?;
     let same_grid = a.transform == b.transform && (a.width, a.height) == (b.width, b.height);
@@ -182,16 +223,42 @@ fn fit_tilt(a: &Dem, dh: &[f64], stable: &[bool]) -> Tilt {
 }
 
 /// Compares the rasters `b` and the reference `a` (GeoTIFF or any DEM GDAL reads, the
-/// same CRS) and writes `dh.tif`, `stable.tif` and `change.json` into `out_dir` (made if
-/// missing).
+/// same CRS) and writes `dh.tif`, `stable.tif`, `changed_areas.geojson` and `change.json`
+/// into `out_dir` (made if missing). `sigmas` are optional rasters of each model's 1σ per
+/// cell (cloudcontrol's `dsm_spread.tif`), in the model's CRS: the changed areas' level
+/// of detection.
 pub fn write_change(
     a: &Path,
     b: &Path,
+    sigmas: [Option<&Path>; 2],
     out_dir: &Path,
     options: &ChangeOptions,
 ) -> Result<ChangeReport> {
     let (dem_a, crs_a) = read_dem(a)?;
     let (dem_b, crs_b) = read_dem(b)?;
+    let mut sigma = [None, None];
+    for (k, (path, model_crs)) in sigmas.iter().zip([&crs_a, &crs_b]).enumerate() {
+        let Some(path) = path else { continue };
+        let (dem, crs) = read_dem(path)?;
+        if let (Some(e), Some(m)) = (
+            crs.as_ref().and_then(Crs::epsg),
+            model_crs.as_ref().and_then(Crs::epsg),
+        ) {
+            if e != m {
+                return Err(invalid(
+                    &path.display().to_string(),
+                    format!("is in EPSG:{e} but its surface model in EPSG:{m}"),
+                ));
+            }
+        }
+        if let Some(v) = dem.data.iter().find(|v| v.is_finite() && **v < 0.0) {
+            return Err(invalid(
+                &path.display().to_string(),
+                format!("holds {v}: a standard deviation is not negative"),
+            ));
+        }
+        sigma[k] = Some(dem);
+    }
     let crs = match (crs_a, crs_b) {
         (Some(x), Some(y)) => {
             if let (Some(ex), Some(ey)) = (x.epsg(), y.epsg()) {
@@ -221,7 +288,12 @@ pub fn write_change(
             "is in a geographic CRS: slopes and shifts need a projected CRS in metres",
         ));
     }
-    let cmp = compare_dems(&dem_a, &dem_b, None, options)?;
+    let known = CellKnowledge {
+        exclude: None,
+        sigma_a: sigma[0].as_ref(),
+        sigma_b: sigma[1].as_ref(),
+    };
+    let cmp = compare_dems(&dem_a, &dem_b, &known, options)?;
     std::fs::create_dir_all(out_dir).map_err(|e| FormatError::io(out_dir, e))?;
     write_rasters(out_dir, &dem_a, &cmp, &crs)?;
     let json = serde_json::to_vec_pretty(&cmp.report).expect("the change report serialises");

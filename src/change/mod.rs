@@ -17,7 +17,7 @@ pub mod stats;
 pub mod terrain;
 
 pub use areas::{areas_geojson, changed_areas, AreaOptions, ChangedArea};
-pub use compare::{compare_dems, write_change, ChangeOptions, ChangeReport};
+pub use compare::{compare_dems, write_change, CellKnowledge, ChangeOptions, ChangeReport};
 pub use nuth_kaab::{nuth_kaab, NuthKaab, NuthKaabOptions};
 pub use stable::{stable_terrain, StableOptions, StableTerrain};
 pub use stats::{dh_statistics, DhStatistics, SlopeClass};

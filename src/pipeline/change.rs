@@ -7,14 +7,16 @@
 //! Stable terrain starts from the LiDAR's bare ground: a cell whose surface stands more than
 //! the control's bare-ground tolerance above its ground (a building, a tree) is left out
 //! before the slope and NMAD steps; what changed on bare ground leaves at the NMAD step.
+//! Changed areas are called against each cell's level of detection: a surface's spread
+//! (`dsm_spread.tif`, the pairs' disagreement) raises it where the surface is unsure.
 
 use super::epoch_files::write_json;
 use super::stages::WorkError;
 use crate::change::compare::{
-    compare_dems, write_rasters, ChangeOptions, ChangeReport, CHANGE_REPORT_FILE,
+    compare_dems, write_rasters, CellKnowledge, ChangeOptions, ChangeReport, CHANGE_REPORT_FILE,
 };
 use crate::change::ChangeError;
-use crate::dense::products::{DsmReport, DSM_FILE, DSM_REPORT_FILE};
+use crate::dense::products::{DsmReport, DSM_FILE, DSM_REPORT_FILE, DSM_SPREAD_FILE};
 use crate::formats::crs::Crs;
 use crate::formats::raster::read_dem;
 use crate::lidar::GroundSurface;
@@ -95,6 +97,7 @@ pub(crate) fn write_epoch_change(
     }
     let gsd = DsmReport::read(&surface_dir.join(DSM_REPORT_FILE))?.ground_pixel_m;
     let (dsm, _) = read_dem(&dsm_path)?;
+    let spread = read_spread(surface_dir)?;
     let back = [-origin[0], -origin[1], -origin[2]];
     let surface = ground.surface.shifted(back).map_err(ChangeError::from)?;
     let bare = ground.ground.shifted(back).map_err(ChangeError::from)?;
@@ -107,13 +110,24 @@ pub(crate) fn write_epoch_change(
         })
         .collect();
     let limits = ShiftLimits::default();
-    let cmp = compare_dems(&surface, &dsm, Some(&not_ground), options)?;
+    let known = CellKnowledge {
+        exclude: Some(&not_ground),
+        sigma_a: None,
+        sigma_b: spread.as_ref(),
+    };
+    let cmp = compare_dems(&surface, &dsm, &known, options)?;
     write_rasters(dir, &surface, &cmp, crs)?;
     let control = comparison(against, gsd, &limits, cmp.report);
     let younger = match younger {
         Some((name, ydir)) if ydir.join(DSM_FILE).is_file() => {
             let (reference, _) = read_dem(&ydir.join(DSM_FILE))?;
-            let cmp = compare_dems(&reference, &dsm, None, options)?;
+            let reference_spread = read_spread(ydir)?;
+            let known = CellKnowledge {
+                exclude: None,
+                sigma_a: reference_spread.as_ref(),
+                sigma_b: spread.as_ref(),
+            };
+            let cmp = compare_dems(&reference, &dsm, &known, options)?;
             let vs = dir.join(format!("vs_{name}"));
             std::fs::create_dir_all(&vs).map_err(|e| crate::formats::FormatError::io(&vs, e))?;
             write_rasters(&vs, &reference, &cmp, crs)?;
@@ -134,6 +148,16 @@ pub(crate) fn write_epoch_change(
         },
     )?;
     Ok(())
+}
+
+/// The spread raster of a surface folder, when the fusion wrote one.
+fn read_spread(surface_dir: &Path) -> Result<Option<crate::geometry::Dem>, WorkError> {
+    let path = surface_dir.join(DSM_SPREAD_FILE);
+    Ok(if path.is_file() {
+        Some(read_dem(&path)?.0)
+    } else {
+        None
+    })
 }
 
 fn comparison(

@@ -35,7 +35,7 @@ fn nuth_kaab_finds_a_known_shift_and_the_change_is_not_stable() {
     let b = grid(240, 180, 1.0, |x, y| {
         terrain(x - sx, y - sy) + sz + if building(x, y) { 12.0 } else { 0.0 }
     });
-    let cmp = compare_dems(&a, &b, None, &ChangeOptions::default()).unwrap();
+    let cmp = compare_dems(&a, &b, &Default::default(), &ChangeOptions::default()).unwrap();
     let nk = &cmp.report.nuth_kaab;
     eprintln!("{nk:?}");
     assert!(nk.converged, "{nk:?}");
@@ -145,7 +145,7 @@ fn changed_areas_by_hand() {
         min_area_m2: 4.0,
         ..Default::default()
     };
-    let areas = cloudcontrol::change::changed_areas(&dh, &grid, (0.0, 0.05), &opts).unwrap();
+    let areas = cloudcontrol::change::changed_areas(&dh, &grid, (0.0, 0.05), None, &opts).unwrap();
     assert_eq!(areas.len(), 1, "{areas:?}");
     let a = &areas[0];
     assert_eq!(a.cells, 28);
@@ -181,9 +181,47 @@ fn changed_areas_by_hand() {
         min_area_m2: 1.0,
         ..Default::default()
     };
-    let d = cloudcontrol::change::changed_areas(&diag, &grid, (0.0, 0.05), &one).unwrap();
+    let d = cloudcontrol::change::changed_areas(&diag, &grid, (0.0, 0.05), None, &one).unwrap();
     assert_eq!(d.len(), 2);
     assert!(d
         .iter()
         .all(|a| a.rings.len() == 1 && a.rings[0].len() == 5));
+}
+
+/// The level of detection cell by cell: two 3 m steps of 36 cells, one on cells whose own
+/// σ is 0.1 m, one on cells whose σ is 1.5 m (a fused DSM's pairs disagreeing there).
+/// 3 m exceeds 3·sqrt(0.05² + 0.1²) but not 3·sqrt(0.05² + 1.5²): only the first is a
+/// changed area, and a σ of NaN (unknown) counts as none.
+#[test]
+fn changed_areas_against_each_cells_sigma() {
+    let (w, h) = (20, 8);
+    let grid = grid(w, h, 1.0, |_, _| 0.0);
+    let mut dh = vec![0.0; w * h];
+    let mut sigma = vec![f64::NAN; w * h];
+    for r in 1..7 {
+        for c in 1..7 {
+            dh[r * w + c] = 3.0;
+            sigma[r * w + c] = 0.1;
+        }
+        for c in 11..17 {
+            dh[r * w + c] = 3.0;
+            sigma[r * w + c] = 1.5;
+        }
+    }
+    let opts = cloudcontrol::change::AreaOptions {
+        min_area_m2: 4.0,
+        ..Default::default()
+    };
+    let areas =
+        cloudcontrol::change::changed_areas(&dh, &grid, (0.0, 0.05), Some(&sigma), &opts).unwrap();
+    assert_eq!(areas.len(), 1, "{areas:?}");
+    let xs: Vec<f64> = areas[0].rings[0].iter().map(|p| p[0]).collect();
+    assert_eq!(xs.iter().cloned().fold(f64::MAX, f64::min), 1.0);
+    assert_eq!(areas[0].cells, 36);
+    let without =
+        cloudcontrol::change::changed_areas(&dh, &grid, (0.0, 0.05), None, &opts).unwrap();
+    assert_eq!(without.len(), 2);
+    let short =
+        cloudcontrol::change::changed_areas(&dh, &grid, (0.0, 0.05), Some(&sigma[1..]), &opts);
+    assert!(short.is_err());
 }

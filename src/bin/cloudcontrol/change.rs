@@ -10,6 +10,8 @@ use std::process::ExitCode;
 ///
 /// Stable terrain: both have a height, slope ≤ --max-slope, then |dh − median| ≤ k·NMAD
 /// repeated. The shift is reported; dh.tif is of B as given unless --apply-shift.
+/// Changed areas (changed_areas.geojson): |dh − median| beyond max(1 m, 3·NMAD), raised
+/// cell by cell by --sigma-a/--sigma-b, over at least 25 m².
 ///
 /// Example: cloudcontrol change dem.tif dsm/dsm.tif --out change/
 #[derive(clap::Args)]
@@ -30,6 +32,13 @@ pub struct Args {
     /// Write dh of B moved by its Nuth & Kääb shift.
     #[arg(long)]
     apply_shift: bool,
+    /// A raster of A's 1σ per cell (m), e.g. a cloudcontrol surface's dsm_spread.tif:
+    /// changed areas must exceed 3·sqrt(NMAD² + σA² + σB²) there.
+    #[arg(long, value_name = "TIF")]
+    sigma_a: Option<PathBuf>,
+    /// A raster of B's 1σ per cell (m), as --sigma-a.
+    #[arg(long, value_name = "TIF")]
+    sigma_b: Option<PathBuf>,
 }
 
 pub fn run(a: Args, json: bool, quiet: bool) -> ExitCode {
@@ -53,7 +62,8 @@ pub fn run(a: Args, json: bool, quiet: bool) -> ExitCode {
     };
     options.stable.max_slope_deg = a.max_slope;
     options.stable.k_nmad = a.k_nmad;
-    match write_change(&a.a, &a.b, &a.out, &options) {
+    let sigmas = [a.sigma_a.as_deref(), a.sigma_b.as_deref()];
+    match write_change(&a.a, &a.b, sigmas, &a.out, &options) {
         Ok(r) => {
             crate::console::report(json, quiet, &r, || {
                 let s = &r.statistics;
