@@ -67,7 +67,7 @@ fn setup(name: &str, preset: Preset, pos: PosQuality, seed: u64) -> Setup {
     );
     let block = synth_truth_block(&dir, "reference_2024").unwrap();
     let surface =
-        cloudcontrol::lidar::lidar_surfaces(&lidar_tiles(&dir), block.origin, 1.0).unwrap();
+        cloudcontrol::lidar::lidar_surfaces(&lidar_tiles(&dir), block.origin, 1.0, None).unwrap();
     let reference = export_dcp(
         &block,
         &surface,

@@ -25,7 +25,7 @@ fn reference_epoch_oriented_with_lidar_only_is_within_a_ground_pixel() {
     block_copy("small", 7, "rough", &dir);
     let tiles = lidar_tiles(&dir);
     let input = EpochInput::from_synth_epoch(&dir, "reference_2024").unwrap();
-    let surface = cloudcontrol::lidar::lidar_surfaces(&tiles, input.origin, 1.0).unwrap();
+    let surface = cloudcontrol::lidar::lidar_surfaces(&tiles, input.origin, 1.0, None).unwrap();
     let index =
         reference::lidar_plane_index(&tiles, input.origin, &[2, 6], PlaneOptions::default())
             .unwrap();

@@ -60,8 +60,8 @@ fn the_small_block_is_oriented_from_its_orthophoto_and_dem_alone() {
             .unwrap();
     assert!(ortho["points"].as_u64().unwrap() >= 20, "{ortho}");
     // The products' DEM is the one given, named as such, read by GDAL in the project CRS.
-    let dem = run.join("outputs-film_1978/control_dem.tif");
-    assert!(!run.join("outputs-film_1978/lidar_dem.tif").exists());
+    let dem = run.join("control/control_dem.tif");
+    assert!(!run.join("control/lidar_dem.tif").exists());
     let info = Command::new("gdalinfo")
         .arg("-json")
         .arg(&dem)
@@ -108,7 +108,7 @@ fn the_small_block_is_oriented_from_its_orthophoto_and_dem_alone() {
         assert!(px(e, "check_rmse_plan_m") <= 1.0 && px(e, "check_rmse_height_m") <= 1.5);
     }
     let both = tmp.path().join("run_both");
-    assert!(both.join("outputs-film_1978/lidar_dem.tif").is_file());
+    assert!(both.join("control/lidar_dem.tif").is_file());
     assert!(both.join("dcp-orthophoto/package/manifest.json").is_file());
 }
 

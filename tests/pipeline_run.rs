@@ -85,7 +85,6 @@ fn demo_runs_the_workflow_and_a_killed_run_resumes_identically() {
         "colmap",
         "blocks_exchange.xml",
         "orthophoto.tif",
-        "lidar_dem.tif",
         "resampled",
     ] {
         assert!(
@@ -123,17 +122,32 @@ fn demo_runs_the_workflow_and_a_killed_run_resumes_identically() {
             "{p} not found from the XML's folder"
         );
     }
-    for (tif, bands) in [("orthophoto.tif", 4), ("lidar_dem.tif", 1)] {
+    // The LiDAR's surfaces once for the project, not in every epoch's outputs.
+    let control: Vec<&str> = v["products"]["control"]
+        .as_array()
+        .unwrap()
+        .iter()
+        .filter_map(|p| p.as_str())
+        .collect();
+    for f in ["control/lidar_dem.tif", "control/lidar_dsm.tif"] {
+        assert!(control.iter().any(|p| p.ends_with(f)), "{f}: {control:?}");
+    }
+    assert!(!film.join("lidar_dem.tif").exists());
+    for (tif, bands) in [
+        (film.join("orthophoto.tif"), 4),
+        (run.join("control/lidar_dem.tif"), 1),
+    ] {
         let info = Command::new("gdalinfo")
             .arg("-json")
-            .arg(film.join(tif))
+            .arg(&tif)
             .output()
             .unwrap();
         let info: Value = serde_json::from_slice(&info.stdout).expect("gdalinfo JSON");
         let wkt = info["coordinateSystem"]["wkt"].as_str().unwrap_or("");
-        assert!(wkt.contains("4547"), "{tif} CRS: {wkt}");
-        assert_eq!(info["bands"].as_array().unwrap().len(), bands, "{tif}");
+        assert!(wkt.contains("4547"), "{tif:?} CRS: {wkt}");
+        assert_eq!(info["bands"].as_array().unwrap().len(), bands, "{tif:?}");
     }
+    one_lattice(&run);
     let ortho: Value =
         serde_json::from_slice(&std::fs::read(film.join("orthophoto.json")).unwrap()).unwrap();
     assert!(
@@ -328,7 +342,56 @@ fn an_epoch_without_an_oriented_photo_does_not_stop_the_run() {
         !listed.contains("colmap") && !listed.contains("blocks_exchange"),
         "{listed}"
     );
-    assert!(!out.join("orthophoto.tif").exists() && out.join("lidar_dem.tif").is_file());
+    assert!(!out.join("orthophoto.tif").exists() && run.join("control/lidar_dem.tif").is_file());
     assert!(run.join("report/report.html").is_file());
     assert!(run.join("outputs-reference_2024/orthophoto.tif").is_file());
+}
+
+/// Every raster of the run, as GDAL reads it: the same upper-left corner, cells of 1 m
+/// times a power of two (the default lattice), no rotation. So any two subtract cell by
+/// cell: numpy's `a[::k, ::k]` of the finer against the coarser, no resampling.
+fn one_lattice(run: &Path) {
+    let rasters: Vec<_> = files_below(run)
+        .into_iter()
+        .filter(|p| {
+            p.extension().is_some_and(|e| e == "tif")
+                && !p.components().any(|c| c.as_os_str() == "resampled")
+        })
+        .collect();
+    let names: Vec<String> = rasters.iter().map(|p| p.display().to_string()).collect();
+    for want in [
+        "orthophoto.tif",
+        "dsm.tif",
+        "dsm_spread.tif",
+        "dh.tif",
+        "lidar_dsm.tif",
+    ] {
+        assert!(
+            names.iter().any(|n| n.ends_with(want)),
+            "no {want} among {names:?}"
+        );
+    }
+    let mut corner: Option<(f64, f64)> = None;
+    for tif in &rasters {
+        let info = Command::new("gdalinfo")
+            .arg("-json")
+            .arg(tif)
+            .output()
+            .unwrap();
+        let info: Value = serde_json::from_slice(&info.stdout).expect("gdalinfo JSON");
+        let gt: Vec<f64> = info["geoTransform"]
+            .as_array()
+            .unwrap()
+            .iter()
+            .map(|v| v.as_f64().unwrap())
+            .collect();
+        assert_eq!((gt[2], gt[4]), (0.0, 0.0), "{tif:?} rotated");
+        assert_eq!(gt[1], -gt[5], "{tif:?} cells not square");
+        let n = gt[1].log2();
+        assert_eq!(n, n.round(), "{tif:?}: cell {} m is not 2^n m", gt[1]);
+        match corner {
+            None => corner = Some((gt[0], gt[3])),
+            Some(c) => assert_eq!(c, (gt[0], gt[3]), "{tif:?} corner"),
+        }
+    }
 }

@@ -277,11 +277,11 @@ fn hand_written_project_runs_end_to_end_and_every_entry_orients_alike() {
     }
 
     // The same digital epoch through `cloudcontrol orient` with the run's reference DCPs
-    // over the run's own ground (its `lidar_dem.tif`): the same orientation (the one epoch
+    // over the run's own ground (its `control/lidar_dem.tif`): the same orientation (the one epoch
     // builder and the same options). Tie points are put on the DEM, so the ground must be
     // the run's: over a DEM gridded by `lidar dem` from the cleaned tiles, a few tie
     // points differ and the poses were up to 0.018 m and 1.3e-4 rad apart.
-    let dem = out.join("outputs-digital_2012").join(LIDAR_DEM);
+    let dem = out.join("control").join(LIDAR_DEM);
     let pkg = out.join("dcp-reference_2024/package");
     let oout = tmp.join("orient");
     let g = pr.gen.join("epochs/digital_2012");

@@ -300,7 +300,7 @@ impl OrientedBlock {
         }
         let block = read_oriented_block(block_json, images_json)?;
         let tiles = crate::lidar::catalogue::expand_inputs(lidar)?;
-        let surface = lidar_surfaces(&tiles, block.origin, lidar_cell_m)?;
+        let surface = lidar_surfaces(&tiles, block.origin, lidar_cell_m, None)?;
         Ok(Self {
             block_json: block_json.to_path_buf(),
             block,

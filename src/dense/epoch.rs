@@ -14,6 +14,7 @@ use super::sgm::{DisparityPrior, SgmOptions};
 use super::{invalid, DenseError, Result};
 use crate::block::{Block, Photo, PhotoId, PointKind};
 use crate::geometry::back_project;
+use crate::geometry::lattice::{lattice_cell_at_least, Lattice};
 use crate::matching::oriented::Surface;
 use crate::matching::GreyImage;
 use nalgebra::Vector3;
@@ -24,8 +25,14 @@ use std::time::Instant;
 #[derive(Debug, Clone, Serialize, Deserialize)]
 #[serde(default)]
 pub struct DsmOptions {
-    /// Cell of the DSM (m); `None`: the block's ground pixel (median over its photos).
+    /// Cell of the DSM (m); `None`: the finest lattice cell not finer than the block's
+    /// ground pixel (median over its photos).
     pub cell: Option<f64>,
+    /// Base cell (m) of the raster lattice the DSM is on ([`Lattice`]).
+    pub grid_base_m: f64,
+    /// The lattice's corner (world x_min, y_max), a project's; `None`: around the DSM's
+    /// own area.
+    pub corner: Option<[f64; 2]>,
     /// Vertical margin (m) of the search around the prior surface: the relief the prior
     /// misses and what was built or removed since it was measured.
     pub prior_margin_m: f64,
@@ -43,6 +50,8 @@ impl Default for DsmOptions {
     fn default() -> Self {
         Self {
             cell: None,
+            grid_base_m: 1.0,
+            corner: None,
             prior_margin_m: 25.0,
             min_count: 1,
             pairs: PairOptions::default(),
@@ -241,7 +250,17 @@ pub fn plan_surface(
                     area[3].min(y1),
                 ];
             }
-            DsmGrid::covering(area, options.cell.unwrap_or(gsd))?
+            let cell = options
+                .cell
+                .unwrap_or_else(|| lattice_cell_at_least(options.grid_base_m, gsd));
+            let lattice = match options.corner {
+                Some(corner) => Lattice {
+                    base_m: options.grid_base_m,
+                    corner,
+                },
+                None => Lattice::around(options.grid_base_m, area)?,
+            };
+            lattice.grid(cell, area)?
         }
     };
     let pairs = select_pairs(block, &plane, &options.pairs);

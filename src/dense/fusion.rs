@@ -3,79 +3,12 @@
 //! and their spread (NMAD). Cells without a point stay without data: a hole is never
 //! filled from another source.
 
-use super::{invalid, Result};
-use crate::geometry::{Dem, GeoTransform};
+use super::Result;
+use crate::geometry::Dem;
 use rayon::prelude::*;
 
-/// A north-up grid (world coordinates): `width × height` cells of `cell` m from the
-/// upper-left corner (`x_min`, `y_max`).
-#[derive(Debug, Clone, Copy, PartialEq)]
-pub struct DsmGrid {
-    pub x_min: f64,
-    pub y_max: f64,
-    pub cell: f64,
-    pub width: usize,
-    pub height: usize,
-}
-
-impl DsmGrid {
-    /// The grid of `cell` m covering `[x_min, y_min, x_max, y_max]`, its corner on a
-    /// multiple of the cell (so grids of one cell size line up).
-    pub fn covering(area: [f64; 4], cell: f64) -> Result<Self> {
-        let [x0, y0, x1, y1] = area;
-        if !(cell.is_finite() && cell > 0.0) {
-            return Err(invalid("DSM cell", format!("{cell} m is not a cell size")));
-        }
-        if !(area.iter().all(|v| v.is_finite()) && x1 > x0 && y1 > y0) {
-            return Err(invalid("DSM area", format!("{area:?} is not an area")));
-        }
-        let x_min = (x0 / cell).floor() * cell;
-        let y_max = (y1 / cell).ceil() * cell;
-        let width = ((x1 - x_min) / cell).ceil() as usize;
-        let height = ((y_max - y0) / cell).ceil() as usize;
-        // Cell indices are u32 in the fusion; a grid beyond that is a mistake of the cell.
-        if width.saturating_mul(height) >= u32::MAX as usize {
-            return Err(invalid(
-                "DSM grid",
-                format!("{width}×{height} cells of {cell} m: more than 2³² cells"),
-            ));
-        }
-        Ok(Self {
-            x_min,
-            y_max,
-            cell,
-            width,
-            height,
-        })
-    }
-
-    pub fn transform(&self) -> GeoTransform {
-        GeoTransform::north_up(self.x_min, self.y_max, self.cell)
-    }
-
-    /// Index of the cell holding world (x, y), if inside.
-    #[inline]
-    pub fn cell_of(&self, x: f64, y: f64) -> Option<u32> {
-        let c = ((x - self.x_min) / self.cell).floor();
-        let r = ((self.y_max - y) / self.cell).floor();
-        (c >= 0.0 && r >= 0.0 && (c as usize) < self.width && (r as usize) < self.height)
-            .then(|| (r as usize * self.width + c as usize) as u32)
-    }
-
-    /// A world point as a sample of the grid (its cell's index, its height); `None`
-    /// outside the grid or when a coordinate is not finite.
-    pub fn sample(&self, x: f64, y: f64, z: f64) -> Option<(u32, f32)> {
-        if !z.is_finite() {
-            return None;
-        }
-        self.cell_of(x, y).map(|c| (c, z as f32))
-    }
-
-    /// Cells of the grid.
-    pub fn cells(&self) -> usize {
-        self.width * self.height
-    }
-}
+/// The DSM's grid: a north-up grid on a raster lattice (world coordinates).
+pub use crate::geometry::LatticeGrid as DsmGrid;
 
 /// The fused surface: median height, point count and spread (1.4826 × the median
 /// absolute deviation, NaN with fewer than two points) per cell; NaN without data.

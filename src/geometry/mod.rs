@@ -11,6 +11,7 @@ mod collinearity;
 mod dem;
 mod hartley;
 mod interior;
+pub mod lattice;
 pub mod region;
 mod rotation;
 pub mod serde_matrix;
@@ -21,6 +22,7 @@ pub use collinearity::{project, project_with_jacobians, Projection, ProjectionJa
 pub use dem::{Dem, GeoTransform};
 pub(crate) use hartley::{dlt_null_matrix, hartley_normalisation};
 pub use interior::{InteriorOrientation, InteriorTransformKind};
+pub use lattice::{Lattice, LatticeGrid};
 pub use rotation::{
     matrix_from_opk, matrix_from_quaternion_wxyz, matrix_from_ypr, opk_from_matrix, orthonormalize,
     quaternion_wxyz_from_matrix, rotation_from_vector, skew, ypr_from_matrix,

@@ -25,6 +25,9 @@ pub struct DemOptions {
     pub max_fill_cells: usize,
     /// Grid extent; default: the points' bounding box.
     pub bbox: Option<Bbox>,
+    /// Upper-left corner (x_min, y_max) of the grid, e.g. a project lattice's; it must lie
+    /// left of and above the extent. Default: the extent's, snapped outward to the cell.
+    pub corner: Option<[f64; 2]>,
     /// Refuse grids larger than this many cells (memory guard).
     pub max_cells: usize,
 }
@@ -36,6 +39,7 @@ impl Default for DemOptions {
             method: DemMethod::Mean,
             max_fill_cells: 5,
             bbox: None,
+            corner: None,
             max_cells: 400_000_000,
         }
     }
@@ -186,8 +190,24 @@ impl GridGeometry {
                 "DEM cell size {c} must be positive"
             )));
         }
-        let x0 = (b.min_x / c).floor() * c;
-        let y1 = (b.max_y / c).ceil() * c;
+        let (x0, y1) = match opts.corner {
+            Some([x0, y1]) if x0.is_finite() && y1.is_finite() => {
+                if x0 > b.min_x || y1 < b.max_y {
+                    return Err(LidarError::InvalidOption(format!(
+                        "grid corner ({x0}, {y1}) is not left of and above the extent \
+                         ({}, {})",
+                        b.min_x, b.max_y
+                    )));
+                }
+                (x0, y1)
+            }
+            Some(c) => {
+                return Err(LidarError::InvalidOption(format!(
+                    "grid corner {c:?} is not finite"
+                )))
+            }
+            None => ((b.min_x / c).floor() * c, (b.max_y / c).ceil() * c),
+        };
         let w = (((b.max_x - x0) / c).floor() as usize + 1).max(1);
         let h = (((y1 - b.min_y) / c).floor() as usize + 1).max(1);
         if w.saturating_mul(h) > opts.max_cells {

@@ -25,11 +25,15 @@ pub struct GroundSurface {
 }
 
 /// Ground DEM and surface model (block-local, `origin` subtracted) from LAS/LAZ tiles,
-/// grid cell `cell` (m).
+/// grid cell `cell` (m). With `lattice_base_m`, both start at the corner of the project
+/// lattice of that base around the LiDAR's extent ([`crate::geometry::Lattice::around`]),
+/// so every other raster of the project lines up with them; else at the extent's corner
+/// snapped to the cell.
 pub fn lidar_surfaces(
     tiles: &[PathBuf],
     origin: [f64; 3],
     cell: f64,
+    lattice_base_m: Option<f64>,
 ) -> Result<GroundSurface, LidarError> {
     let mut ground = Vec::new();
     let mut all = Vec::new();
@@ -68,6 +72,20 @@ pub fn lidar_surfaces(
         max_x: hi[0],
         max_y: hi[1],
     };
+    let corner = match lattice_base_m {
+        Some(base) => {
+            let world = [
+                lo[0] + origin[0],
+                lo[1] + origin[1],
+                hi[0] + origin[0],
+                hi[1] + origin[1],
+            ];
+            let l = crate::geometry::Lattice::around(base, world)
+                .map_err(|e| LidarError::InvalidOption(e.to_string()))?;
+            Some([l.corner[0] - origin[0], l.corner[1] - origin[1]])
+        }
+        None => None,
+    };
     let grid = |pts: &[[f64; 3]], fill: usize| {
         super::grid_dem(
             pts,
@@ -75,6 +93,7 @@ pub fn lidar_surfaces(
                 cell,
                 max_fill_cells: fill,
                 bbox: Some(bbox),
+                corner,
                 ..Default::default()
             },
         )

@@ -7,6 +7,7 @@ use super::project::Project;
 use super::stages::WorkError;
 use crate::control::reference;
 use crate::formats::crs::Crs;
+use crate::geometry::lattice::{lattice_cell, Lattice};
 use crate::lidar::{self, GroundSurface, PlaneIndex, PlaneOptions};
 use std::cell::OnceCell;
 use std::path::PathBuf;
@@ -52,7 +53,13 @@ impl<'a> ControlGround<'a> {
         let s = match &self.tiles_dir {
             Some(dir) => {
                 let tiles = lidar::catalogue::expand_inputs(std::slice::from_ref(dir))?;
-                lidar::lidar_surfaces(&tiles, self.origin, lidar::LIDAR_CELL_M)?
+                let base = self.project.outputs.grid_base_m;
+                lidar::lidar_surfaces(
+                    &tiles,
+                    self.origin,
+                    lattice_cell(base, lidar::LIDAR_CELL_M),
+                    Some(base),
+                )?
             }
             None => {
                 let dem = control_dem(self.project)?
@@ -81,6 +88,19 @@ impl<'a> ControlGround<'a> {
             PlaneOptions::default(),
         )?;
         Ok(self.planes.get_or_init(|| p))
+    }
+
+    /// The project's raster lattice: the LiDAR surfaces' corner (they are gridded on it),
+    /// or around the extent of the control DEM.
+    pub(crate) fn lattice(&self) -> Result<Lattice, WorkError> {
+        let base = self.project.outputs.grid_base_m;
+        let ground = &self.surface()?.ground;
+        let (x0, y0, x1, y1) = ground.extent();
+        let o = self.origin;
+        let world = [x0 + o[0], y0 + o[1], x1 + o[0], y1 + o[1]];
+        // The LiDAR's surfaces were gridded from the lattice's corner, so snapping their
+        // extent gives that corner back.
+        Ok(Lattice::around(base, world).map_err(crate::formats::FormatError::Geometry)?)
     }
 
     /// File name of the DEM product: whose surface it is.

@@ -5,6 +5,7 @@
 
 use super::epoch_files::{load_block, write_json};
 use super::film_frames::{self, FramePlan, RESAMPLED_DIR};
+use super::ground::ControlGround;
 use super::project::{Epoch, Project};
 use super::run::Checkpoints;
 use super::stages::WorkError;
@@ -18,27 +19,61 @@ use crate::formats::crs::Crs;
 use crate::formats::pos::photo_key;
 use crate::formats::{self, FormatError};
 use crate::geometry::Camera;
-use crate::lidar::GroundSurface;
 use nalgebra::Vector3;
 use std::collections::BTreeMap;
 use std::path::Path;
 
-/// File name of the per-epoch DEM: until an epoch has a surface of its own, it is the
-/// LiDAR ground DEM, and named so.
+/// The folder of the project's control surfaces (`control/`), written once for every
+/// epoch on the project's lattice, and their key among the run summary's products.
+pub const CONTROL_PRODUCTS: &str = "control";
+/// The LiDAR's ground (class 2, holes filled), the DEM orthophotos are rectified onto.
 pub const LIDAR_DEM: &str = "lidar_dem.tif";
-/// The same where the DEM of the control sources (`control.dem`) stands for the LiDAR.
+/// The LiDAR's surface model (mean of all non-noise returns per cell): today's surface,
+/// each epoch's DSM is compared with (`change-<epoch>/`).
+pub const LIDAR_DSM: &str = "lidar_dsm.tif";
+/// Where there is no LiDAR: the DEM of the control sources (`control.dem`).
 pub const CONTROL_DEM: &str = "control_dem.tif";
 
 /// The files and folders of `outputs-<epoch>/` that are products (listed in the run
 /// summary when written).
-pub const PRODUCT_FILES: [&str; 6] = [
+pub const PRODUCT_FILES: [&str; 4] = [
     "colmap",
     "blocks_exchange.xml",
     "orthophoto.tif",
-    LIDAR_DEM,
-    CONTROL_DEM,
     RESAMPLED_DIR,
 ];
+
+/// The files of `control/` (listed in the run summary under [`CONTROL_PRODUCTS`]).
+pub const CONTROL_FILES: [&str; 3] = [LIDAR_DEM, LIDAR_DSM, CONTROL_DEM];
+
+/// The control's surfaces in world coordinates, once for the project (`control/`): the
+/// LiDAR's ground and surface model on the project's lattice, or the control DEM as given.
+pub(crate) fn write_control_surfaces(
+    project: &Project,
+    control: &ControlGround,
+    dir: &Path,
+) -> Result<(), WorkError> {
+    let crs = Crs::parse(&project.crs)?;
+    let surface = control.surface()?;
+    let back = {
+        let o = control.origin;
+        [-o[0], -o[1], -o[2]]
+    };
+    let opts = formats::raster::GeoTiffOptions::default();
+    let world = |d: &crate::geometry::Dem| d.shifted(back).map_err(FormatError::Geometry);
+    if control.dem_file() == LIDAR_DEM {
+        formats::raster::write_dem(&dir.join(LIDAR_DEM), &world(&surface.ground)?, &crs, &opts)?;
+        formats::raster::write_dem(&dir.join(LIDAR_DSM), &world(&surface.surface)?, &crs, &opts)?;
+    } else {
+        formats::raster::write_dem(
+            &dir.join(CONTROL_DEM),
+            &world(&surface.ground)?,
+            &crs,
+            &opts,
+        )?;
+    }
+    Ok(())
+}
 
 /// Adds the project's checkpoints measured in the block's photos as check points: the
 /// surveyed position (block-local) and σ, with the epoch's image measurements (the
@@ -144,11 +179,12 @@ pub(crate) fn product_block(
 pub(crate) fn ortho_ground(
     project: &Project,
     block: &Block,
-    surface: &GroundSurface,
+    control: &ControlGround,
     origin: [f64; 3],
 ) -> Result<(crate::geometry::Dem, formats::ortho::OrthoOptions), WorkError> {
     // Back to world coordinates: shifting by the negated origin.
-    let dem = surface
+    let dem = control
+        .surface()?
         .ground
         .shifted([-origin[0], -origin[1], -origin[2]])
         .map_err(FormatError::Geometry)?;
@@ -158,6 +194,7 @@ pub(crate) fn ortho_ground(
         dem,
         formats::ortho::OrthoOptions {
             gsd,
+            lattice: Some(control.lattice()?),
             ..Default::default()
         },
     ))
@@ -236,7 +273,7 @@ pub(crate) fn write_products(
     project: &Project,
     epoch: &Epoch,
     checkpoints: Option<&Checkpoints>,
-    (surface, dem_file, surface_dir): (&GroundSurface, &str, Option<&Path>),
+    (control, surface_dir): (&ControlGround, Option<&Path>),
     origin: [f64; 3],
     edir: &Path,
     dir: &Path,
@@ -244,7 +281,7 @@ pub(crate) fn write_products(
 ) -> Result<(), WorkError> {
     let o = &project.outputs;
     let (mut named, frames) = product_block(project, epoch, checkpoints, edir, &tasks.resampled())?;
-    let (control_dem, ortho_opts) = ortho_ground(project, &named, surface, origin)?;
+    let (control_dem, ortho_opts) = ortho_ground(project, &named, control, origin)?;
     let (dem, surface_report) = ortho_surface(&control_dem, surface_dir)?;
     let film = frames.is_some();
     // An epoch that oriented no photo still has its LiDAR DEM, but nothing to orthorectify.
@@ -343,15 +380,6 @@ pub(crate) fn write_products(
         skipped.insert("orthophoto", "no photo of the epoch was oriented".into());
     }
     write_json(&dir.join("skipped.json"), &skipped)?;
-    if o.dem {
-        let crs = Crs::parse(&project.crs)?;
-        formats::raster::write_dem(
-            &dir.join(dem_file),
-            &control_dem,
-            &crs,
-            &formats::raster::GeoTiffOptions::default(),
-        )?;
-    }
     if let (Some(grid), Some(tiles)) = (&grid, rendered.as_mut()) {
         let crs = Crs::parse(&project.crs)?;
         let mut rep =

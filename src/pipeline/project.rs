@@ -251,6 +251,9 @@ pub struct Outputs {
     /// Pixel size (µm) of the fiducial-frame images film scans are resampled into for
     /// the products; by default the mean scan pixel of the epoch's interior orientations.
     pub film_pixel_um: Option<f64>,
+    /// Base cell (m) of the project's raster lattice ([`crate::geometry::Lattice`]):
+    /// every raster's cell is this times a power of two, and all start at one corner.
+    pub grid_base_m: f64,
 }
 
 impl Default for Outputs {
@@ -267,6 +270,7 @@ impl Default for Outputs {
             ortho_gsd_factor: 1.0,
             ortho_surface: OrthoSurface::Control,
             film_pixel_um: None,
+            grid_base_m: 1.0,
         }
     }
 }
@@ -540,6 +544,16 @@ impl Project {
                     format!("epoch name {:?} is used twice", e.name),
                 ));
             }
+            if e.name == super::products::CONTROL_PRODUCTS {
+                return Err(key_err(
+                    &format!("{key}.name"),
+                    format!(
+                        "{:?} names the project's control surfaces (run summary products); \
+                         call the epoch otherwise",
+                        e.name
+                    ),
+                ));
+            }
             if !valid_date(&e.date) {
                 return Err(key_err(
                     &format!("{key}.date"),
@@ -668,6 +682,17 @@ impl Project {
             return Err(key_err(
                 "outputs.ortho_gsd_factor",
                 "must be positive".into(),
+            ));
+        }
+        if !(self.outputs.grid_base_m.is_finite()
+            && (1e-3..=1e3).contains(&self.outputs.grid_base_m))
+        {
+            return Err(key_err(
+                "outputs.grid_base_m",
+                format!(
+                    "{} m: the base cell must be between 1 mm and 1 km",
+                    self.outputs.grid_base_m
+                ),
             ));
         }
         if let Some(um) = self.outputs.film_pixel_um {

@@ -518,6 +518,7 @@ fn run_stages(
     let want_outputs = o.colmap || o.blocks_exchange || o.orthophoto || o.dem;
     let total = 1
         + usize::from(project.control.orthophoto.is_some())
+        + usize::from(o.dem)
         + epochs.len() * (2 + usize::from(want_outputs) + usize::from(o.dsm));
     let mut index = 0;
     let mut products: BTreeMap<String, Vec<PathBuf>> = BTreeMap::new();
@@ -1004,7 +1005,10 @@ fn run_stages(
         for (k, e) in epochs.iter().enumerate() {
             let _epoch = tracing::error_span!("epoch", name = %e.name).entered();
             let edir = epoch_dirs[k].clone();
-            let options = crate::dense::epoch::DsmOptions::default();
+            let options = crate::dense::epoch::DsmOptions {
+                grid_base_m: o.grid_base_m,
+                ..Default::default()
+            };
             let sdir = stage!(
                 keyed format!("surface-{}", e.name),
                 Inputs::new()
@@ -1087,7 +1091,24 @@ fn run_stages(
         }
     }
 
-    // 6. Products per epoch.
+    // 6. The control's surfaces, once for all epochs, then the products per epoch.
+    if o.dem {
+        let cdir = stage!(
+            super::products::CONTROL_PRODUCTS.to_string(),
+            Inputs::new()
+                .file(&sources)
+                .param("grid_base_m", &o.grid_base_m),
+            |dir: &Path| super::products::write_control_surfaces(project, &lidar, dir)
+        );
+        let files = products
+            .entry(super::products::CONTROL_PRODUCTS.to_string())
+            .or_default();
+        for f in super::products::CONTROL_FILES {
+            if cdir.join(f).exists() {
+                files.push(cdir.join(f));
+            }
+        }
+    }
     let mut ortho_preview: Option<OrthoPreview> = None;
     if want_outputs {
         for (k, e) in epochs.iter().enumerate() {
@@ -1125,7 +1146,7 @@ fn run_stages(
                         project,
                         e,
                         checkpoints.as_ref(),
-                        (lidar.surface()?, lidar.dem_file(), surface_dir.as_deref()),
+                        (&lidar, surface_dir.as_deref()),
                         lidar.origin,
                         &edir,
                         dir,

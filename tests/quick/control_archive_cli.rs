@@ -35,7 +35,7 @@ fn prepare(root: &Path) -> (PathBuf, PathBuf, PathBuf) {
     .unwrap();
     let tiles = cloudcontrol::lidar::catalogue::expand_inputs(&[dir.join("lidar")]).unwrap();
     let block = synth_truth_block(&dir, "reference_2024").unwrap();
-    let surface = cloudcontrol::lidar::lidar_surfaces(&tiles, block.origin, 1.0).unwrap();
+    let surface = cloudcontrol::lidar::lidar_surfaces(&tiles, block.origin, 1.0, None).unwrap();
     // The DEM as a user has it: world coordinates in a GeoTIFF.
     let o = block.origin;
     let world = surface.ground.shifted([-o[0], -o[1], -o[2]]).unwrap();

@@ -51,8 +51,10 @@ fn every_epoch_of_the_tiny_block_gets_its_own_surface() {
         assert!(s.nmad_gsd <= 1.0, "{epoch}: {s:?}");
         assert!(s.completeness >= 0.9, "{epoch}: {s:?}");
         if epoch != "reference_2024" {
-            // The archive's surface where it changed, not the present's.
-            assert!(s.changed_cells > 50, "{epoch}: {s:?}");
+            // The archive's surface where it changed, not the present's (over enough
+            // changed cells for an NMAD: the tiny block's digital epoch has 47 of its
+            // DSM's 0.25 m cells where the scene changed).
+            assert!(s.changed_cells > 30, "{epoch}: {s:?}");
             assert!(s.changed_nmad_gsd <= 1.5, "{epoch}: {s:?}");
             assert!(s.changed_nmad_vs_present_gsd > 2.0, "{epoch}: {s:?}");
         }
@@ -222,11 +224,14 @@ fn the_orthophoto_can_be_rectified_onto_the_epochs_own_surface() {
         "{own} of {}",
         dsm.data.len()
     );
-    // The DEM product is still the LiDAR's (its grid, not the DSM's).
-    let (lidar, _) = read_dem(&outputs.join("lidar_dem.tif")).unwrap();
-    assert_ne!(
-        (lidar.width, lidar.height, lidar.transform.0[1]),
-        (dsm.width, dsm.height, dsm.transform.0[1])
+    // The DEM product is still the LiDAR's, once for the project (its cell, not the
+    // DSM's), on the same lattice: the same corner.
+    let (lidar, _) = read_dem(&run.join("control/lidar_dem.tif")).unwrap();
+    assert!(!outputs.join("lidar_dem.tif").exists());
+    assert_ne!(lidar.transform.0[1], dsm.transform.0[1]);
+    assert_eq!(
+        (lidar.transform.0[0], lidar.transform.0[3]),
+        (dsm.transform.0[0], dsm.transform.0[3])
     );
 
     std::fs::write(

@@ -15,12 +15,13 @@ use cloudcontrol::pipeline::stages::DIGESTS;
 use std::path::{Path, PathBuf};
 use std::time::{Duration, SystemTime};
 
-const STAGES: [&str; 7] = [
+const STAGES: [&str; 8] = [
     "sources",
     "dcp-orthophoto",
     "epoch-digital_2012",
     "surface-digital_2012",
     "change-digital_2012",
+    "control",
     "outputs-digital_2012",
     "report",
 ];
@@ -278,15 +279,17 @@ fn a_photo_changed_in_place_reruns_its_stage() {
     let touched = SystemTime::now() - Duration::from_secs(1800);
     set_mtime(&photo, touched);
     // What the photo feeds reruns; the change stage's inputs (the surface stage's folder:
-    // the digital epoch has no stereo pair here, so the same skipped.json) are unchanged.
+    // the digital epoch has no stereo pair here, so the same skipped.json) are unchanged,
+    // and the control's surfaces (the LiDAR's) owe nothing to a photo.
+    let unchanged = ["change-digital_2012", "control"];
     let downstream: Vec<&str> = STAGES[2..]
         .iter()
         .copied()
-        .filter(|s| *s != "change-digital_2012")
+        .filter(|s| !unchanged.contains(s))
         .collect();
     let r = run(&project);
     assert_eq!(r.ran, downstream, "skipped {:?}", r.skipped);
-    assert_eq!(r.skipped, [&STAGES[..2], &["change-digital_2012"]].concat());
+    assert_eq!(r.skipped, [&STAGES[..2], &unchanged].concat());
     // Changed again, same size, its modification time put back as it was (`touch -r`,
     // a copy that keeps times): the change time tells.
     same_size_edit(&photo, 1);

@@ -4,11 +4,25 @@
 
 mod tests {
     use cloudcontrol::dense::fusion::{DsmGrid, Fusion};
+    use cloudcontrol::geometry::Lattice;
+
+    /// The grid of `cell` over `area` on a 1 m lattice whose corner is the area's, outward
+    /// to whole metres.
+    fn covering(
+        area: [f64; 4],
+        cell: f64,
+    ) -> Result<DsmGrid, cloudcontrol::geometry::GeometryError> {
+        Lattice {
+            base_m: 1.0,
+            corner: [area[0].floor(), area[3].ceil()],
+        }
+        .grid(cell, area)
+    }
 
     #[test]
     fn cells_take_the_median_count_and_spread_of_their_points() {
-        let grid = DsmGrid::covering([10.2, 20.0, 13.9, 22.0], 1.0).unwrap();
-        // Corner on a multiple of the cell: x from 10, y down from 22; 4 × 2 cells.
+        let grid = covering([10.2, 20.0, 13.9, 22.0], 1.0).unwrap();
+        // From the lattice's corner: x from 10, y down from 22; 4 × 2 cells.
         assert_eq!(
             (grid.x_min, grid.y_max, grid.width, grid.height),
             (10.0, 22.0, 4, 2)
@@ -38,7 +52,7 @@ mod tests {
 
     #[test]
     fn a_least_count_leaves_thin_cells_empty() {
-        let grid = DsmGrid::covering([0.0, 0.0, 2.0, 1.0], 1.0).unwrap();
+        let grid = covering([0.0, 0.0, 2.0, 1.0], 1.0).unwrap();
         let mut f = Fusion::new(grid);
         f.extend([[0.5, 0.5, 1.0], [0.5, 0.5, 2.0], [1.5, 0.5, 5.0]]);
         let s = f.finish(2).unwrap();
@@ -54,7 +68,7 @@ mod tests {
             ([1.0, 0.0, 0.0, 1.0], 1.0),
             ([0.0, 0.0, 1e6, 1e6], 1e-2),
         ] {
-            assert!(DsmGrid::covering(area, cell).is_err(), "{area:?} {cell}");
+            assert!(covering(area, cell).is_err(), "{area:?} {cell}");
         }
     }
 }

@@ -254,3 +254,45 @@ def test_each_epoch_surface_read_with_gdal_matches_its_truth(block):
         nmad = float(1.4826 * np.median(np.abs(dz - med)))
         assert len(dz) > 10000, (name, len(dz))
         assert abs(med) <= 0.3 and nmad <= 1.0, (name, med, nmad)
+
+
+def test_every_raster_is_on_one_lattice_and_subtracts_without_resampling(block):
+    """Issue 53's one project grid: every GeoTIFF of the run (read with rasterio) starts at
+    the same corner with a cell of 1 m times a power of two, so numpy subtracts any two by
+    averaging the finer one's k x k blocks, no resampling: the reference DSM (0.125 m)
+    averaged onto the LiDAR's surface (1 m) and subtracted gives, on the change stage's
+    stable terrain, the median dh the change stage computed by its own sampling."""
+    import rasterio
+
+    res = cloudcontrol.run(block / "project.toml", partial_ok=True)
+    out = pathlib.Path(res["output"])
+    tifs = [p for p in out.rglob("*.tif") if "resampled" not in p.parts]
+    assert any(p.name == "lidar_dsm.tif" for p in tifs) and any(p.name == "dh.tif" for p in tifs)
+    corners = set()
+    for p in tifs:
+        with rasterio.open(p) as ds:
+            t = ds.transform
+        assert t.b == 0 and t.d == 0 and t.a == -t.e, p
+        assert np.log2(t.a) == round(np.log2(t.a)), (p, t.a)
+        corners.add((t.c, t.f))
+    assert len(corners) == 1, corners
+
+    def read(path):
+        with rasterio.open(path) as ds:
+            return ds.read(1, masked=True).filled(np.nan).astype(float), ds.transform.a
+
+    lidar, big = read(out / "control" / "lidar_dsm.tif")
+    dsm, small = read(out / "surface-reference_2024" / "dsm.tif")
+    k = int(round(big / small))
+    assert k * small == big
+    h, w = min(lidar.shape[0], dsm.shape[0] // k), min(lidar.shape[1], dsm.shape[1] // k)
+    blocks = dsm[: h * k, : w * k].reshape(h, k, w, k)
+    filled = np.isfinite(blocks).all(axis=(1, 3))
+    coarse = np.where(filled, np.nanmean(blocks, axis=(1, 3)), np.nan)
+    dh = coarse - lidar[:h, :w]
+    stable, _ = read(out / "change-reference_2024" / "stable.tif")
+    use = (stable[:h, :w] == 1) & np.isfinite(dh)
+    assert use.sum() > 1000
+    ours = json.loads((out / "change-reference_2024" / "change.json").read_text())
+    median = ours["control"]["change"]["statistics"]["median_m"]
+    assert abs(float(np.median(dh[use])) - median) < 0.02, (float(np.median(dh[use])), median)

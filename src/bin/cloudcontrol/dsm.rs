@@ -29,7 +29,8 @@ pub struct Args {
     /// Output folder.
     #[arg(long)]
     out: PathBuf,
-    /// DSM cell in metres (default: the photos' median ground pixel).
+    /// DSM cell in metres (default: the finest power of two of a metre not finer than the
+    /// photos' median ground pixel, e.g. 0.25 for 0.21).
     #[arg(long)]
     cell: Option<f64>,
     /// Vertical margin of the search around the prior (m): its errors and what was built

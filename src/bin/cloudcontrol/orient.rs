@@ -351,8 +351,8 @@ pub fn run_bench(a: &BenchArgs, json_out: bool) -> Result<(), String> {
         .collect();
     tiles.sort();
     let refb = synth_truth_block(&dir, "reference_2024").map_err(|e| e.to_string())?;
-    let surface =
-        cloudcontrol::lidar::lidar_surfaces(&tiles, refb.origin, 1.0).map_err(|e| e.to_string())?;
+    let surface = cloudcontrol::lidar::lidar_surfaces(&tiles, refb.origin, 1.0, None)
+        .map_err(|e| e.to_string())?;
     let pkg = export::export_dcp(
         &refb,
         &surface,

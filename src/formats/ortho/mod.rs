@@ -45,6 +45,10 @@ pub struct OrthoOptions {
     pub gsd: Option<f64>,
     /// World extent `(x_min, y_min, x_max, y_max)`; `None`: the DEM's extent.
     pub extent: Option<(f64, f64, f64, f64)>,
+    /// A project's raster lattice: the GSD becomes its nearest lattice cell and the grid
+    /// starts at its corner, so the orthophoto lines up with the project's other rasters.
+    /// `None`: the grid is snapped to multiples of the GSD.
+    pub lattice: Option<crate::geometry::Lattice>,
     /// Internal tile size (pixels, multiple of 16); also the unit the writer renders.
     pub tile: usize,
     /// Bytes of decoded photo images kept between tiles (a tile's own photos are held
@@ -65,6 +69,7 @@ impl Default for OrthoOptions {
         Self {
             gsd: None,
             extent: None,
+            lattice: None,
             tile: 256,
             image_cache_bytes: DEFAULT_IMAGE_CACHE_BYTES,
             overviews: vec![2, 4, 8, 16],
@@ -248,8 +253,16 @@ impl<'a> OrthoGrid<'a> {
             ));
         }
         let (x0, y0, x1, y1) = opts.extent.unwrap_or_else(|| dem.extent());
-        // Snap the grid to multiples of the GSD so adjacent products align.
-        let (x0, y1) = ((x0 / gsd).floor() * gsd, (y1 / gsd).ceil() * gsd);
+        let (gsd, x0, y1) = match &opts.lattice {
+            Some(l) => {
+                let g = l
+                    .grid(l.cell_for(gsd), [x0, y0, x1, y1])
+                    .map_err(FormatError::Geometry)?;
+                (g.cell, g.x_min, g.y_max)
+            }
+            // Snap the grid to multiples of the GSD so adjacent products align.
+            None => (gsd, (x0 / gsd).floor() * gsd, (y1 / gsd).ceil() * gsd),
+        };
         let (w, h) = (((x1 - x0) / gsd).ceil(), ((y1 - y0) / gsd).ceil());
         if w * h > MAX_ORTHO_PIXELS as f64 {
             return Err(FormatError::TooLarge {

@@ -75,8 +75,7 @@ impl OutputsContext {
             &folder.join(RESAMPLED_DIR),
         )?;
         let ground = ControlGround::new(&plan.project, &plan.sources, plan.origin);
-        let (control, ortho) =
-            products::ortho_ground(&plan.project, &block, ground.surface()?, plan.origin)?;
+        let (control, ortho) = products::ortho_ground(&plan.project, &block, &ground, plan.origin)?;
         let (dem, _) = products::ortho_surface(&control, plan.surface_dir.as_deref())?;
         Ok(Self {
             block,

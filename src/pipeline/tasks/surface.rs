@@ -51,11 +51,13 @@ impl SurfaceContext {
     pub(crate) fn load(plan: &SurfaceTaskPlan) -> Result<Self, WorkError> {
         epoch_of(&plan.project, &plan.epoch)?;
         let block = load_block(&plan.epoch_dir)?;
-        let ground = ControlGround::new(&plan.project, &plan.sources, plan.origin)
-            .surface_arc()?
-            .clone();
+        let control = ControlGround::new(&plan.project, &plan.sources, plan.origin);
+        let ground = control.surface_arc()?.clone();
+        // On the project's lattice: the DSM lines up with every other raster of the run.
+        let mut options = plan.options.clone();
+        options.corner = Some(control.lattice()?.corner);
         let surface = prior(&ground);
-        let made = match plan_surface(&block, &surface, None, &plan.options) {
+        let made = match plan_surface(&block, &surface, None, &options) {
             Ok(p) => Ok(p),
             Err(DenseError::NoSurface(reason)) => Err(reason),
             Err(e) => return Err(e.into()),
@@ -63,7 +65,7 @@ impl SurfaceContext {
         Ok(Self {
             block,
             ground,
-            options: plan.options.clone(),
+            options,
             plan: made,
         })
     }
