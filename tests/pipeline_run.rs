@@ -347,8 +347,8 @@ fn an_epoch_without_an_oriented_photo_does_not_stop_the_run() {
     assert!(run.join("outputs-reference_2024/orthophoto.tif").is_file());
 }
 
-/// Every raster of the run, as GDAL reads it: the same upper-left corner, cells of 1 m
-/// times a power of two (the default lattice), no rotation. So any two subtract cell by
+/// Every raster of the run, as GDAL reads it: a Cloud-Optimised GeoTIFF, the same
+/// upper-left corner, cells of 1 m times a power of two (the default lattice), no rotation. So any two subtract cell by
 /// cell: numpy's `a[::k, ::k]` of the finer against the coarser, no resampling.
 fn one_lattice(run: &Path) {
     let rasters: Vec<_> = files_below(run)
@@ -385,6 +385,10 @@ fn one_lattice(run: &Path) {
             .iter()
             .map(|v| v.as_f64().unwrap())
             .collect();
+        assert_eq!(
+            info["metadata"]["IMAGE_STRUCTURE"]["LAYOUT"], "COG",
+            "{tif:?} is not a Cloud-Optimised GeoTIFF"
+        );
         assert_eq!((gt[2], gt[4]), (0.0, 0.0), "{tif:?} rotated");
         assert_eq!(gt[1], -gt[5], "{tif:?} cells not square");
         let n = gt[1].log2();

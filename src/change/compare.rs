@@ -6,9 +6,10 @@
 
 use super::areas::{areas_geojson, changed_areas, AreaOptions, ChangedArea};
 use super::nuth_kaab::{dh_moved, nuth_kaab_from, NuthKaab, NuthKaabOptions};
+use super::render::{dh_map_png, map_range};
 use super::stable::{stable_terrain, StableOptions, StableStep};
 use super::stats::{dh_statistics, DhStatistics};
-use super::terrain::slope_aspect;
+use super::terrain::{slope_aspect, Terrain};
 use super::{invalid, ChangeError, Result};
 use crate::formats::crs::Crs;
 use crate::formats::raster::{read_dem, write_dem, GeoTiffOptions};
@@ -26,6 +27,10 @@ pub const STABLE_FILE: &str = "stable.tif";
 pub const CHANGE_REPORT_FILE: &str = "change.json";
 /// The changed areas as GeoJSON polygons.
 pub const CHANGED_AREAS_FILE: &str = "changed_areas.geojson";
+/// dh in colour over the reference's hillshade ([`super::render`]), for the report.
+pub const DH_MAP_FILE: &str = "dh.png";
+/// Longest side of [`DH_MAP_FILE`] (px).
+const DH_MAP_SIDE: usize = 800;
 
 #[derive(Debug, Clone, PartialEq, Default, Serialize, Deserialize)]
 #[serde(default)]
@@ -71,6 +76,10 @@ pub struct ChangeReport {
     pub changed_areas: usize,
     pub changed_area_m2: f64,
     pub changed_volume_m3: f64,
+    /// dh − median of full colour in [`DH_MAP_FILE`] (m): red that much lower, blue that
+    /// much higher ([`super::render::map_range`]).
+    #[serde(default)]
+    pub map_range_m: f64,
 }
 
 /// What [`compare_dems`] computes: the report, dh (as written) and the stable mask.
@@ -79,6 +88,8 @@ pub struct Comparison {
     pub dh: Vec<f64>,
     pub stable: Vec<bool>,
     pub areas: Vec<ChangedArea>,
+    /// A's slope and aspect (the hillshade of the dh map).
+    pub terrain: Terrain,
 }
 
 /// What is known of the two surface models cell by cell besides their heights.
@@ -179,15 +190,17 @@ pub fn compare_dems(
             nuth_kaab: nk,
             tilt,
             shift_applied: options.apply_shift,
-            statistics,
             statistics_after_shift,
             changed_areas: areas.len(),
             changed_area_m2: areas.iter().map(|a| a.area_m2).sum(),
             changed_volume_m3: areas.iter().map(|a| a.volume_m3).sum(),
+            map_range_m: map_range(&dh, statistics.median_m),
+            statistics,
         },
         dh,
         stable: stable.mask,
         areas,
+        terrain,
     })
 }
 
@@ -301,8 +314,8 @@ pub fn write_change(
     Ok(cmp.report)
 }
 
-/// Writes [`DH_FILE`], [`STABLE_FILE`] and [`CHANGED_AREAS_FILE`] of `cmp` into `dir`, on
-/// the grid of its reference `grid`, in `crs`.
+/// Writes [`DH_FILE`], [`STABLE_FILE`], [`DH_MAP_FILE`] and [`CHANGED_AREAS_FILE`] of
+/// `cmp` into `dir`, on the grid of its reference `grid`, in `crs`.
 pub fn write_rasters(dir: &Path, grid: &Dem, cmp: &Comparison, crs: &Crs) -> Result<()> {
     let on_grid = |data: Vec<f32>| Dem::new(grid.width, grid.height, grid.transform, data);
     let dh = on_grid(cmp.dh.iter().map(|&v| v as f32).collect())?;
@@ -320,6 +333,15 @@ pub fn write_rasters(dir: &Path, grid: &Dem, cmp: &Comparison, crs: &Crs) -> Res
     let opts = GeoTiffOptions::default();
     write_dem(&dir.join(DH_FILE), &dh, crs, &opts)?;
     write_dem(&dir.join(STABLE_FILE), &stable, crs, &opts)?;
+    let r = &cmp.report;
+    let png = dh_map_png(
+        grid,
+        &cmp.terrain,
+        &cmp.dh,
+        (r.statistics.median_m, r.map_range_m),
+        DH_MAP_SIDE,
+    )?;
+    write_bytes_atomically(&dir.join(DH_MAP_FILE), &png)?;
     let name = crs.epsg().map(|e| format!("urn:ogc:def:crs:EPSG::{e}"));
     let json = serde_json::to_vec_pretty(&areas_geojson(&cmp.areas, name.as_deref()))
         .expect("GeoJSON serialises");

@@ -7,11 +7,12 @@
 //!
 //! The steps compose as xdem's: [`terrain`] (slope and aspect of A) → [`stable`] (the mask)
 //! → [`nuth_kaab`] (the shift) → [`stats`] → [`areas`] (what changed, as polygons);
-//! [`compare`] runs them on two rasters.
+//! [`compare`] runs them on two rasters, [`render`] draws dh for the report.
 
 pub mod areas;
 pub mod compare;
 pub mod nuth_kaab;
+pub mod render;
 pub mod stable;
 pub mod stats;
 pub mod terrain;

@@ -133,25 +133,25 @@ pub fn grid_dem(points: &[[f64; 3]], opts: &DemOptions) -> Result<Dem> {
             }
         }
     }
-    fill_holes(&mut data, w, h, opts.max_fill_cells);
+    g.fill(&mut data, opts.max_fill_cells);
     Dem::new(w, h, t, data).map_err(|e| LidarError::data("DEM", e.to_string()))
 }
 
 /// Fills NaN cells ring by ring: each pass gives a hole cell bordering valid cells the mean
 /// of its valid 8-neighbours (values of the previous pass only, so the result does not
 /// depend on scan order).
-fn fill_holes(data: &mut [f32], w: usize, h: usize, passes: usize) {
+fn fill_holes(data: &mut [f32], w: usize, [c0, r0, c1, r1]: [usize; 4], passes: usize) {
     for _ in 0..passes {
         let prev = data.to_vec();
         let mut changed = false;
-        for row in 0..h {
-            for col in 0..w {
+        for row in r0..r1 {
+            for col in c0..c1 {
                 if prev[row * w + col].is_finite() {
                     continue;
                 }
                 let (mut s, mut n) = (0.0f64, 0u32);
-                for r in row.saturating_sub(1)..(row + 2).min(h) {
-                    for q in col.saturating_sub(1)..(col + 2).min(w) {
+                for r in row.saturating_sub(1).max(r0)..(row + 2).min(r1) {
+                    for q in col.saturating_sub(1).max(c0)..(col + 2).min(c1) {
                         let v = prev[r * w + q];
                         if v.is_finite() {
                             s += v as f64;
@@ -180,6 +180,10 @@ pub struct GridGeometry {
     pub cell: f64,
     pub w: usize,
     pub h: usize,
+    /// Cells (col0, row0, col1, row1; ends exclusive) of the extent's own grid, the one
+    /// snapped to the cell: a grid started at a farther corner has the same values there
+    /// and none outside (holes are filled within it, never out into the margin).
+    pub window: [usize; 4],
 }
 
 impl GridGeometry {
@@ -210,6 +214,10 @@ impl GridGeometry {
         };
         let w = (((b.max_x - x0) / c).floor() as usize + 1).max(1);
         let h = (((y1 - b.min_y) / c).floor() as usize + 1).max(1);
+        let (sx0, sy1) = ((b.min_x / c).floor() * c, (b.max_y / c).ceil() * c);
+        let col0 = (((sx0 - x0) / c).round().max(0.0) as usize).min(w - 1);
+        let row0 = (((y1 - sy1) / c).round().max(0.0) as usize).min(h - 1);
+        let window = [col0, row0, w, h];
         if w.saturating_mul(h) > opts.max_cells {
             return Err(LidarError::InvalidOption(format!(
                 "DEM of {w}×{h} cells exceeds the limit of {} cells; use a larger cell or a smaller extent",
@@ -222,7 +230,20 @@ impl GridGeometry {
             cell: c,
             w,
             h,
+            window,
         })
+    }
+
+    /// Holes filled up to `passes` cells within [`Self::window`]; nothing outside it.
+    fn fill(&self, data: &mut [f32], passes: usize) {
+        let [c0, r0, c1, r1] = self.window;
+        for (i, v) in data.iter_mut().enumerate() {
+            let (col, row) = (i % self.w, i / self.w);
+            if !(c0..c1).contains(&col) || !(r0..r1).contains(&row) {
+                *v = f32::NAN;
+            }
+        }
+        fill_holes(data, self.w, self.window, passes);
     }
 
     pub fn transform(&self) -> GeoTransform {
@@ -284,7 +305,7 @@ impl MeanGrid {
     pub fn finish(self, max_fill_cells: usize) -> Result<Dem> {
         let g = self.geometry;
         let mut data = self.means();
-        fill_holes(&mut data, g.w, g.h, max_fill_cells);
+        g.fill(&mut data, max_fill_cells);
         Dem::new(g.w, g.h, g.transform(), data).map_err(|e| LidarError::data("DEM", e.to_string()))
     }
 }

@@ -128,7 +128,7 @@ pub(crate) fn write_epoch_change(
                 sigma_b: spread.as_ref(),
             };
             let cmp = compare_dems(&reference, &dsm, &known, options)?;
-            let vs = dir.join(format!("vs_{name}"));
+            let vs = younger_dir(dir, name);
             std::fs::create_dir_all(&vs).map_err(|e| crate::formats::FormatError::io(&vs, e))?;
             write_rasters(&vs, &reference, &cmp, crs)?;
             Some(comparison(name, gsd, &limits, cmp.report))
@@ -148,6 +148,12 @@ pub(crate) fn write_epoch_change(
         },
     )?;
     Ok(())
+}
+
+/// The folder of the comparison with the next younger epoch `name` in the change stage's
+/// folder `dir`.
+pub(crate) fn younger_dir(dir: &Path, name: &str) -> std::path::PathBuf {
+    dir.join(format!("vs_{name}"))
 }
 
 /// The spread raster of a surface folder, when the fusion wrote one.

@@ -195,6 +195,7 @@ pub(crate) fn ortho_ground(
         formats::ortho::OrthoOptions {
             gsd,
             lattice: Some(control.lattice()?),
+            cog: true,
             ..Default::default()
         },
     ))

@@ -265,7 +265,15 @@ fn orthophoto_places_markers_within_one_ground_pixel_and_handles_occlusion() {
     assert_eq!(gt, report.geotransform);
     assert_eq!((gt[1], gt[5]), (gsd, -gsd));
     assert_eq!(ds.raster_count(), 4);
-    assert_eq!(ds.rasterband(1).unwrap().no_data_value(), Some(0.0));
+    // The alpha band masks; no band has a nodata value (a GeoTIFF's applies to all,
+    // the alpha band's 0 included).
+    for b in 1..=4 {
+        assert_eq!(ds.rasterband(b).unwrap().no_data_value(), None, "band {b}");
+    }
+    assert_eq!(
+        ds.rasterband(4).unwrap().color_interpretation(),
+        gdal::raster::ColorInterpretation::AlphaBand
+    );
     assert!(ds.rasterband(1).unwrap().overview_count().unwrap() >= 2);
     assert_eq!(ds.spatial_ref().unwrap().auth_code().unwrap(), 32650);
 }

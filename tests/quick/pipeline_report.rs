@@ -42,6 +42,41 @@ fn scan(photo: &str, k: usize) -> ScanReport {
     }
 }
 
+/// A dh map of a 40 × 20 m slope with a building gone (dh −3 m) and one raised (+3 m).
+fn sample_dh_map() -> Vec<u8> {
+    let (w, h) = (40, 20);
+    let grid = cloudcontrol::geometry::Dem::new(
+        w,
+        h,
+        cloudcontrol::geometry::GeoTransform::north_up(0.0, 20.0, 1.0),
+        (0..w * h).map(|i| (i % w) as f32 * 0.2).collect(),
+    )
+    .unwrap();
+    let dh: Vec<f64> = (0..w * h)
+        .map(|i| match (i % w, i / w) {
+            (5..=12, 5..=12) => -3.0,
+            (25..=32, 5..=12) => 3.0,
+            _ => 0.0,
+        })
+        .collect();
+    let terrain = cloudcontrol::change::slope_aspect(&grid);
+    cloudcontrol::change::render::dh_map_png(&grid, &terrain, &dh, (0.0, 2.0), 800).unwrap()
+}
+
+#[test]
+fn dh_map_is_red_where_lower_blue_where_higher_over_the_hillshade() {
+    let img = image::load_from_memory(&sample_dh_map()).unwrap().to_rgb8();
+    assert_eq!((img.width(), img.height()), (40, 20));
+    let lower = img.get_pixel(8, 8).0;
+    let higher = img.get_pixel(28, 8).0;
+    let same = img.get_pixel(20, 16).0;
+    assert!(lower[0] > 2 * lower[2] && lower[0] > 100, "{lower:?}");
+    assert!(higher[2] > 2 * higher[0] && higher[2] > 100, "{higher:?}");
+    // No change: grey, the hillshade of an east-facing 11° slope lit from the north-west.
+    assert!(same[0] == same[1] && same[1] == same[2], "{same:?}");
+    assert!((80..240).contains(&same[0]), "{same:?}");
+}
+
 fn sample_report() -> Report {
     let mut epochs = Vec::new();
     for (k, (name, date, gsd)) in [
@@ -186,6 +221,9 @@ fn sample_report() -> Report {
                     changed_areas: 3,
                     changed_area_m2: 412.0,
                     flag: Some("shift 0.43 GSD in plan".into()),
+                    map: Some("change-film_1985/dh.png".into()),
+                    map_range_m: 2.0,
+                    map_png: sample_dh_map(),
                 }]
             } else {
                 Vec::new()
@@ -387,7 +425,13 @@ fn report_json_has_the_documented_fields_and_statistics() {
         json!(["fx", "fy", "k1", "k2"])
     );
     let back: Report = serde_json::from_value(v).unwrap();
-    assert_eq!(back.epochs, r.epochs);
+    // The dh maps' PNG bytes are the HTML's, not the JSON's (which names the file).
+    let mut epochs = r.epochs.clone();
+    for c in epochs.iter_mut().flat_map(|e| e.surface_change.iter_mut()) {
+        assert!(c.map.is_some() && !c.map_png.is_empty());
+        c.map_png.clear();
+    }
+    assert_eq!(back.epochs, epochs);
     assert_eq!(back.run, r.run);
     assert_eq!(back.lidar_checkpoints, r.lidar_checkpoints);
     assert_eq!(back.warnings, r.warnings);
@@ -689,6 +733,13 @@ fn html_report_renders_in_headless_chromium() {
     let m = element(&dom, "checkpoint-map-digital-2005");
     assert!(m.contains("plan error (arrows ×") && has_text(m, "0.05 m"));
     assert!(m.contains("height error (circles):"));
+    // The time series' dh maps: the film epoch's, inline, with its colour range.
+    let maps = element(&dom, "dh-maps");
+    assert!(maps.contains("<img") && maps.contains("data:image/png;base64,"));
+    assert!(
+        maps.contains("full colour at ±2.0 m from the median -0.11 m"),
+        "{maps}"
+    );
 
     let shot = dir.path().join("shot.png");
     let out = chromium_on(

@@ -99,7 +99,8 @@ pub struct OrthoReport {
     pub peak_image_bytes: u64,
 }
 
-/// No-data value of the colour bands; valid pixels are lifted to at least 1.
+/// Colour of cells no photo sees (alpha 0 there); valid pixels are lifted to at least 1,
+/// so a reader that ignores the alpha band can still take 0 as empty.
 pub const ORTHO_NODATA: u8 = 0;
 
 /// One rendered cell: colour and the index of the view it came from (None: no photo
@@ -525,12 +526,9 @@ pub fn write_tiles(
                 .map_err(err)?;
             ds.set_geo_transform(&gt.0).map_err(err)?;
             ds.set_spatial_ref(crs.spatial_ref()).map_err(err)?;
-            for b in 1..=3 {
-                ds.rasterband(b)
-                    .map_err(err)?
-                    .set_no_data_value(ORTHO_NODATA as f64)
-                    .map_err(err)?;
-            }
+            // The alpha band is the mask. No nodata value: a GeoTIFF holds one for all
+            // bands, so it would mark the alpha band's 0 (transparent) as missing too, and
+            // readers that honour both (QGIS, rasterio's masks) would disagree.
             ds.rasterband(4).map_err(err)?.set_alpha().map_err(err)?;
             let mut filled = 0usize;
             let mut occluded = 0usize;

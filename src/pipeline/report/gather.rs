@@ -326,6 +326,7 @@ impl RunFolders {
             f.push(e.dcp.join("skipped.json"));
             f.push(e.outputs.join("skipped.json"));
             f.push(e.change.join(crate::change::compare::CHANGE_REPORT_FILE));
+            f.push(e.change.join(crate::change::compare::DH_MAP_FILE));
         }
         f.retain(|p| p.is_file());
         f
@@ -429,8 +430,25 @@ pub fn make_report(
         if let Some(c) = read_if_file::<crate::pipeline::change::EpochChange>(
             f.change.join(crate::change::compare::CHANGE_REPORT_FILE),
         )? {
-            for cmp in std::iter::once(&c.control).chain(c.younger.as_ref()) {
+            let younger = c
+                .younger
+                .as_ref()
+                .map(|y| crate::pipeline::change::younger_dir(&f.change, &y.against));
+            let dirs = std::iter::once(f.change.clone()).chain(younger);
+            for (cmp, dir) in std::iter::once(&c.control)
+                .chain(c.younger.as_ref())
+                .zip(dirs)
+            {
                 let r = &cmp.change;
+                let map_path = dir.join(crate::change::compare::DH_MAP_FILE);
+                let map_png = std::fs::read(&map_path).unwrap_or_default();
+                let map = (!map_png.is_empty()).then(|| {
+                    map_path
+                        .strip_prefix(f.change.parent().unwrap_or(&f.change))
+                        .unwrap_or(&map_path)
+                        .display()
+                        .to_string()
+                });
                 if let Some(flag) = &cmp.flag {
                     e.warnings.push(Warning::new(
                         WarningKind::SurfaceShift,
@@ -449,6 +467,9 @@ pub fn make_report(
                     changed_areas: r.changed_areas,
                     changed_area_m2: r.changed_area_m2,
                     flag: cmp.flag.clone(),
+                    map,
+                    map_range_m: r.map_range_m,
+                    map_png,
                 });
             }
         }

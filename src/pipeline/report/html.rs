@@ -295,8 +295,42 @@ fn surface_change_table(report: &Report) -> String {
             ));
         }
     }
-    h.push_str("</table></section>");
+    h.push_str("</table>");
+    h.push_str(&dh_maps(report));
+    h.push_str("</section>");
     h
+}
+
+/// The epochs' dh maps side by side, oldest last as in the table: each epoch against the
+/// control's surface over its hillshade, with the colour range under it.
+fn dh_maps(report: &Report) -> String {
+    use base64::Engine;
+    let maps: Vec<String> = report
+        .epochs
+        .iter()
+        .filter_map(|e| {
+            let c = e.surface_change.first().filter(|c| !c.map_png.is_empty())?;
+            Some(format!(
+                "<figure class=\"dh-map\"><img alt=\"dh of {name} against {against}\" \
+                 src=\"data:image/png;base64,{png}\"/><figcaption>{name} ({date}) − {against}: \
+                 <span class=\"dh-lower\">red</span> lower, <span class=\"dh-higher\">blue</span> \
+                 higher, full colour at ±{range} m from the median {median} m</figcaption></figure>",
+                name = esc(&e.name),
+                date = esc(&e.date),
+                against = esc(&c.against),
+                png = base64::engine::general_purpose::STANDARD.encode(&c.map_png),
+                range = fmt(c.map_range_m, 1),
+                median = fmt(c.median_m, 2),
+            ))
+        })
+        .collect();
+    if maps.is_empty() {
+        return String::new();
+    }
+    format!(
+        "<h3>Height change maps</h3><div id=\"dh-maps\" class=\"dh-maps\">{}</div>",
+        maps.concat()
+    )
 }
 
 fn accuracy_table(report: &Report) -> String {
@@ -570,7 +604,10 @@ tr.bad td{background:#fbe3e3}tr.sum td,tr.sum th{border-top:2px solid #888}\
 figure.plot{display:inline-block;border:1px solid #ddd;margin:0 0 12px;padding:4px}\
 figcaption{font-weight:bold;font-size:14px;padding:2px 4px 4px}\
 #warnings li{margin:2px 0}.kind{display:inline-block;background:#f6d889;border-radius:3px;padding:0 5px;font-size:12px}\
-code{font-size:13px}";
+code{font-size:13px}\
+.dh-maps{display:flex;flex-wrap:wrap;gap:12px;align-items:flex-start}\
+figure.dh-map{margin:0;max-width:440px}figure.dh-map img{width:100%;border:1px solid #ddd}\
+figure.dh-map figcaption{font-weight:normal}.dh-lower{color:#c22}.dh-higher{color:#26c}";
 
 /// The self-contained HTML page.
 pub fn render_html(report: &Report) -> Result<String, String> {

@@ -167,6 +167,15 @@ pub struct SurfaceChange {
     pub changed_area_m2: f64,
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub flag: Option<String>,
+    /// The dh map (`dh.png` in the comparison's folder, relative to the run's), its colour
+    /// range (m: full red that much lower, full blue that much higher than the median).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub map: Option<String>,
+    #[serde(default)]
+    pub map_range_m: f64,
+    /// The map's PNG bytes, for the HTML report (not serialised to JSON).
+    #[serde(skip)]
+    pub map_png: Vec<u8>,
 }
 
 /// One thing a user should know about the run, recorded where it was decided.
