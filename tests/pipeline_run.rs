@@ -9,7 +9,7 @@ use std::process::{Command, Stdio};
 use std::time::{Duration, Instant};
 
 mod common;
-use common::{block_copy, epoch, exe, files_below, json_of, px};
+use common::{block_copy, epoch, exe, files_below, gdalinfo, json_of, px};
 
 #[test]
 fn demo_runs_the_workflow_and_a_killed_run_resumes_identically() {
@@ -137,12 +137,7 @@ fn demo_runs_the_workflow_and_a_killed_run_resumes_identically() {
         (film.join("orthophoto.tif"), 4),
         (run.join("control/lidar_dem.tif"), 1),
     ] {
-        let info = Command::new("gdalinfo")
-            .arg("-json")
-            .arg(&tif)
-            .output()
-            .unwrap();
-        let info: Value = serde_json::from_slice(&info.stdout).expect("gdalinfo JSON");
+        let info = gdalinfo(&tif);
         let wkt = info["coordinateSystem"]["wkt"].as_str().unwrap_or("");
         assert!(wkt.contains("4547"), "{tif:?} CRS: {wkt}");
         assert_eq!(info["bands"].as_array().unwrap().len(), bands, "{tif:?}");
@@ -373,12 +368,7 @@ fn one_lattice(run: &Path) {
     }
     let mut corner: Option<(f64, f64)> = None;
     for tif in &rasters {
-        let info = Command::new("gdalinfo")
-            .arg("-json")
-            .arg(tif)
-            .output()
-            .unwrap();
-        let info: Value = serde_json::from_slice(&info.stdout).expect("gdalinfo JSON");
+        let info = gdalinfo(tif);
         let gt: Vec<f64> = info["geoTransform"]
             .as_array()
             .unwrap()

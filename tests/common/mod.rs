@@ -371,3 +371,13 @@ pub fn run_confined(cmd: &std::process::Command, rlimit_as: u64, limit_s: f64) -
 pub fn cli_confined(args: &[&str]) -> Confined {
     run_confined(std::process::Command::new(exe()).args(args), 2 << 30, 30.0)
 }
+
+/// `gdalinfo -json` of a raster: the independent reader of every GeoTIFF we write.
+pub fn gdalinfo(path: &std::path::Path) -> serde_json::Value {
+    let out = std::process::Command::new("gdalinfo")
+        .arg("-json")
+        .arg(path)
+        .output()
+        .expect("gdalinfo runs");
+    serde_json::from_slice(&out.stdout).unwrap_or_else(|e| panic!("gdalinfo JSON of {path:?}: {e}"))
+}
