@@ -5,12 +5,15 @@
 //! pixel → fiducial mm estimated with residuals in µm. The scan orientation (rotated by
 //! 90°/180°/270° or mirrored) is found, not guessed: all eight orientations of the
 //! square's symmetry group are measured and compared ([`orientation`]), and a decision
-//! below the confidence margin is an error naming the scan. An oriented scan is resampled
-//! into a fiducial-frame image with a plain frame camera ([`frame_image`]).
+//! below the confidence margin is an error naming the scan. Only windows around the
+//! predicted marks (and the data strip) are read, each with its own pyramid ([`patches`]):
+//! a scan file is never held whole. An oriented scan is resampled into a fiducial-frame
+//! image with a plain frame camera ([`frame_image`]).
 
 mod camera;
 pub mod frame_image;
 mod orientation;
+mod patches;
 mod shape;
 mod solve;
 
@@ -28,13 +31,13 @@ pub use orientation::{
 };
 pub use shape::{render_template, FiducialShape, ShapeKind};
 
-use super::matcher::{match_template, MatchOptions};
-use super::ncc::Window;
-use super::pyramid::PyramidOver;
+use super::matcher::MatchOptions;
+use super::scan_windows::ScanWindows;
 use super::{GreyImage, MatchingError, Result};
 use crate::geometry::{InteriorOrientation, InteriorTransformKind};
 use nalgebra::{Matrix2, Vector2};
 use orientation::Hypothesis;
+use patches::Patches;
 use serde::Serialize;
 use std::collections::HashMap;
 use std::path::Path;
@@ -140,14 +143,15 @@ pub struct IoResult {
     pub warnings: Vec<String>,
 }
 
-/// Fiducial interior orientation of a scan file.
+/// Fiducial interior orientation of a scan file, read by windows around the marks
+/// ([`ScanWindows`]).
 pub fn interior_orientation_file(
     cam: &CameraDefinition,
     scan: &Path,
     opts: &IoOptions,
 ) -> Result<IoResult> {
-    let img = GreyImage::load(scan)?;
-    interior_orientation(cam, &img, &scan.display().to_string(), opts)
+    let windows = ScanWindows::open(scan)?;
+    orient(cam, windows, &scan.display().to_string(), opts)
 }
 
 /// Wide-search cache key: rounded predicted pixel, mark shape, scan orientation.
@@ -160,7 +164,19 @@ pub fn interior_orientation(
     name: &str,
     opts: &IoOptions,
 ) -> Result<IoResult> {
+    orient(cam, ScanWindows::held(img), name, opts)
+}
+
+/// The interior orientation of a scan read by windows.
+fn orient(
+    cam: &CameraDefinition,
+    scan: ScanWindows,
+    name: &str,
+    opts: &IoOptions,
+) -> Result<IoResult> {
     cam.validate().map_err(MatchingError::Camera)?;
+    let mut scan = Patches::new(scan);
+    let (width, height) = scan.size();
     if let Some(f) = cam
         .fiducials
         .iter()
@@ -185,7 +201,7 @@ pub fn interior_orientation(
             check_scan_pixel_um(s * 1000.0).map_err(orr)?;
             s
         }
-        None => cam.format_mm[0].max(cam.format_mm[1]) / img.width.min(img.height) as f64,
+        None => cam.format_mm[0].max(cam.format_mm[1]) / width.min(height) as f64,
     };
     let margin_mm = 0.5
         * cam
@@ -210,9 +226,7 @@ pub fn interior_orientation(
             )));
         }
     }
-    // Level 0 is the scan itself, not a copy.
-    let pyr = PyramidOver::new(img, 8, 16);
-    let centre = Vector2::new(img.width as f64 / 2.0, img.height as f64 / 2.0);
+    let centre = Vector2::new(width as f64 / 2.0, height as f64 / 2.0);
     // Two marks far apart carry the wide search; when one of them is missing or
     // damaged, the next pair (by decreasing distance) takes over.
     let n = cam.fiducials.len();
@@ -228,9 +242,14 @@ pub fn interior_orientation(
     pairs.retain(|p| p.2 >= 0.6 * dmax);
     let (ia, ib) = (pairs[0].0, pairs[0].1);
     let mut wide_cache: HashMap<WideKey, Option<(f64, f64, f64)>> = HashMap::new();
-    let mut wide = |f: &FiducialDef, o: ScanOrientation| -> Option<(f64, f64, f64)> {
+    let mut wide = |scan: &mut Patches,
+                    f: &FiducialDef,
+                    o: ScanOrientation|
+     -> Result<Option<(f64, f64, f64)>> {
         let lin = o.linear(s);
-        let inv = lin.try_inverse()?;
+        let Some(inv) = lin.try_inverse() else {
+            return Ok(None);
+        };
         let p = centre + inv * Vector2::new(f.x_mm, f.y_mm);
         let key = (
             p.x.round() as i64,
@@ -240,21 +259,22 @@ pub fn interior_orientation(
             o.mirrored,
         );
         if let Some(v) = wide_cache.get(&key) {
-            return *v;
+            return Ok(*v);
         }
-        let res = render_template(&f.shape, &lin, margin_mm).and_then(|tpl| {
+        let mut found = None;
+        if let Some(tpl) = render_template(&f.shape, &lin, margin_mm) {
             let half = opts.search_mm / s + tpl.width.max(tpl.height) as f64 / 2.0;
-            Window::around(img, p.x, p.y, half, half).and_then(|w| {
+            if let Some(w) = scan.around(p.x, p.y, half, half) {
                 let mut mo = opts.matching.clone();
                 mo.use_lsm = false;
-                match_template(&pyr, &tpl, w, None, &mo).ok()
-            })
-        });
-        let v = res
+                found = scan.search(&tpl, w, &mo)?.ok();
+            }
+        }
+        let v = found
             .filter(|m| m.ncc >= opts.matching.ncc_threshold)
             .map(|m| (m.x, m.y, m.ncc));
         wide_cache.insert(key, v);
-        v
+        Ok(v)
     };
     let (_, dof) = solve::need_and_dof(opts.kind);
     let max_res = if opts.max_residual_um > 0.0 {
@@ -270,10 +290,18 @@ pub fn interior_orientation(
     let mut fit_errors: Vec<(usize, String)> = Vec::new();
     for o in ScanOrientation::all() {
         let is_given = opts.orientation == Some(o);
-        let Some((fa, fb, pa, pb)) = pairs.iter().find_map(|&(i, j, _)| {
+        let mut two = None;
+        for &(i, j, _) in &pairs {
             let (fa, fb) = (&cam.fiducials[i], &cam.fiducials[j]);
-            Some((fa, fb, wide(fa, o)?, wide(fb, o)?))
-        }) else {
+            let Some(pa) = wide(&mut scan, fa, o)? else {
+                continue;
+            };
+            if let Some(pb) = wide(&mut scan, fb, o)? {
+                two = Some((fa, fb, pa, pb));
+                break;
+            }
+        }
+        let Some((fa, fb, pa, pb)) = two else {
             if is_given {
                 given_failed = Some(format!(
                     "no two opposite fiducial marks (first tried: {} and {}) found in a ±{} mm \
@@ -303,7 +331,7 @@ pub fn interior_orientation(
         };
         let origin_px = Vector2::new(pa.0, pa.1) - inv * Vector2::new(fa.x_mm, fa.y_mm);
         let predict = |f: &FiducialDef| origin_px + inv * Vector2::new(f.x_mm, f.y_mm);
-        let mut marks = measure_marks(cam, img, &pyr, &|_| lin, &predict, s, margin_mm, opts);
+        let mut marks = measure_marks(cam, &mut scan, &|_| lin, &predict, s, margin_mm, opts)?;
         match solve::fit(&mut marks, opts.kind, max_res, name) {
             Ok(fit) => {
                 let score = orientation::score(
@@ -347,7 +375,14 @@ pub fn interior_orientation(
             ),
         }));
     }
-    let best_margin = orientation::rank(&mut hyps, img, cam.data_strip.as_ref());
+    let strip_stds = match &cam.data_strip {
+        Some(strip) => hyps
+            .iter()
+            .map(|h| scan.strip_std(&h.io, strip))
+            .collect::<Result<Vec<_>>>()?,
+        None => Vec::new(),
+    };
+    let best_margin = orientation::rank(&mut hyps, &strip_stds);
     let scores: Vec<OrientationScore> = hyps.iter().map(|h| h.score.clone()).collect();
     let describe = |k: usize| {
         let h = &scores[k];
@@ -418,8 +453,7 @@ pub fn interior_orientation(
     let io0 = h.io.clone();
     let mut marks = measure_marks(
         cam,
-        img,
-        &pyr,
+        &mut scan,
         &|f| {
             let (_, jac) = io0.mm_to_pixel_with_jacobian(Vector2::new(f.x_mm, f.y_mm));
             jac.try_inverse().unwrap_or_else(|| o_lin(&io0))
@@ -428,6 +462,12 @@ pub fn interior_orientation(
         s,
         margin_mm,
         opts,
+    )?;
+    tracing::debug!(
+        scan = name,
+        pixels_read = scan.pixels_read(),
+        pixels = width * height,
+        "fiducial windows"
     );
     if let Ok(fit) = solve::fit(&mut marks, opts.kind, max_res, name) {
         if marks.iter().filter(|m| m.used).count() >= h.score.marks_used {
@@ -486,19 +526,20 @@ fn o_lin(io: &InteriorOrientation) -> Matrix2<f64> {
 }
 
 /// Measures every mark around its predicted position: NCC + LSM in a ±1 mm window, the
-/// template drawn through `lin` (pixel → mm at the mark).
-#[allow(clippy::too_many_arguments)]
+/// template drawn through `lin` (pixel → mm at the mark). Err: the scan could not be read.
 fn measure_marks(
     cam: &CameraDefinition,
-    img: &GreyImage,
-    pyr: &PyramidOver,
+    scan: &mut Patches,
     lin: &dyn Fn(&FiducialDef) -> Matrix2<f64>,
     predict: &dyn Fn(&FiducialDef) -> Vector2<f64>,
     s: f64,
     margin_mm: f64,
     opts: &IoOptions,
-) -> Vec<MarkResult> {
+) -> Result<Vec<MarkResult>> {
     let mut marks = Vec::new();
+    // Marks of one shape drawn through the same map share their template (an affine's
+    // map is the same at every mark).
+    let mut templates: HashMap<(String, [u64; 4]), Option<GreyImage>> = HashMap::new();
     for f in &cam.fiducials {
         let pred = predict(f);
         let lin = lin(f);
@@ -515,7 +556,14 @@ fn measure_marks(
             residual_norm_um: f64::NAN,
             reason: None,
         };
-        let Some(tpl) = render_template(&f.shape, &lin, margin_mm) else {
+        let key = (
+            f.shape.key(),
+            [lin.m11, lin.m12, lin.m21, lin.m22].map(f64::to_bits),
+        );
+        let tpl = templates
+            .entry(key)
+            .or_insert_with(|| render_template(&f.shape, &lin, margin_mm));
+        let Some(tpl) = tpl.as_ref() else {
             mr.reason = Some(format!(
                 "no template at this scale (smaller than 5 scan pixels, or more than \
                  {MAX_TEMPLATE_PIXELS} pixels)"
@@ -529,9 +577,9 @@ fn measure_marks(
             half + tpl.width as f64 / 2.0,
             half + tpl.height as f64 / 2.0,
         );
-        match Window::around(img, pred.x, pred.y, hw, hh) {
+        match scan.around(pred.x, pred.y, hw, hh) {
             None => mr.reason = Some("predicted position outside the scan".into()),
-            Some(w) => match match_template(pyr, &tpl, w, None, &opts.matching) {
+            Some(w) => match scan.search(tpl, w, &opts.matching)? {
                 Err(e) => mr.reason = Some(e.to_string()),
                 Ok(m) => {
                     mr.ncc = m.ncc;
@@ -548,7 +596,7 @@ fn measure_marks(
         }
         marks.push(mr);
     }
-    marks
+    Ok(marks)
 }
 
 impl IoResult {

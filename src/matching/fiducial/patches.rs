@@ -1,0 +1,275 @@
+//! The scan as the interior orientation reads it: the windows around the predicted marks
+//! (and the data strip), each read once with a pyramid of its own, never the whole scan's
+//! grey copy or pyramid (a 21 µm scan is 10⁸ pixels; its marks need a few 10⁶).
+//!
+//! A search gives the result it would give on the pyramid of the whole scan. A patch's
+//! corner lies on the grid of its coarsest level (a multiple of 2^L), so its level-l
+//! pixels are those of the whole scan's level l; the blur of each level makes the 2
+//! pixels along a patch edge differ from the whole scan's (the edge is replicated where
+//! the scan goes on), which the search never reaches: a patch holds the search window
+//! with a margin of 4 coarsest-level pixels, 8 full-resolution ones for the least-squares
+//! match and the template's size beyond it. A patch read for one search serves the later
+//! ones it holds in that way (the eight scan orientations predict the same marks within
+//! a few pixels).
+
+use super::super::matcher::{match_template, MatchOptions, MatchResult};
+use super::super::ncc::Window;
+use super::super::pyramid::Pyramid;
+use super::super::scan_windows::ScanWindows;
+use super::super::{GreyImage, Result};
+use super::camera::DataStrip;
+use crate::geometry::InteriorOrientation;
+use nalgebra::Vector2;
+
+/// The pyramid of a whole scan had at most this many levels…
+const SCAN_LEVELS: usize = 8;
+/// …and a coarsest level at least this many pixels a side.
+const SCAN_LEVEL_SIDE: usize = 16;
+
+/// Pixels a new patch reaches beyond what its search needs, so that the neighbouring
+/// predictions of the other scan orientations find it.
+const SLACK: usize = 32;
+
+/// Data-strip samples whose pixels are gathered at a time (16 bytes each).
+const STRIP_SAMPLES: usize = 1 << 20;
+
+/// Scan rows read at a time for the data strip.
+const STRIP_BAND_ROWS: usize = 256;
+
+/// A window of the scan with its pyramid.
+struct Patch {
+    col: usize,
+    row: usize,
+    width: usize,
+    height: usize,
+    pyr: Pyramid,
+}
+
+/// The windows of one scan read so far (module documentation).
+pub(super) struct Patches<'a> {
+    scan: ScanWindows<'a>,
+    width: usize,
+    height: usize,
+    /// Levels the whole scan's pyramid had.
+    scan_levels: usize,
+    patches: Vec<Patch>,
+}
+
+impl<'a> Patches<'a> {
+    pub fn new(scan: ScanWindows<'a>) -> Self {
+        let (width, height) = scan.size();
+        let (mut w, mut h, mut scan_levels) = (width, height, 1);
+        while scan_levels < SCAN_LEVELS && w / 2 >= SCAN_LEVEL_SIDE && h / 2 >= SCAN_LEVEL_SIDE {
+            w /= 2;
+            h /= 2;
+            scan_levels += 1;
+        }
+        Self {
+            scan,
+            width,
+            height,
+            scan_levels,
+            patches: Vec::new(),
+        }
+    }
+
+    /// Width and height of the scan.
+    pub fn size(&self) -> (usize, usize) {
+        (self.width, self.height)
+    }
+
+    /// Pixels read from the scan so far.
+    pub fn pixels_read(&self) -> u64 {
+        self.scan.pixels_read()
+    }
+
+    /// The window centred on (x, y) with the given half-size, clipped to the scan
+    /// ([`Window::around`] of the whole scan).
+    pub fn around(&self, x: f64, y: f64, half_w: f64, half_h: f64) -> Option<Window> {
+        let c0 = (x - half_w).floor().max(0.0);
+        let r0 = (y - half_h).floor().max(0.0);
+        let c1 = (x + half_w).ceil().min(self.width as f64);
+        let r1 = (y + half_h).ceil().min(self.height as f64);
+        if c1 <= c0 || r1 <= r0 {
+            return None;
+        }
+        Some(Window {
+            col: c0 as usize,
+            row: r0 as usize,
+            width: (c1 - c0) as usize,
+            height: (r1 - r0) as usize,
+        })
+    }
+
+    /// [`match_template`] of `tpl` in `window` of the scan, positions in scan pixels. The
+    /// outer error is the scan's (it could not be read), the inner one the match's.
+    pub fn search(
+        &mut self,
+        tpl: &GreyImage,
+        window: Window,
+        opts: &MatchOptions,
+    ) -> Result<Result<MatchResult>> {
+        let levels = self.levels_for(tpl, window, opts.min_template_px);
+        let k = self.patch_for(window, levels, tpl)?;
+        let p = &self.patches[k];
+        let local = Window {
+            col: window.col - p.col,
+            row: window.row - p.row,
+            ..window
+        };
+        let (dx, dy) = (p.col as f64, p.row as f64);
+        Ok(match_template(&p.pyr, tpl, local, None, opts).map(|mut m| {
+            m.x += dx;
+            m.y += dy;
+            m.ncc_x += dx;
+            m.ncc_y += dy;
+            m
+        }))
+    }
+
+    /// Pyramid levels the coarse-to-fine search of `tpl` in `window` goes through on the
+    /// whole scan's pyramid (at most; a template that blurs to a constant stops earlier,
+    /// on any pyramid): the sizes `ncc_search_pyramid` checks, level by level.
+    fn levels_for(&self, tpl: &GreyImage, window: Window, min_template_px: usize) -> usize {
+        let min = min_template_px.max(3);
+        let (mut tw, mut th, mut level) = (tpl.width, tpl.height, 0);
+        while level + 1 < self.scan_levels {
+            let s = 1usize << (level + 1);
+            if tw / 2 < min
+                || th / 2 < min
+                || window.width / s < tw / 2 + 2
+                || window.height / s < th / 2 + 2
+            {
+                break;
+            }
+            tw /= 2;
+            th /= 2;
+            level += 1;
+        }
+        level + 1
+    }
+
+    /// A patch whose pyramid of `levels` levels serves a search of `tpl` in `window`: one
+    /// read before, or a new one.
+    fn patch_for(&mut self, window: Window, levels: usize, tpl: &GreyImage) -> Result<usize> {
+        let grid = 1usize << (levels - 1);
+        let margin = (4 * grid + 8).max(tpl.width).max(tpl.height);
+        let (w, h) = (self.width, self.height);
+        let (c0, r0) = (window.col, window.row);
+        let (c1, r1) = (c0 + window.width, r0 + window.height);
+        let serves = |p: &Patch| {
+            let (pc1, pr1) = (p.col + p.width, p.row + p.height);
+            p.pyr.levels.len() >= levels
+                && p.col % grid == 0
+                && p.row % grid == 0
+                && (p.col == 0 || c0 >= p.col + margin)
+                && (p.row == 0 || r0 >= p.row + margin)
+                && (pc1 == w || c1 + margin <= pc1)
+                && (pr1 == h || r1 + margin <= pr1)
+                && p.col <= c0
+                && p.row <= r0
+                && c1 <= pc1
+                && r1 <= pr1
+        };
+        if let Some(k) = self.patches.iter().position(serves) {
+            return Ok(k);
+        }
+        let reach = margin + SLACK;
+        let col = c0.saturating_sub(reach) / grid * grid;
+        let row = r0.saturating_sub(reach) / grid * grid;
+        let area = Window {
+            col,
+            row,
+            width: (c1 + reach).min(w) - col,
+            height: (r1 + reach).min(h) - row,
+        };
+        let img = self.scan.read(area)?;
+        self.patches.push(Patch {
+            col,
+            row,
+            width: area.width,
+            height: area.height,
+            pyr: Pyramid::from_image(img, levels, 1),
+        });
+        Ok(self.patches.len() - 1)
+    }
+
+    /// Grey-value standard deviation of the scan over the data strip as `io` places it,
+    /// sampled every scan pixel (at least every 0.1 mm); None when less than half of it
+    /// lies inside the scan.
+    pub fn strip_std(
+        &mut self,
+        io: &InteriorOrientation,
+        strip: &DataStrip,
+    ) -> Result<Option<f64>> {
+        let step_mm = io.mean_pixel_size_mm().max(0.1);
+        let nx = (((strip.x_mm[1] - strip.x_mm[0]) / step_mm).ceil() as usize).clamp(1, 4000);
+        let ny = (((strip.y_mm[1] - strip.y_mm[0]) / step_mm).ceil() as usize).clamp(1, 4000);
+        let (w, h) = (self.width as f64, self.height as f64);
+        let (mut n, mut sum, mut sq) = (0usize, 0.0, 0.0);
+        let rows_at_once = (STRIP_SAMPLES / nx).max(1);
+        for j0 in (0..ny).step_by(rows_at_once) {
+            let mut pixels = Vec::new();
+            for j in j0..(j0 + rows_at_once).min(ny) {
+                for i in 0..nx {
+                    let mm = Vector2::new(
+                        strip.x_mm[0]
+                            + (i as f64 + 0.5) * (strip.x_mm[1] - strip.x_mm[0]) / nx as f64,
+                        strip.y_mm[0]
+                            + (j as f64 + 0.5) * (strip.y_mm[1] - strip.y_mm[0]) / ny as f64,
+                    );
+                    let p = io.mm_to_pixel(mm);
+                    if p.x >= 0.0 && p.y >= 0.0 && p.x < w && p.y < h {
+                        pixels.push((p.x as usize, p.y as usize));
+                    }
+                }
+            }
+            // Summed in the order of the samples, however the pixels were read.
+            for v in self.values_at(&pixels)? {
+                let v = v as f64;
+                n += 1;
+                sum += v;
+                sq += v * v;
+            }
+        }
+        if 2 * n < nx * ny {
+            return Ok(None);
+        }
+        let mean = sum / n as f64;
+        Ok(Some((sq / n as f64 - mean * mean).max(0.0).sqrt()))
+    }
+
+    /// The grey values at pixels (col, row) of the scan: from the scan when it is held,
+    /// else by bands of rows.
+    fn values_at(&mut self, pixels: &[(usize, usize)]) -> Result<Vec<f32>> {
+        if let Some(img) = self.scan.image() {
+            return Ok(pixels.iter().map(|&(c, r)| img.at(c, r)).collect());
+        }
+        let mut order: Vec<usize> = (0..pixels.len()).collect();
+        order.sort_unstable_by_key(|&k| (pixels[k].1, pixels[k].0));
+        let mut values = vec![0f32; pixels.len()];
+        let mut s = 0;
+        while s < order.len() {
+            let top = pixels[order[s]].1;
+            let (mut left, mut right, mut e) = (usize::MAX, 0, s);
+            while e < order.len() && pixels[order[e]].1 < top + STRIP_BAND_ROWS {
+                left = left.min(pixels[order[e]].0);
+                right = right.max(pixels[order[e]].0);
+                e += 1;
+            }
+            let bottom = pixels[order[e - 1]].1;
+            let band = self.scan.read(Window {
+                col: left,
+                row: top,
+                width: right + 1 - left,
+                height: bottom + 1 - top,
+            })?;
+            for &k in &order[s..e] {
+                let (c, r) = pixels[k];
+                values[k] = band.at(c - left, r - top);
+            }
+            s = e;
+        }
+        Ok(values)
+    }
+}
