@@ -37,7 +37,7 @@ use super::{GreyImage, MatchingError, Result};
 use crate::geometry::{InteriorOrientation, InteriorTransformKind};
 use nalgebra::{Matrix2, Vector2};
 use orientation::Hypothesis;
-use patches::Patches;
+use patches::{smoothed, Patches};
 use serde::Serialize;
 use std::collections::HashMap;
 use std::path::Path;
@@ -525,8 +525,12 @@ fn o_lin(io: &InteriorOrientation) -> Matrix2<f64> {
     io.pixel_to_mm.fixed_view::<2, 2>(0, 0).into_owned()
 }
 
-/// Measures every mark around its predicted position: NCC + LSM in a ±1 mm window, the
-/// template drawn through `lin` (pixel → mm at the mark). Err: the scan could not be read.
+/// A mark's template: its shape and the bits of the map it is drawn through.
+type TemplateKey = (String, [u64; 4]);
+
+/// Measures every mark around its predicted position: NCC + LSM in a ±1 mm window of the
+/// smoothed scan ([`patches::SMOOTH_PX`]), the template drawn through `lin` (pixel → mm
+/// at the mark). Err: the scan could not be read.
 fn measure_marks(
     cam: &CameraDefinition,
     scan: &mut Patches,
@@ -538,8 +542,8 @@ fn measure_marks(
 ) -> Result<Vec<MarkResult>> {
     let mut marks = Vec::new();
     // Marks of one shape drawn through the same map share their template (an affine's
-    // map is the same at every mark).
-    let mut templates: HashMap<(String, [u64; 4]), Option<GreyImage>> = HashMap::new();
+    // map is the same at every mark), smoothed when it is large enough.
+    let mut templates: HashMap<TemplateKey, Option<(GreyImage, bool)>> = HashMap::new();
     for f in &cam.fiducials {
         let pred = predict(f);
         let lin = lin(f);
@@ -560,10 +564,11 @@ fn measure_marks(
             f.shape.key(),
             [lin.m11, lin.m12, lin.m21, lin.m22].map(f64::to_bits),
         );
-        let tpl = templates
-            .entry(key)
-            .or_insert_with(|| render_template(&f.shape, &lin, margin_mm));
-        let Some(tpl) = tpl.as_ref() else {
+        let tpl = templates.entry(key).or_insert_with(|| {
+            render_template(&f.shape, &lin, margin_mm)
+                .map(|t| smoothed(&t).map_or((t, false), |s| (s, true)))
+        });
+        let Some((tpl, smooth)) = tpl.as_ref() else {
             mr.reason = Some(format!(
                 "no template at this scale (smaller than 5 scan pixels, or more than \
                  {MAX_TEMPLATE_PIXELS} pixels)"
@@ -577,22 +582,29 @@ fn measure_marks(
             half + tpl.width as f64 / 2.0,
             half + tpl.height as f64 / 2.0,
         );
-        match scan.around(pred.x, pred.y, hw, hh) {
-            None => mr.reason = Some("predicted position outside the scan".into()),
-            Some(w) => match scan.search(tpl, w, &opts.matching)? {
-                Err(e) => mr.reason = Some(e.to_string()),
-                Ok(m) => {
-                    mr.ncc = m.ncc;
-                    if m.accepted {
-                        mr.x = m.x;
-                        mr.y = m.y;
-                        mr.sigma_px = m.sigma_x.hypot(m.sigma_y);
-                        mr.used = true;
-                    } else {
-                        mr.reason = m.reason;
-                    }
+        let Some(w) = scan.around(pred.x, pred.y, hw, hh) else {
+            mr.reason = Some("predicted position outside the scan".into());
+            marks.push(mr);
+            continue;
+        };
+        let found = if *smooth {
+            scan.search_smoothed(tpl, w, &opts.matching)?
+        } else {
+            scan.search(tpl, w, &opts.matching)?
+        };
+        match found {
+            Err(e) => mr.reason = Some(e.to_string()),
+            Ok(m) => {
+                mr.ncc = m.ncc;
+                if m.accepted {
+                    mr.x = m.x;
+                    mr.y = m.y;
+                    mr.sigma_px = m.sigma_x.hypot(m.sigma_y);
+                    mr.used = true;
+                } else {
+                    mr.reason = m.reason;
                 }
-            },
+            }
         }
         marks.push(mr);
     }
