@@ -12,6 +12,7 @@
 
 mod camera;
 pub mod frame_image;
+mod marks;
 mod orientation;
 mod patches;
 mod shape;
@@ -37,7 +38,8 @@ use super::{GreyImage, MatchingError, Result};
 use crate::geometry::{InteriorOrientation, InteriorTransformKind};
 use nalgebra::{Matrix2, Vector2};
 use orientation::Hypothesis;
-use patches::{smoothed, Patches};
+use patches::Patches;
+use rayon::prelude::*;
 use serde::Serialize;
 use std::collections::HashMap;
 use std::path::Path;
@@ -267,7 +269,7 @@ fn orient(
             if let Some(w) = scan.around(p.x, p.y, half, half) {
                 let mut mo = opts.matching.clone();
                 mo.use_lsm = false;
-                found = scan.search(&tpl, w, &mo)?.ok();
+                found = scan.search(&tpl, w, &mo, false)?.ok();
             }
         }
         let v = found
@@ -285,9 +287,8 @@ fn orient(
     };
     // Every orientation is measured, also with one given: the margin then says whether
     // the marks agree with it.
-    let mut hyps: Vec<Hypothesis> = Vec::new();
     let mut given_failed: Option<String> = None;
-    let mut fit_errors: Vec<(usize, String)> = Vec::new();
+    let mut plans = Vec::new();
     for o in ScanOrientation::all() {
         let is_given = opts.orientation == Some(o);
         let mut two = None;
@@ -331,7 +332,22 @@ fn orient(
         };
         let origin_px = Vector2::new(pa.0, pa.1) - inv * Vector2::new(fa.x_mm, fa.y_mm);
         let predict = |f: &FiducialDef| origin_px + inv * Vector2::new(f.x_mm, f.y_mm);
-        let mut marks = measure_marks(cam, &mut scan, &|_| lin, &predict, s, margin_mm, opts)?;
+        let plan = marks::plan(cam, &mut scan, &|_| lin, &predict, s, margin_mm, opts)?;
+        plans.push((o, plan));
+    }
+    // Every window is read by now: the hypotheses are measured in parallel, each search
+    // in a window read before (the results of one thread).
+    let measured: Vec<(ScanOrientation, Vec<MarkResult>)> = {
+        let ready = scan.ready();
+        plans
+            .into_par_iter()
+            .map(|(o, plan)| (o, plan.measure(&ready, &opts.matching)))
+            .collect()
+    };
+    let mut hyps: Vec<Hypothesis> = Vec::new();
+    let mut fit_errors: Vec<(usize, String)> = Vec::new();
+    for (o, mut marks) in measured {
+        let is_given = opts.orientation == Some(o);
         match solve::fit(&mut marks, opts.kind, max_res, name) {
             Ok(fit) => {
                 let score = orientation::score(
@@ -451,7 +467,7 @@ fn orient(
     // asymmetric mark (a real crop) no longer pulls its match off by a fraction of the
     // geometric mismatch.
     let io0 = h.io.clone();
-    let mut marks = measure_marks(
+    let plan = marks::plan(
         cam,
         &mut scan,
         &|f| {
@@ -463,6 +479,7 @@ fn orient(
         margin_mm,
         opts,
     )?;
+    let mut marks = plan.measure(&scan.ready(), &opts.matching);
     tracing::debug!(
         scan = name,
         pixels_read = scan.pixels_read(),
@@ -523,92 +540,6 @@ fn orient(
 /// Linear part (pixel → mm) of a transform.
 fn o_lin(io: &InteriorOrientation) -> Matrix2<f64> {
     io.pixel_to_mm.fixed_view::<2, 2>(0, 0).into_owned()
-}
-
-/// A mark's template: its shape and the bits of the map it is drawn through.
-type TemplateKey = (String, [u64; 4]);
-
-/// Measures every mark around its predicted position: NCC + LSM in a ±1 mm window of the
-/// smoothed scan ([`patches::SMOOTH_PX`]), the template drawn through `lin` (pixel → mm
-/// at the mark). Err: the scan could not be read.
-fn measure_marks(
-    cam: &CameraDefinition,
-    scan: &mut Patches,
-    lin: &dyn Fn(&FiducialDef) -> Matrix2<f64>,
-    predict: &dyn Fn(&FiducialDef) -> Vector2<f64>,
-    s: f64,
-    margin_mm: f64,
-    opts: &IoOptions,
-) -> Result<Vec<MarkResult>> {
-    let mut marks = Vec::new();
-    // Marks of one shape drawn through the same map share their template (an affine's
-    // map is the same at every mark), smoothed when it is large enough.
-    let mut templates: HashMap<TemplateKey, Option<(GreyImage, bool)>> = HashMap::new();
-    for f in &cam.fiducials {
-        let pred = predict(f);
-        let lin = lin(f);
-        let mut mr = MarkResult {
-            id: f.id.clone(),
-            x: pred.x,
-            y: pred.y,
-            x_mm: f.x_mm,
-            y_mm: f.y_mm,
-            used: false,
-            ncc: 0.0,
-            sigma_px: f64::NAN,
-            residual_um: [f64::NAN; 2],
-            residual_norm_um: f64::NAN,
-            reason: None,
-        };
-        let key = (
-            f.shape.key(),
-            [lin.m11, lin.m12, lin.m21, lin.m22].map(f64::to_bits),
-        );
-        let tpl = templates.entry(key).or_insert_with(|| {
-            render_template(&f.shape, &lin, margin_mm)
-                .map(|t| smoothed(&t).map_or((t, false), |s| (s, true)))
-        });
-        let Some((tpl, smooth)) = tpl.as_ref() else {
-            mr.reason = Some(format!(
-                "no template at this scale (smaller than 5 scan pixels, or more than \
-                 {MAX_TEMPLATE_PIXELS} pixels)"
-            ));
-            marks.push(mr);
-            continue;
-        };
-        // Local search: ±1 mm around the prediction covers scan shear and scale.
-        let half = (1.0 / s).max(8.0);
-        let (hw, hh) = (
-            half + tpl.width as f64 / 2.0,
-            half + tpl.height as f64 / 2.0,
-        );
-        let Some(w) = scan.around(pred.x, pred.y, hw, hh) else {
-            mr.reason = Some("predicted position outside the scan".into());
-            marks.push(mr);
-            continue;
-        };
-        let found = if *smooth {
-            scan.search_smoothed(tpl, w, &opts.matching)?
-        } else {
-            scan.search(tpl, w, &opts.matching)?
-        };
-        match found {
-            Err(e) => mr.reason = Some(e.to_string()),
-            Ok(m) => {
-                mr.ncc = m.ncc;
-                if m.accepted {
-                    mr.x = m.x;
-                    mr.y = m.y;
-                    mr.sigma_px = m.sigma_x.hypot(m.sigma_y);
-                    mr.used = true;
-                } else {
-                    mr.reason = m.reason;
-                }
-            }
-        }
-        marks.push(mr);
-    }
-    Ok(marks)
 }
 
 impl IoResult {

@@ -50,11 +50,11 @@ pub(super) const SMOOTH_PX: f32 = 1.0;
 /// for what lies beyond it in the scan (the kernel's reach, 3σ).
 const SMOOTH_REACH: usize = 3;
 
-/// A template smoothed as the scan is, for [`Patches::search_smoothed`], without the
-/// [`SMOOTH_REACH`] pixels along its edge: there the blur would replicate the template's
-/// edge where the scan has what lies beyond it (the frame's edge beside a real mark's
-/// crop pulled its match 0.27 px off). None for a template too small to lose them (fewer
-/// than 9 pixels left a side), which is matched unsmoothed.
+/// A template smoothed as the scan is, for a search in the smoothed scan
+/// ([`Ready::search`]), without the [`SMOOTH_REACH`] pixels along its edge: there the blur
+/// would replicate the template's edge where the scan has what lies beyond it (the frame's
+/// edge beside a real mark's crop pulled its match 0.27 px off). None for a template too
+/// small to lose them (fewer than 9 pixels left a side), which is matched unsmoothed.
 pub(super) fn smoothed(tpl: &GreyImage) -> Option<GreyImage> {
     let r = SMOOTH_REACH;
     if tpl.width < 2 * r + 9 || tpl.height < 2 * r + 9 {
@@ -76,107 +76,35 @@ struct Patch {
     pyr: Pyramid,
 }
 
-/// The windows of one scan read so far (module documentation).
-pub(super) struct Patches<'a> {
-    scan: ScanWindows<'a>,
+/// The scan's size and the levels its whole pyramid had: what decides the patch a search
+/// needs.
+struct Grid {
     width: usize,
     height: usize,
-    /// Levels the whole scan's pyramid had.
     scan_levels: usize,
-    patches: Vec<Patch>,
 }
 
-impl<'a> Patches<'a> {
-    pub fn new(scan: ScanWindows<'a>) -> Self {
-        let (width, height) = scan.size();
-        let (mut w, mut h, mut scan_levels) = (width, height, 1);
-        while scan_levels < SCAN_LEVELS && w / 2 >= SCAN_LEVEL_SIDE && h / 2 >= SCAN_LEVEL_SIDE {
-            w /= 2;
-            h /= 2;
-            scan_levels += 1;
-        }
-        Self {
-            scan,
-            width,
-            height,
-            scan_levels,
-            patches: Vec::new(),
-        }
-    }
+/// A search as the patches see it: the template's size, the window, its pyramid levels
+/// and whether it is made in the smoothed scan.
+#[derive(Clone, Copy)]
+struct Need {
+    window: Window,
+    levels: usize,
+    margin: usize,
+    smooth: bool,
+}
 
-    /// Width and height of the scan.
-    pub fn size(&self) -> (usize, usize) {
-        (self.width, self.height)
-    }
-
-    /// Pixels read from the scan so far.
-    pub fn pixels_read(&self) -> u64 {
-        self.scan.pixels_read()
-    }
-
-    /// The window centred on (x, y) with the given half-size, clipped to the scan
-    /// ([`Window::around`] of the whole scan).
-    pub fn around(&self, x: f64, y: f64, half_w: f64, half_h: f64) -> Option<Window> {
-        let c0 = (x - half_w).floor().max(0.0);
-        let r0 = (y - half_h).floor().max(0.0);
-        let c1 = (x + half_w).ceil().min(self.width as f64);
-        let r1 = (y + half_h).ceil().min(self.height as f64);
-        if c1 <= c0 || r1 <= r0 {
-            return None;
-        }
-        Some(Window {
-            col: c0 as usize,
-            row: r0 as usize,
-            width: (c1 - c0) as usize,
-            height: (r1 - r0) as usize,
-        })
-    }
-
-    /// [`match_template`] of `tpl` in `window` of the scan, positions in scan pixels. The
-    /// outer error is the scan's (it could not be read), the inner one the match's.
-    pub fn search(
-        &mut self,
-        tpl: &GreyImage,
-        window: Window,
-        opts: &MatchOptions,
-    ) -> Result<Result<MatchResult>> {
-        self.search_in(tpl, window, opts, false)
-    }
-
-    /// [`Patches::search`] in the smoothed scan, of a template [`smoothed`] likewise:
-    /// the marks' measurement.
-    pub fn search_smoothed(
-        &mut self,
-        tpl: &GreyImage,
-        window: Window,
-        opts: &MatchOptions,
-    ) -> Result<Result<MatchResult>> {
-        self.search_in(tpl, window, opts, true)
-    }
-
-    fn search_in(
-        &mut self,
-        tpl: &GreyImage,
-        window: Window,
-        opts: &MatchOptions,
-        smooth: bool,
-    ) -> Result<Result<MatchResult>> {
+impl Grid {
+    /// What the coarse-to-fine search of `tpl` in `window` needs.
+    fn need(&self, tpl: &GreyImage, window: Window, opts: &MatchOptions, smooth: bool) -> Need {
         let levels = self.levels_for(tpl, window, opts.min_template_px);
-        let k = self.patch_for(window, levels, tpl, smooth)?;
-        let p = &self.patches[k];
-        let local = Window {
-            col: window.col - p.col,
-            row: window.row - p.row,
-            ..window
-        };
-        let (dx, dy) = (p.col as f64, p.row as f64);
-        Ok(match_template(&p.pyr, tpl, local, None, opts).map(|mut m| {
-            m.x += dx;
-            m.y += dy;
-            m.ncc_x += dx;
-            m.ncc_y += dy;
-            m
-        }))
+        let grid = 1usize << (levels - 1);
+        Need {
+            window,
+            levels,
+            margin: (5 * grid + 12).max(tpl.width).max(tpl.height),
+            smooth,
+        }
     }
 
     /// Pyramid levels the coarse-to-fine search of `tpl` in `window` goes through on the
@@ -201,46 +129,171 @@ impl<'a> Patches<'a> {
         level + 1
     }
 
-    /// A patch whose pyramid of `levels` levels serves a search of `tpl` in `window`: one
-    /// read before, or a new one.
-    fn patch_for(
-        &mut self,
-        window: Window,
-        levels: usize,
+    /// Whether `p` holds what `need` reads, on the whole scan's grid (module documentation).
+    fn serves(&self, p: &Patch, need: &Need) -> bool {
+        let grid = 1usize << (need.levels - 1);
+        let (m, w) = (need.margin, need.window);
+        let (c1, r1) = (w.col + w.width, w.row + w.height);
+        let (pc1, pr1) = (p.col + p.width, p.row + p.height);
+        p.smooth == need.smooth
+            && p.pyr.levels.len() >= need.levels
+            && p.col % grid == 0
+            && p.row % grid == 0
+            && (p.col == 0 || w.col >= p.col + m)
+            && (p.row == 0 || w.row >= p.row + m)
+            && (pc1 == self.width || c1 + m <= pc1)
+            && (pr1 == self.height || r1 + m <= pr1)
+            && p.col <= w.col
+            && p.row <= w.row
+            && c1 <= pc1
+            && r1 <= pr1
+    }
+}
+
+/// The windows of one scan read so far (module documentation).
+pub(super) struct Patches<'a> {
+    scan: ScanWindows<'a>,
+    grid: Grid,
+    patches: Vec<Patch>,
+}
+
+/// The patches read, for searches that read nothing more (shared between threads).
+pub(super) struct Ready<'p> {
+    grid: &'p Grid,
+    patches: &'p [Patch],
+}
+
+impl Ready<'_> {
+    /// [`match_template`] of `tpl` in `window` of the scan, positions in scan pixels, in
+    /// the smoothed scan when `smooth` (with a template [`smoothed`] likewise), in a patch
+    /// [`Patches::prepare`] read for it.
+    pub fn search(
+        &self,
         tpl: &GreyImage,
+        window: Window,
+        opts: &MatchOptions,
         smooth: bool,
-    ) -> Result<usize> {
-        let grid = 1usize << (levels - 1);
-        let margin = (5 * grid + 12).max(tpl.width).max(tpl.height);
-        let (w, h) = (self.width, self.height);
-        let (c0, r0) = (window.col, window.row);
-        let (c1, r1) = (c0 + window.width, r0 + window.height);
-        let serves = |p: &Patch| {
-            let (pc1, pr1) = (p.col + p.width, p.row + p.height);
-            p.smooth == smooth
-                && p.pyr.levels.len() >= levels
-                && p.col % grid == 0
-                && p.row % grid == 0
-                && (p.col == 0 || c0 >= p.col + margin)
-                && (p.row == 0 || r0 >= p.row + margin)
-                && (pc1 == w || c1 + margin <= pc1)
-                && (pr1 == h || r1 + margin <= pr1)
-                && p.col <= c0
-                && p.row <= r0
-                && c1 <= pc1
-                && r1 <= pr1
+    ) -> Result<MatchResult> {
+        let need = self.grid.need(tpl, window, opts, smooth);
+        let Some(p) = self.patches.iter().find(|p| self.grid.serves(p, &need)) else {
+            return Err(super::super::invalid(
+                "scan window",
+                format!("{window:?} was not read before its search"),
+            ));
         };
-        if let Some(k) = self.patches.iter().position(serves) {
-            return Ok(k);
+        let local = Window {
+            col: window.col - p.col,
+            row: window.row - p.row,
+            ..window
+        };
+        let (dx, dy) = (p.col as f64, p.row as f64);
+        match_template(&p.pyr, tpl, local, None, opts).map(|mut m| {
+            m.x += dx;
+            m.y += dy;
+            m.ncc_x += dx;
+            m.ncc_y += dy;
+            m
+        })
+    }
+}
+
+impl<'a> Patches<'a> {
+    pub fn new(scan: ScanWindows<'a>) -> Self {
+        let (width, height) = scan.size();
+        let (mut w, mut h, mut scan_levels) = (width, height, 1);
+        while scan_levels < SCAN_LEVELS && w / 2 >= SCAN_LEVEL_SIDE && h / 2 >= SCAN_LEVEL_SIDE {
+            w /= 2;
+            h /= 2;
+            scan_levels += 1;
         }
-        let reach = margin + SLACK;
+        Self {
+            scan,
+            grid: Grid {
+                width,
+                height,
+                scan_levels,
+            },
+            patches: Vec::new(),
+        }
+    }
+
+    /// Width and height of the scan.
+    pub fn size(&self) -> (usize, usize) {
+        (self.grid.width, self.grid.height)
+    }
+
+    /// Pixels read from the scan so far.
+    pub fn pixels_read(&self) -> u64 {
+        self.scan.pixels_read()
+    }
+
+    /// The window centred on (x, y) with the given half-size, clipped to the scan
+    /// ([`Window::around`] of the whole scan).
+    pub fn around(&self, x: f64, y: f64, half_w: f64, half_h: f64) -> Option<Window> {
+        let c0 = (x - half_w).floor().max(0.0);
+        let r0 = (y - half_h).floor().max(0.0);
+        let c1 = (x + half_w).ceil().min(self.grid.width as f64);
+        let r1 = (y + half_h).ceil().min(self.grid.height as f64);
+        if c1 <= c0 || r1 <= r0 {
+            return None;
+        }
+        Some(Window {
+            col: c0 as usize,
+            row: r0 as usize,
+            width: (c1 - c0) as usize,
+            height: (r1 - r0) as usize,
+        })
+    }
+
+    /// The patches read so far, for searches in them ([`Ready::search`]).
+    pub fn ready(&self) -> Ready<'_> {
+        Ready {
+            grid: &self.grid,
+            patches: &self.patches,
+        }
+    }
+
+    /// [`Ready::search`] after reading what it needs. The outer error is the scan's (it
+    /// could not be read), the inner one the match's.
+    pub fn search(
+        &mut self,
+        tpl: &GreyImage,
+        window: Window,
+        opts: &MatchOptions,
+        smooth: bool,
+    ) -> Result<Result<MatchResult>> {
+        self.prepare(tpl, window, opts, smooth)?;
+        Ok(self.ready().search(tpl, window, opts, smooth))
+    }
+
+    /// Reads a patch for the search of `tpl` in `window` ([`Ready::search`]) unless one
+    /// read before serves it.
+    pub fn prepare(
+        &mut self,
+        tpl: &GreyImage,
+        window: Window,
+        opts: &MatchOptions,
+        smooth: bool,
+    ) -> Result<()> {
+        let need = self.grid.need(tpl, window, opts, smooth);
+        if self.patches.iter().any(|p| self.grid.serves(p, &need)) {
+            return Ok(());
+        }
+        let grid = 1usize << (need.levels - 1);
+        let reach = need.margin + SLACK;
+        let Window {
+            col: c0,
+            row: r0,
+            width,
+            height,
+        } = window;
         let col = c0.saturating_sub(reach) / grid * grid;
         let row = r0.saturating_sub(reach) / grid * grid;
         let area = Window {
             col,
             row,
-            width: (c1 + reach).min(w) - col,
-            height: (r1 + reach).min(h) - row,
+            width: (c0 + width + reach).min(self.grid.width) - col,
+            height: (r0 + height + reach).min(self.grid.height) - row,
         };
         let mut img = self.scan.read(area)?;
         if smooth {
@@ -252,9 +305,9 @@ impl<'a> Patches<'a> {
             width: area.width,
             height: area.height,
             smooth,
-            pyr: Pyramid::from_image(img, levels, 1),
+            pyr: Pyramid::from_image(img, need.levels, 1),
         });
-        Ok(self.patches.len() - 1)
+        Ok(())
     }
 
     /// Grey-value standard deviation of the scan over the data strip as `io` places it,
@@ -268,7 +321,7 @@ impl<'a> Patches<'a> {
         let step_mm = io.mean_pixel_size_mm().max(0.1);
         let nx = (((strip.x_mm[1] - strip.x_mm[0]) / step_mm).ceil() as usize).clamp(1, 4000);
         let ny = (((strip.y_mm[1] - strip.y_mm[0]) / step_mm).ceil() as usize).clamp(1, 4000);
-        let (w, h) = (self.width as f64, self.height as f64);
+        let (w, h) = (self.grid.width as f64, self.grid.height as f64);
         let (mut n, mut sum, mut sq) = (0usize, 0.0, 0.0);
         let rows_at_once = (STRIP_SAMPLES / nx).max(1);
         for j0 in (0..ny).step_by(rows_at_once) {
