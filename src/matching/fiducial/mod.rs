@@ -143,6 +143,10 @@ pub struct IoResult {
     /// What a user should know (a given orientation that fits worse than another, a given
     /// pixel size the marks contradict), in words; also logged.
     pub warnings: Vec<String>,
+    /// Pixels of the scan read: the windows around the marks and the data strip, a few
+    /// per cent of a scan. Not serialised, so that io.json depends on the scan only.
+    #[serde(skip)]
+    pub scan_pixels_read: u64,
 }
 
 /// Fiducial interior orientation of a scan file, read by windows around the marks
@@ -288,9 +292,10 @@ fn orient(
     // Every orientation is measured, also with one given: the margin then says whether
     // the marks agree with it.
     let mut given_failed: Option<String> = None;
-    let mut plans = Vec::new();
+    // The two marks of every orientation first: their wide windows are then dropped
+    // before the marks' windows are read.
+    let mut found = Vec::new();
     for o in ScanOrientation::all() {
-        let is_given = opts.orientation == Some(o);
         let mut two = None;
         for &(i, j, _) in &pairs {
             let (fa, fb) = (&cam.fiducials[i], &cam.fiducials[j]);
@@ -302,6 +307,12 @@ fn orient(
                 break;
             }
         }
+        found.push((o, two));
+    }
+    scan.drop_unsmoothed();
+    let mut plans = Vec::new();
+    for (o, two) in found {
+        let is_given = opts.orientation == Some(o);
         let Some((fa, fb, pa, pb)) = two else {
             if is_given {
                 given_failed = Some(format!(
@@ -534,6 +545,7 @@ fn orient(
         marks: h.marks,
         rmse_um: h.rmse_plain,
         warnings,
+        scan_pixels_read: scan.pixels_read(),
     })
 }
 

@@ -8,10 +8,12 @@
 //! whole scan's level l; the smoothing and the blur of each level make at most 3 pixels
 //! along a patch edge differ from the whole scan's (the edge is replicated where the scan
 //! goes on), which the search never reaches: a patch holds the search window with a
-//! margin of 5 coarsest-level pixels, 12 full-resolution ones for the least-squares match
-//! and the template's size beyond it. A patch read for one search serves the later ones it
-//! holds in that way (the eight scan orientations predict the same marks within a few
-//! pixels), so the results do not depend on the order of the searches either.
+//! margin of 5 coarsest-level pixels and 12 full-resolution ones for the least-squares
+//! match beyond it, and the template. A patch read for one search serves the later ones
+//! it holds in that way (the eight scan orientations predict the same marks within a few
+//! pixels): which patch serves a search changes its result only by the rounding of
+//! coordinates within the patch (1e-16 of σ, nothing of the marks' positions on the
+//! bench's scans), and the patches are read in the same order in every run.
 
 use super::super::matcher::{match_template, MatchOptions, MatchResult};
 use super::super::ncc::Window;
@@ -30,13 +32,13 @@ const SCAN_LEVEL_SIDE: usize = 16;
 
 /// Pixels a new patch reaches beyond what its search needs, so that the neighbouring
 /// predictions of the other scan orientations find it.
-const SLACK: usize = 32;
+const SLACK: usize = 16;
 
 /// Data-strip samples whose pixels are gathered at a time (16 bytes each).
 const STRIP_SAMPLES: usize = 1 << 20;
 
-/// Scan rows read at a time for the data strip.
-const STRIP_BAND_ROWS: usize = 256;
+/// Data-strip samples of a scan row further apart than this (pixels) are read apart.
+const STRIP_RUN_GAP: usize = 32;
 
 /// Standard deviation (scan pixels) of the Gaussian smoothing of a mark's template and
 /// of the scan around it before they are measured. The least-squares match interpolates
@@ -91,6 +93,9 @@ struct Need {
     window: Window,
     levels: usize,
     margin: usize,
+    /// The template's size, at most the scan's: the patch holds it, so that a template
+    /// larger than a window clipped by the scan's edge fails as on the whole scan.
+    least: (usize, usize),
     smooth: bool,
 }
 
@@ -102,7 +107,8 @@ impl Grid {
         Need {
             window,
             levels,
-            margin: (5 * grid + 12).max(tpl.width).max(tpl.height),
+            margin: 5 * grid + 12,
+            least: (tpl.width.min(self.width), tpl.height.min(self.height)),
             smooth,
         }
     }
@@ -137,6 +143,8 @@ impl Grid {
         let (pc1, pr1) = (p.col + p.width, p.row + p.height);
         p.smooth == need.smooth
             && p.pyr.levels.len() >= need.levels
+            && p.width >= need.least.0
+            && p.height >= need.least.1
             && p.col % grid == 0
             && p.row % grid == 0
             && (p.col == 0 || w.col >= p.col + m)
@@ -245,6 +253,11 @@ impl<'a> Patches<'a> {
         })
     }
 
+    /// Drops the patches of the unsmoothed scan (the wide searches' windows).
+    pub fn drop_unsmoothed(&mut self) {
+        self.patches.retain(|p| p.smooth);
+    }
+
     /// The patches read so far, for searches in them ([`Ready::search`]).
     pub fn ready(&self) -> Ready<'_> {
         Ready {
@@ -287,13 +300,24 @@ impl<'a> Patches<'a> {
             width,
             height,
         } = window;
-        let col = c0.saturating_sub(reach) / grid * grid;
-        let row = r0.saturating_sub(reach) / grid * grid;
+        // From `lo` to `hi` along a side of `n` pixels, at least `least` long, starting on
+        // the grid.
+        let span = |lo: usize, hi: usize, n: usize, least: usize| {
+            let (mut lo, mut hi) = (lo.saturating_sub(reach), (hi + reach).min(n));
+            if hi - lo < least {
+                hi = (lo + least).min(n);
+                lo = hi - least;
+            }
+            let lo = lo / grid * grid;
+            (lo, hi - lo)
+        };
+        let (col, w) = span(c0, c0 + width, self.grid.width, need.least.0);
+        let (row, h) = span(r0, r0 + height, self.grid.height, need.least.1);
         let area = Window {
             col,
             row,
-            width: (c0 + width + reach).min(self.grid.width) - col,
-            height: (r0 + height + reach).min(self.grid.height) - row,
+            width: w,
+            height: h,
         };
         let mut img = self.scan.read(area)?;
         if smooth {
@@ -356,7 +380,8 @@ impl<'a> Patches<'a> {
     }
 
     /// The grey values at pixels (col, row) of the scan: from the scan when it is held,
-    /// else by bands of rows.
+    /// else by runs of one row (samples at most [`STRIP_RUN_GAP`] apart), so that a strip
+    /// sampled every few pixels reads little more than its samples.
     fn values_at(&mut self, pixels: &[(usize, usize)]) -> Result<Vec<f32>> {
         if let Some(img) = self.scan.image() {
             return Ok(pixels.iter().map(|&(c, r)| img.at(c, r)).collect());
@@ -366,23 +391,23 @@ impl<'a> Patches<'a> {
         let mut values = vec![0f32; pixels.len()];
         let mut s = 0;
         while s < order.len() {
-            let top = pixels[order[s]].1;
-            let (mut left, mut right, mut e) = (usize::MAX, 0, s);
-            while e < order.len() && pixels[order[e]].1 < top + STRIP_BAND_ROWS {
-                left = left.min(pixels[order[e]].0);
-                right = right.max(pixels[order[e]].0);
+            let (left, row) = pixels[order[s]];
+            let mut e = s + 1;
+            while e < order.len()
+                && pixels[order[e]].1 == row
+                && pixels[order[e]].0 <= pixels[order[e - 1]].0 + STRIP_RUN_GAP
+            {
                 e += 1;
             }
-            let bottom = pixels[order[e - 1]].1;
-            let band = self.scan.read(Window {
+            let right = pixels[order[e - 1]].0;
+            let run = self.scan.read(Window {
                 col: left,
-                row: top,
+                row,
                 width: right + 1 - left,
-                height: bottom + 1 - top,
+                height: 1,
             })?;
             for &k in &order[s..e] {
-                let (c, r) = pixels[k];
-                values[k] = band.at(c - left, r - top);
+                values[k] = run.at(pixels[k].0 - left, 0);
             }
             s = e;
         }
