@@ -86,6 +86,7 @@ fn geometry<R: Read + Seek>(path: &Path, dec: &mut Decoder<R>, file_len: u64) ->
     if width == 0 || height == 0 {
         return Ok(None);
     }
+    let strips = dec.get_chunk_type() == ChunkType::Strip;
     let (chunk_width, chunk_height, across, offsets_tag, counts_tag) = match dec.get_chunk_type() {
         ChunkType::Strip => {
             let rows = (dec.chunk_dimensions().1 as usize).clamp(1, height);
@@ -120,7 +121,7 @@ fn geometry<R: Read + Seek>(path: &Path, dec: &mut Decoder<R>, file_len: u64) ->
     } else {
         1
     };
-    let chunks = across * height.div_ceil(chunk_height);
+    let chunks = across.saturating_mul(height.div_ceil(chunk_height));
     let stored = chunks.saturating_mul(planes);
     if offsets.len() < stored || counts.len() < stored {
         return Err(corrupt(format!(
@@ -158,12 +159,15 @@ fn geometry<R: Read + Seek>(path: &Path, dec: &mut Decoder<R>, file_len: u64) ->
     let pixel_bytes = samples * usize::from(bits / 8);
     for (k, &bytes) in counts.iter().enumerate().take(chunks) {
         // A strip's last rows may be left out at the image's bottom; a tile is whole.
-        let rows = if across == 1 {
+        let rows = if strips {
             chunk_height.min(height - k * chunk_height)
         } else {
             chunk_height
         };
-        let need = (rows * chunk_width * pixel_bytes) as u64;
+        // Saturating: a tile's size comes from the file (up to 2³² a side).
+        let need = (rows as u64)
+            .saturating_mul(chunk_width as u64)
+            .saturating_mul(pixel_bytes as u64);
         if bytes < need {
             return Err(corrupt(format!(
                 "strip or tile {k} holds {bytes} bytes, its pixels need {need}"
