@@ -54,8 +54,7 @@ pub struct TiffWindows {
     path: PathBuf,
     file: File,
     g: Geometry,
-    /// Bytes read from the file by [`TiffWindows::read`] so far.
-    bytes_read: u64,
+    /// The bytes of one read, kept for the next.
     row: Vec<u8>,
 }
 
@@ -205,7 +204,6 @@ impl TiffWindows {
                 path: path.to_path_buf(),
                 file,
                 g,
-                bytes_read: 0,
                 row: Vec::new(),
             })),
             Ok(None) | Err(None) => Ok(None),
@@ -216,16 +214,6 @@ impl TiffWindows {
     /// Width and height in pixels.
     pub fn size(&self) -> (usize, usize) {
         (self.g.width, self.g.height)
-    }
-
-    /// Bytes of pixel data read so far.
-    pub fn bytes_read(&self) -> u64 {
-        self.bytes_read
-    }
-
-    /// Bytes of one pixel in the file.
-    fn pixel_bytes(&self) -> usize {
-        self.g.samples * if self.g.sixteen { 2 } else { 1 }
     }
 
     /// Grey values of the window `(col, row, width, height)` (inside the image), row-major,
@@ -245,13 +233,11 @@ impl TiffWindows {
                 ),
             ));
         }
-        let pb = self.pixel_bytes();
+        let pb = g.pixel_bytes();
         for y in r..r + h {
-            let g = &self.g;
             let (ty, y_in) = (y / g.chunk_height, y % g.chunk_height);
             let mut x = c;
             while x < c + w {
-                let g = &self.g;
                 let tx = x / g.chunk_width;
                 let x_end = ((tx + 1) * g.chunk_width).min(c + w);
                 let chunk = ty * g.across + tx;
@@ -263,39 +249,44 @@ impl TiffWindows {
                     .seek(SeekFrom::Start(at))
                     .and_then(|_| self.file.read_exact(&mut self.row))
                     .map_err(|e| FormatError::io(&self.path, e))?;
-                self.bytes_read += n as u64;
-                self.append_grey(out);
+                append_grey(g, &self.row, out);
                 x = x_end;
             }
         }
         Ok(())
     }
+}
 
-    /// Appends the grey values of the pixels in `self.row`.
-    fn append_grey(&self, out: &mut Vec<f32>) {
-        let (sixteen, layout, big_endian) = (self.g.sixteen, self.g.layout, self.g.big_endian);
-        let s = |b: &[u8], k: usize| -> f32 {
-            if sixteen {
-                let v = [b[2 * k], b[2 * k + 1]];
-                f32::from(if big_endian {
-                    u16::from_be_bytes(v)
-                } else {
-                    u16::from_le_bytes(v)
-                })
-            } else {
-                f32::from(b[k])
-            }
-        };
-        let px = self.pixel_bytes();
-        out.extend(self.row.chunks_exact(px).map(|b| match layout {
-            Layout::Grey => s(b, 0),
-            // As decode_grey: 8-bit grey with alpha through the luma weights, 16-bit as is.
-            Layout::GreyAlpha if sixteen => s(b, 0),
-            Layout::GreyAlpha => {
-                let l = s(b, 0);
-                luma(l, l, l)
-            }
-            Layout::Rgb => luma(s(b, 0), s(b, 1), s(b, 2)),
-        }));
+impl Geometry {
+    /// Bytes of one pixel in the file.
+    fn pixel_bytes(&self) -> usize {
+        self.samples * if self.sixteen { 2 } else { 1 }
     }
+}
+
+/// Appends the grey values of the pixels in `row` (bytes as the file holds them).
+fn append_grey(g: &Geometry, row: &[u8], out: &mut Vec<f32>) {
+    let (sixteen, big_endian) = (g.sixteen, g.big_endian);
+    let s = |b: &[u8], k: usize| -> f32 {
+        if sixteen {
+            let v = [b[2 * k], b[2 * k + 1]];
+            f32::from(if big_endian {
+                u16::from_be_bytes(v)
+            } else {
+                u16::from_le_bytes(v)
+            })
+        } else {
+            f32::from(b[k])
+        }
+    };
+    out.extend(row.chunks_exact(g.pixel_bytes()).map(|b| match g.layout {
+        Layout::Grey => s(b, 0),
+        // As decode_grey: 8-bit grey with alpha through the luma weights, 16-bit as is.
+        Layout::GreyAlpha if sixteen => s(b, 0),
+        Layout::GreyAlpha => {
+            let l = s(b, 0);
+            luma(l, l, l)
+        }
+        Layout::Rgb => luma(s(b, 0), s(b, 1), s(b, 2)),
+    }));
 }

@@ -5,13 +5,14 @@
 //!
 //! * an uncompressed TIFF (what film scanners write) straight from the file by windows
 //!   ([`crate::formats::tiff_window`]);
-//! * another TIFF of more than [`SMALL_PIXELS`] (compressed, tiled, …) by windows through
-//!   GDAL, which decodes only the strips or tiles a window touches;
+//! * another TIFF of more than [`SMALL_PIXELS`] (compressed, planar, float, …) by windows
+//!   through GDAL, which decodes only the strips or tiles a window touches;
 //! * anything else (PNG, JPEG, a small TIFF, what GDAL cannot open) whole with
 //!   [`GreyImage::load`], as before: those files are small, or cannot be read by windows
 //!   without decoding them from their start.
 //!
-//! A window has the grey values the whole image would have there.
+//! A window has the grey values [`GreyImage::load`] gives there; through GDAL, those of
+//! its whole read (the same for 8/16-bit grey and RGB).
 
 use super::ncc::Window;
 use super::{GreyImage, MatchingError, Result};
