@@ -17,6 +17,7 @@ mod orientation;
 mod patches;
 mod shape;
 mod solve;
+mod wide;
 
 pub use camera::{
     check_scan_pixel_um, scan_pixel_um_from_dpi, CameraDefinition, DataStrip, DistortionDef,
@@ -41,7 +42,6 @@ use orientation::Hypothesis;
 use patches::Patches;
 use rayon::prelude::*;
 use serde::Serialize;
-use std::collections::HashMap;
 use std::path::Path;
 
 #[derive(Debug, Clone)]
@@ -160,9 +160,6 @@ pub fn interior_orientation_file(
     orient(cam, windows, &scan.display().to_string(), opts)
 }
 
-/// Wide-search cache key: rounded predicted pixel, mark shape, scan orientation.
-type WideKey = (i64, i64, String, u16, bool);
-
 /// Fiducial interior orientation of a scan in memory; `name` labels errors.
 pub fn interior_orientation(
     cam: &CameraDefinition,
@@ -247,41 +244,8 @@ fn orient(
     let dmax = pairs[0].2;
     pairs.retain(|p| p.2 >= 0.6 * dmax);
     let (ia, ib) = (pairs[0].0, pairs[0].1);
-    let mut wide_cache: HashMap<WideKey, Option<(f64, f64, f64)>> = HashMap::new();
-    let mut wide = |scan: &mut Patches,
-                    f: &FiducialDef,
-                    o: ScanOrientation|
-     -> Result<Option<(f64, f64, f64)>> {
-        let lin = o.linear(s);
-        let Some(inv) = lin.try_inverse() else {
-            return Ok(None);
-        };
-        let p = centre + inv * Vector2::new(f.x_mm, f.y_mm);
-        let key = (
-            p.x.round() as i64,
-            p.y.round() as i64,
-            f.shape.key(),
-            o.rotation_deg,
-            o.mirrored,
-        );
-        if let Some(v) = wide_cache.get(&key) {
-            return Ok(*v);
-        }
-        let mut found = None;
-        if let Some(tpl) = render_template(&f.shape, &lin, margin_mm) {
-            let half = opts.search_mm / s + tpl.width.max(tpl.height) as f64 / 2.0;
-            if let Some(w) = scan.around(p.x, p.y, half, half) {
-                let mut mo = opts.matching.clone();
-                mo.use_lsm = false;
-                found = scan.search(&tpl, w, &mo, false)?.ok();
-            }
-        }
-        let v = found
-            .filter(|m| m.ncc >= opts.matching.ncc_threshold)
-            .map(|m| (m.x, m.y, m.ncc));
-        wide_cache.insert(key, v);
-        Ok(v)
-    };
+    let mut wide = wide::Wide::new(s, centre, margin_mm, opts);
+    wide.prefetch(&mut scan, cam, (ia, ib))?;
     let (_, dof) = solve::need_and_dof(opts.kind);
     let max_res = if opts.max_residual_um > 0.0 {
         opts.max_residual_um
@@ -299,10 +263,10 @@ fn orient(
         let mut two = None;
         for &(i, j, _) in &pairs {
             let (fa, fb) = (&cam.fiducials[i], &cam.fiducials[j]);
-            let Some(pa) = wide(&mut scan, fa, o)? else {
+            let Some(pa) = wide.find(&mut scan, fa, o)? else {
                 continue;
             };
-            if let Some(pb) = wide(&mut scan, fb, o)? {
+            if let Some(pb) = wide.find(&mut scan, fb, o)? {
                 two = Some((fa, fb, pa, pb));
                 break;
             }

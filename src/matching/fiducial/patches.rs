@@ -67,6 +67,30 @@ pub(super) fn smoothed(tpl: &GreyImage) -> Option<GreyImage> {
         .ok()
 }
 
+/// The window centred on (x, y) with the given half-size, clipped to a scan of `size`
+/// ([`Window::around`] of the whole scan).
+pub(super) fn around(
+    (width, height): (usize, usize),
+    x: f64,
+    y: f64,
+    half_w: f64,
+    half_h: f64,
+) -> Option<Window> {
+    let c0 = (x - half_w).floor().max(0.0);
+    let r0 = (y - half_h).floor().max(0.0);
+    let c1 = (x + half_w).ceil().min(width as f64);
+    let r1 = (y + half_h).ceil().min(height as f64);
+    if c1 <= c0 || r1 <= r0 {
+        return None;
+    }
+    Some(Window {
+        col: c0 as usize,
+        row: r0 as usize,
+        width: (c1 - c0) as usize,
+        height: (r1 - r0) as usize,
+    })
+}
+
 /// A window of the scan with its pyramid.
 struct Patch {
     col: usize,
@@ -235,22 +259,9 @@ impl<'a> Patches<'a> {
         self.scan.pixels_read()
     }
 
-    /// The window centred on (x, y) with the given half-size, clipped to the scan
-    /// ([`Window::around`] of the whole scan).
+    /// The window centred on (x, y) with the given half-size, clipped to the scan.
     pub fn around(&self, x: f64, y: f64, half_w: f64, half_h: f64) -> Option<Window> {
-        let c0 = (x - half_w).floor().max(0.0);
-        let r0 = (y - half_h).floor().max(0.0);
-        let c1 = (x + half_w).ceil().min(self.grid.width as f64);
-        let r1 = (y + half_h).ceil().min(self.grid.height as f64);
-        if c1 <= c0 || r1 <= r0 {
-            return None;
-        }
-        Some(Window {
-            col: c0 as usize,
-            row: r0 as usize,
-            width: (c1 - c0) as usize,
-            height: (r1 - r0) as usize,
-        })
+        around(self.size(), x, y, half_w, half_h)
     }
 
     /// Drops the patches of the unsmoothed scan (the wide searches' windows).
