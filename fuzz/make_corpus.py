@@ -174,10 +174,48 @@ def mark_hit(shape, x, y):
     return False
 
 
-def scan(cam, size, pixel_mm, marks=True):
+def tiff(width, height, rows, tile=None):
+    """An uncompressed grey 8-bit little-endian TIFF of `rows`: strips of 8 rows, or
+    `tile`² tiles (padded with zeros), as scanners and GDAL write them."""
+    data, offsets, counts = b"", [], []
+    if tile is None:
+        for r0 in range(0, height, 8):
+            offsets.append(len(data))
+            data += b"".join(rows[r0:r0 + 8])
+            counts.append(len(data) - offsets[-1])
+    else:
+        for t0 in range(0, height, tile):
+            for c0 in range(0, width, tile):
+                offsets.append(len(data))
+                for r in range(t0, t0 + tile):
+                    row = rows[r][c0:c0 + tile] if r < height else b""
+                    data += row + bytes(tile - len(row))
+                counts.append(len(data) - offsets[-1])
+    n = len(offsets)
+    start = 8 + len(data)
+    chunk_tags = (322, 323, 324, 325) if tile else (None, 278, 273, 279)
+    entries = [(256, 4, 1, width), (257, 4, 1, height), (258, 3, 1, 8), (259, 3, 1, 1), (262, 3, 1, 1)]
+    if tile:
+        entries += [(322, 4, 1, tile), (323, 4, 1, tile)]
+    else:
+        entries += [(278, 4, 1, 8)]
+    entries += [(277, 3, 1, 1)]
+    ifd_len = 2 + 12 * (len(entries) + 2) + 4
+    arrays = struct.pack(f"<{n}I", *(start_of + 8 for start_of in offsets)) + struct.pack(f"<{n}I", *counts)
+    entries += [(chunk_tags[2], 4, n, start + ifd_len if n > 1 else offsets[0] + 8),
+                (chunk_tags[3], 4, n, start + ifd_len + 4 * n if n > 1 else counts[0])]
+    entries.sort()
+    ifd = struct.pack("<H", len(entries)) + b"".join(
+        struct.pack("<HHI", t, ty, k) + (struct.pack("<HH", v, 0) if ty == 3 and k == 1 else struct.pack("<I", v))
+        for t, ty, k, v in entries) + struct.pack("<I", 0)
+    return b"II*\x00" + struct.pack("<I", start) + data + ifd + (arrays if n > 1 else b"")
+
+
+def scan(cam, size, pixel_mm, marks=True, write=None):
     """A grey 8-bit scan of `cam`'s frame, `size`² pixels: a dark frame, a smooth
     photograph inside the format, bright marks (5 x 5 supersampled) drawn through a
-    scanner affine (0.2 % scale difference, 0.15 % shear, 0.23 deg rotation, off-centre)."""
+    scanner affine (0.2 % scale difference, 0.15 % shear, 0.23 deg rotation, off-centre);
+    a PNG, else written by `write(size, size, rows)`."""
     import math
     a = 0.004
     c, s_ = math.cos(a), math.sin(a)
@@ -213,7 +251,7 @@ def scan(cam, size, pixel_mm, marks=True):
                     v += 170 * hit / 25
             line.append(max(0, min(255, int(v + ((col * 7 + row * 13) % 5) - 2))))
         rows.append(bytes(line))
-    return png(size, size, rows)
+    return (write or png)(size, size, rows)
 
 
 MARK = {"type": "cross", "size_mm": 2.0, "line_mm": 0.25, "ring_mm": 1.6, "dot_mm": 0.4}
@@ -243,6 +281,11 @@ out("fiducial_io", "mini_template_200px", join([json.dumps(mini_tpl, indent=1).e
 # A real camera definition on a 256-pixel scan of it (its marks are a few pixels there).
 rc10 = json.loads(read(FMT, "cameras", "wild_rc10.json"))
 out("fiducial_io", "wild_rc10_256px", join([read(FMT, "cameras", "wild_rc10.json"), scan(rc10, 256, 230 / 256)]))
+# The same scans as uncompressed TIFFs, which are read by windows from the file (strips;
+# tiles of 64 pixels, padded at the right and bottom).
+out("fiducial_io", "mini_200px_strips_tif", join([mini, scan(MINI, 200, 0.115, write=tiff)]))
+out("fiducial_io", "wild_rc10_256px_tiles_tif",
+    join([read(FMT, "cameras", "wild_rc10.json"), scan(rc10, 240, 230 / 240, write=lambda w, h, r: tiff(w, h, r, 64))]))
 out("camera_json", "mini_template.json", json.dumps(mini_tpl, indent=1).encode())
 
 # Image decoding: the header seeds that decode quickly, and small images of the other

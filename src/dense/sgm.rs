@@ -13,13 +13,14 @@
 //! refinement, a texture mask, the 3 × 3 median and the speckle filter.
 
 use super::aggregate::{aggregate, Penalties, SweepInput};
-use super::census::{census_transform, gaussian_blur};
+use super::census::census_transform;
 use super::filter::{median3, remove_speckles, texture_mask};
 use super::rectify::BandGrid;
 use super::refine::refine_disparities;
 use super::volume::{census_costs, Bands};
 use super::{invalid, DenseError, Result};
 use crate::matching::pyramid::downsample;
+use crate::matching::smooth::gaussian_blur;
 use crate::matching::GreyImage;
 use rayon::prelude::*;
 use serde::{Deserialize, Serialize};

@@ -479,11 +479,29 @@ fn jpeg_scan_layout<R: Read + Seek>(r: &mut R) -> std::io::Result<Option<(bool, 
     Ok(None)
 }
 
-fn decode_grey_from<R: std::io::BufRead + Seek>(
+/// What [`decode_grey`] checks before it decodes a photo: its size and colour type from the
+/// header, admitted by [`MAX_IMAGE_PIXELS`], [`MAX_DECODED_BYTES`] and the photo memory
+/// budget ([`grey_decode_cost`]).
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub struct GreyHeader {
+    pub width: u32,
+    pub height: u32,
+    pub color: image::ColorType,
+    pub format: Option<image::ImageFormat>,
+}
+
+/// The header of a photo as [`decode_grey`] admits it (the same refusals, naming the file),
+/// nothing decoded: for a reader that takes the photo by windows instead.
+pub fn grey_header(path: &Path) -> Result<GreyHeader> {
+    grey_decoder(path, reader(path)?).map(|(_, header)| header)
+}
+
+/// The decoder of a photo to grey, once its header passed every limit.
+fn grey_decoder<'a, R: std::io::BufRead + Seek + 'a>(
     path: &Path,
     r: image::ImageReader<R>,
-) -> Result<(usize, usize, Vec<f32>)> {
-    use image::{ColorType as C, ImageDecoder};
+) -> Result<(impl image::ImageDecoder + 'a, GreyHeader)> {
+    use image::ImageDecoder;
     let format = r.format();
     let (r, jpeg) = if format == Some(image::ImageFormat::Jpeg) {
         let mut inner = r.into_inner();
@@ -505,6 +523,30 @@ fn decode_grey_from<R: std::io::BufRead + Seek>(
         grey_decode_cost(format, ct, jpeg),
         &format!("{ct:?}"),
     )?;
+    let header = GreyHeader {
+        width: w,
+        height: h,
+        color: ct,
+        format,
+    };
+    Ok((decoder, header))
+}
+
+/// Grey value of a colour pixel: luma with the Rec. 601 weights (module documentation of
+/// [`decode_grey`]), in this order of operations wherever a photo is reduced to grey, so
+/// that a photo read whole and by windows has the same values.
+#[inline]
+pub fn luma(r: f32, g: f32, b: f32) -> f32 {
+    0.299 * r + 0.587 * g + 0.114 * b
+}
+
+fn decode_grey_from<R: std::io::BufRead + Seek>(
+    path: &Path,
+    r: image::ImageReader<R>,
+) -> Result<(usize, usize, Vec<f32>)> {
+    use image::{ColorType as C, ImageDecoder};
+    let (decoder, header) = grey_decoder(path, r)?;
+    let (ct, w, h) = (header.color, header.width, header.height);
     let n = w as usize * h as usize;
     let alloc = |what: &str, e: std::collections::TryReserveError| {
         FormatError::invalid(
@@ -522,15 +564,15 @@ fn decode_grey_from<R: std::io::BufRead + Seek>(
             .read_image(&mut f32_bytes_mut(&mut data)[..n * bpp])
             .map_err(bad_image(path))?;
         let ne16 = |b: &[u8]| f32::from(u16::from_ne_bytes([b[0], b[1]]));
-        let luma = |b: &[u8]| 0.299 * b[0] as f32 + 0.587 * b[1] as f32 + 0.114 * b[2] as f32;
+        let rgb = |b: &[u8]| luma(f32::from(b[0]), f32::from(b[1]), f32::from(b[2]));
         match ct {
             C::L8 => widen::<1>(&mut data, |b| f32::from(b[0])),
             C::La8 => widen::<2>(&mut data, |b| {
                 let l = f32::from(b[0]);
-                0.299 * l + 0.587 * l + 0.114 * l
+                luma(l, l, l)
             }),
-            C::Rgb8 => widen::<3>(&mut data, |b| luma(b)),
-            C::Rgba8 => widen::<4>(&mut data, |b| luma(b)),
+            C::Rgb8 => widen::<3>(&mut data, |b| rgb(b)),
+            C::Rgba8 => widen::<4>(&mut data, |b| rgb(b)),
             C::L16 => widen::<2>(&mut data, |b| ne16(b)),
             _ => widen::<4>(&mut data, |b| ne16(b)),
         }
@@ -561,7 +603,7 @@ fn decode_grey_from<R: std::io::BufRead + Seek>(
                     f32::from(u16::from_ne_bytes([b[0], b[1]]))
                 }
             };
-            let l = 0.299 * c(0) + 0.587 * c(1) + 0.114 * c(2);
+            let l = luma(c(0), c(1), c(2));
             *d = if f32_ch { 65535.0 * l } else { l };
         }
     }

@@ -16,6 +16,7 @@ pub mod ortho;
 pub mod paths;
 pub mod pos;
 pub mod raster;
+pub mod tiff_window;
 
 use std::path::{Path, PathBuf};
 

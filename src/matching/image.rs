@@ -184,7 +184,7 @@ impl GreyImage {
                 rr.iter()
                     .zip(gg)
                     .zip(bb)
-                    .map(|((r, g), b)| 0.299 * r + 0.587 * g + 0.114 * b),
+                    .map(|((r, g), b)| image_open::luma(*r, *g, *b)),
             ),
             [grey] => data.extend_from_slice(grey),
             _ => {}

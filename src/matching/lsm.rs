@@ -51,6 +51,25 @@ pub struct LsmResult {
     pub reason: Option<String>,
 }
 
+/// Adds one pixel's observation (design `row`, residual `res`) to the normal equations
+/// of the first `N` parameters (upper triangle, mirrored when solved). Constant bounds so
+/// the loops unroll; the shift-only model's 4 parameters skip the 30 products of zeros
+/// the 8-parameter loop would add (the same sums).
+#[inline(always)]
+fn accumulate<const N: usize>(
+    row: &[f64; 8],
+    res: f64,
+    rhs: &mut SVector<f64, 8>,
+    nsum: &mut [f64; 64],
+) {
+    for a in 0..N {
+        rhs[a] += row[a] * res;
+        for b in a..N {
+            nsum[a * 8 + b] += row[a] * row[b];
+        }
+    }
+}
+
 /// Runs LSM of `tpl` in `img` from the centre position (x, y) and an initial shape.
 pub fn lsm(
     img: &GreyImage,
@@ -137,13 +156,10 @@ pub fn lsm(
                 } else {
                     [gx, gy, 1.0, g, 0.0, 0.0, 0.0, 0.0]
                 };
-                // Constant bounds so the loops unroll (upper triangle, mirrored below);
-                // the unused entries of the shift-only model are zero and add nothing.
-                for a in 0..8 {
-                    rhs[a] += row[a] * res;
-                    for b in a..8 {
-                        nsum[a * 8 + b] += row[a] * row[b];
-                    }
+                if opts.affine {
+                    accumulate::<8>(&row, res, &mut rhs, &mut nsum);
+                } else {
+                    accumulate::<4>(&row, res, &mut rhs, &mut nsum);
                 }
                 vv += res * res;
                 n += 1;

@@ -17,6 +17,8 @@ pub mod oriented;
 pub mod pair_matching;
 pub mod pyramid;
 pub mod resample;
+pub mod scan_windows;
+pub mod smooth;
 pub mod ties;
 
 pub use fiducial::{

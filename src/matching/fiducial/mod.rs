@@ -5,14 +5,19 @@
 //! pixel → fiducial mm estimated with residuals in µm. The scan orientation (rotated by
 //! 90°/180°/270° or mirrored) is found, not guessed: all eight orientations of the
 //! square's symmetry group are measured and compared ([`orientation`]), and a decision
-//! below the confidence margin is an error naming the scan. An oriented scan is resampled
-//! into a fiducial-frame image with a plain frame camera ([`frame_image`]).
+//! below the confidence margin is an error naming the scan. Only windows around the
+//! predicted marks (and the data strip) are read, each with its own pyramid ([`patches`]):
+//! a scan file is never held whole. An oriented scan is resampled into a fiducial-frame
+//! image with a plain frame camera ([`frame_image`]).
 
 mod camera;
 pub mod frame_image;
+mod marks;
 mod orientation;
+mod patches;
 mod shape;
 mod solve;
+mod wide;
 
 pub use camera::{
     check_scan_pixel_um, scan_pixel_um_from_dpi, CameraDefinition, DataStrip, DistortionDef,
@@ -28,15 +33,15 @@ pub use orientation::{
 };
 pub use shape::{render_template, FiducialShape, ShapeKind};
 
-use super::matcher::{match_template, MatchOptions};
-use super::ncc::Window;
-use super::pyramid::PyramidOver;
+use super::matcher::MatchOptions;
+use super::scan_windows::ScanWindows;
 use super::{GreyImage, MatchingError, Result};
 use crate::geometry::{InteriorOrientation, InteriorTransformKind};
 use nalgebra::{Matrix2, Vector2};
 use orientation::Hypothesis;
+use patches::Patches;
+use rayon::prelude::*;
 use serde::Serialize;
-use std::collections::HashMap;
 use std::path::Path;
 
 #[derive(Debug, Clone)]
@@ -138,20 +143,22 @@ pub struct IoResult {
     /// What a user should know (a given orientation that fits worse than another, a given
     /// pixel size the marks contradict), in words; also logged.
     pub warnings: Vec<String>,
+    /// Pixels of the scan read: the windows around the marks and the data strip, a few
+    /// per cent of a scan. Not serialised, so that io.json depends on the scan only.
+    #[serde(skip)]
+    pub scan_pixels_read: u64,
 }
 
-/// Fiducial interior orientation of a scan file.
+/// Fiducial interior orientation of a scan file, read by windows around the marks
+/// ([`ScanWindows`]).
 pub fn interior_orientation_file(
     cam: &CameraDefinition,
     scan: &Path,
     opts: &IoOptions,
 ) -> Result<IoResult> {
-    let img = GreyImage::load(scan)?;
-    interior_orientation(cam, &img, &scan.display().to_string(), opts)
+    let windows = ScanWindows::open(scan)?;
+    orient(cam, windows, &scan.display().to_string(), opts)
 }
-
-/// Wide-search cache key: rounded predicted pixel, mark shape, scan orientation.
-type WideKey = (i64, i64, String, u16, bool);
 
 /// Fiducial interior orientation of a scan in memory; `name` labels errors.
 pub fn interior_orientation(
@@ -160,7 +167,19 @@ pub fn interior_orientation(
     name: &str,
     opts: &IoOptions,
 ) -> Result<IoResult> {
+    orient(cam, ScanWindows::held(img), name, opts)
+}
+
+/// The interior orientation of a scan read by windows.
+fn orient(
+    cam: &CameraDefinition,
+    scan: ScanWindows,
+    name: &str,
+    opts: &IoOptions,
+) -> Result<IoResult> {
     cam.validate().map_err(MatchingError::Camera)?;
+    let mut scan = Patches::new(scan);
+    let (width, height) = scan.size();
     if let Some(f) = cam
         .fiducials
         .iter()
@@ -185,7 +204,7 @@ pub fn interior_orientation(
             check_scan_pixel_um(s * 1000.0).map_err(orr)?;
             s
         }
-        None => cam.format_mm[0].max(cam.format_mm[1]) / img.width.min(img.height) as f64,
+        None => cam.format_mm[0].max(cam.format_mm[1]) / width.min(height) as f64,
     };
     let margin_mm = 0.5
         * cam
@@ -210,9 +229,7 @@ pub fn interior_orientation(
             )));
         }
     }
-    // Level 0 is the scan itself, not a copy.
-    let pyr = PyramidOver::new(img, 8, 16);
-    let centre = Vector2::new(img.width as f64 / 2.0, img.height as f64 / 2.0);
+    let centre = Vector2::new(width as f64 / 2.0, height as f64 / 2.0);
     // Two marks far apart carry the wide search; when one of them is missing or
     // damaged, the next pair (by decreasing distance) takes over.
     let n = cam.fiducials.len();
@@ -227,35 +244,8 @@ pub fn interior_orientation(
     let dmax = pairs[0].2;
     pairs.retain(|p| p.2 >= 0.6 * dmax);
     let (ia, ib) = (pairs[0].0, pairs[0].1);
-    let mut wide_cache: HashMap<WideKey, Option<(f64, f64, f64)>> = HashMap::new();
-    let mut wide = |f: &FiducialDef, o: ScanOrientation| -> Option<(f64, f64, f64)> {
-        let lin = o.linear(s);
-        let inv = lin.try_inverse()?;
-        let p = centre + inv * Vector2::new(f.x_mm, f.y_mm);
-        let key = (
-            p.x.round() as i64,
-            p.y.round() as i64,
-            f.shape.key(),
-            o.rotation_deg,
-            o.mirrored,
-        );
-        if let Some(v) = wide_cache.get(&key) {
-            return *v;
-        }
-        let res = render_template(&f.shape, &lin, margin_mm).and_then(|tpl| {
-            let half = opts.search_mm / s + tpl.width.max(tpl.height) as f64 / 2.0;
-            Window::around(img, p.x, p.y, half, half).and_then(|w| {
-                let mut mo = opts.matching.clone();
-                mo.use_lsm = false;
-                match_template(&pyr, &tpl, w, None, &mo).ok()
-            })
-        });
-        let v = res
-            .filter(|m| m.ncc >= opts.matching.ncc_threshold)
-            .map(|m| (m.x, m.y, m.ncc));
-        wide_cache.insert(key, v);
-        v
-    };
+    let mut wide = wide::Wide::new(s, centre, margin_mm, opts);
+    wide.prefetch(&mut scan, cam, (ia, ib))?;
     let (_, dof) = solve::need_and_dof(opts.kind);
     let max_res = if opts.max_residual_um > 0.0 {
         opts.max_residual_um
@@ -265,15 +255,29 @@ pub fn interior_orientation(
     };
     // Every orientation is measured, also with one given: the margin then says whether
     // the marks agree with it.
-    let mut hyps: Vec<Hypothesis> = Vec::new();
     let mut given_failed: Option<String> = None;
-    let mut fit_errors: Vec<(usize, String)> = Vec::new();
+    // The two marks of every orientation first: their wide windows are then dropped
+    // before the marks' windows are read.
+    let mut found = Vec::new();
     for o in ScanOrientation::all() {
-        let is_given = opts.orientation == Some(o);
-        let Some((fa, fb, pa, pb)) = pairs.iter().find_map(|&(i, j, _)| {
+        let mut two = None;
+        for &(i, j, _) in &pairs {
             let (fa, fb) = (&cam.fiducials[i], &cam.fiducials[j]);
-            Some((fa, fb, wide(fa, o)?, wide(fb, o)?))
-        }) else {
+            let Some(pa) = wide.find(&mut scan, fa, o)? else {
+                continue;
+            };
+            if let Some(pb) = wide.find(&mut scan, fb, o)? {
+                two = Some((fa, fb, pa, pb));
+                break;
+            }
+        }
+        found.push((o, two));
+    }
+    scan.drop_unsmoothed();
+    let mut plans = Vec::new();
+    for (o, two) in found {
+        let is_given = opts.orientation == Some(o);
+        let Some((fa, fb, pa, pb)) = two else {
             if is_given {
                 given_failed = Some(format!(
                     "no two opposite fiducial marks (first tried: {} and {}) found in a ±{} mm \
@@ -303,7 +307,22 @@ pub fn interior_orientation(
         };
         let origin_px = Vector2::new(pa.0, pa.1) - inv * Vector2::new(fa.x_mm, fa.y_mm);
         let predict = |f: &FiducialDef| origin_px + inv * Vector2::new(f.x_mm, f.y_mm);
-        let mut marks = measure_marks(cam, img, &pyr, &|_| lin, &predict, s, margin_mm, opts);
+        let plan = marks::plan(cam, &mut scan, &|_| lin, &predict, s, margin_mm, opts)?;
+        plans.push((o, plan));
+    }
+    // Every window is read by now: the hypotheses are measured in parallel, each search
+    // in a window read before (the results of one thread).
+    let measured: Vec<(ScanOrientation, Vec<MarkResult>)> = {
+        let ready = scan.ready();
+        plans
+            .into_par_iter()
+            .map(|(o, plan)| (o, plan.measure(&ready, &opts.matching)))
+            .collect()
+    };
+    let mut hyps: Vec<Hypothesis> = Vec::new();
+    let mut fit_errors: Vec<(usize, String)> = Vec::new();
+    for (o, mut marks) in measured {
+        let is_given = opts.orientation == Some(o);
         match solve::fit(&mut marks, opts.kind, max_res, name) {
             Ok(fit) => {
                 let score = orientation::score(
@@ -347,7 +366,14 @@ pub fn interior_orientation(
             ),
         }));
     }
-    let best_margin = orientation::rank(&mut hyps, img, cam.data_strip.as_ref());
+    let strip_stds = match &cam.data_strip {
+        Some(strip) => hyps
+            .iter()
+            .map(|h| scan.strip_std(&h.io, strip))
+            .collect::<Result<Vec<_>>>()?,
+        None => Vec::new(),
+    };
+    let best_margin = orientation::rank(&mut hyps, &strip_stds);
     let scores: Vec<OrientationScore> = hyps.iter().map(|h| h.score.clone()).collect();
     let describe = |k: usize| {
         let h = &scores[k];
@@ -416,10 +442,9 @@ pub fn interior_orientation(
     // asymmetric mark (a real crop) no longer pulls its match off by a fraction of the
     // geometric mismatch.
     let io0 = h.io.clone();
-    let mut marks = measure_marks(
+    let plan = marks::plan(
         cam,
-        img,
-        &pyr,
+        &mut scan,
         &|f| {
             let (_, jac) = io0.mm_to_pixel_with_jacobian(Vector2::new(f.x_mm, f.y_mm));
             jac.try_inverse().unwrap_or_else(|| o_lin(&io0))
@@ -428,6 +453,13 @@ pub fn interior_orientation(
         s,
         margin_mm,
         opts,
+    )?;
+    let mut marks = plan.measure(&scan.ready(), &opts.matching);
+    tracing::debug!(
+        scan = name,
+        pixels_read = scan.pixels_read(),
+        pixels = width * height,
+        "fiducial windows"
     );
     if let Ok(fit) = solve::fit(&mut marks, opts.kind, max_res, name) {
         if marks.iter().filter(|m| m.used).count() >= h.score.marks_used {
@@ -477,78 +509,13 @@ pub fn interior_orientation(
         marks: h.marks,
         rmse_um: h.rmse_plain,
         warnings,
+        scan_pixels_read: scan.pixels_read(),
     })
 }
 
 /// Linear part (pixel → mm) of a transform.
 fn o_lin(io: &InteriorOrientation) -> Matrix2<f64> {
     io.pixel_to_mm.fixed_view::<2, 2>(0, 0).into_owned()
-}
-
-/// Measures every mark around its predicted position: NCC + LSM in a ±1 mm window, the
-/// template drawn through `lin` (pixel → mm at the mark).
-#[allow(clippy::too_many_arguments)]
-fn measure_marks(
-    cam: &CameraDefinition,
-    img: &GreyImage,
-    pyr: &PyramidOver,
-    lin: &dyn Fn(&FiducialDef) -> Matrix2<f64>,
-    predict: &dyn Fn(&FiducialDef) -> Vector2<f64>,
-    s: f64,
-    margin_mm: f64,
-    opts: &IoOptions,
-) -> Vec<MarkResult> {
-    let mut marks = Vec::new();
-    for f in &cam.fiducials {
-        let pred = predict(f);
-        let lin = lin(f);
-        let mut mr = MarkResult {
-            id: f.id.clone(),
-            x: pred.x,
-            y: pred.y,
-            x_mm: f.x_mm,
-            y_mm: f.y_mm,
-            used: false,
-            ncc: 0.0,
-            sigma_px: f64::NAN,
-            residual_um: [f64::NAN; 2],
-            residual_norm_um: f64::NAN,
-            reason: None,
-        };
-        let Some(tpl) = render_template(&f.shape, &lin, margin_mm) else {
-            mr.reason = Some(format!(
-                "no template at this scale (smaller than 5 scan pixels, or more than \
-                 {MAX_TEMPLATE_PIXELS} pixels)"
-            ));
-            marks.push(mr);
-            continue;
-        };
-        // Local search: ±1 mm around the prediction covers scan shear and scale.
-        let half = (1.0 / s).max(8.0);
-        let (hw, hh) = (
-            half + tpl.width as f64 / 2.0,
-            half + tpl.height as f64 / 2.0,
-        );
-        match Window::around(img, pred.x, pred.y, hw, hh) {
-            None => mr.reason = Some("predicted position outside the scan".into()),
-            Some(w) => match match_template(pyr, &tpl, w, None, &opts.matching) {
-                Err(e) => mr.reason = Some(e.to_string()),
-                Ok(m) => {
-                    mr.ncc = m.ncc;
-                    if m.accepted {
-                        mr.x = m.x;
-                        mr.y = m.y;
-                        mr.sigma_px = m.sigma_x.hypot(m.sigma_y);
-                        mr.used = true;
-                    } else {
-                        mr.reason = m.reason;
-                    }
-                }
-            },
-        }
-        marks.push(mr);
-    }
-    marks
 }
 
 impl IoResult {

@@ -14,11 +14,10 @@
 //! * data strip: the reciprocal of the grey-value spread where the hypothesis puts the
 //!   camera's data strip (text on one side, uniform opaque frame on the others).
 
-use super::camera::DataStrip;
 use super::{CameraDefinition, IoOptions, IoResult, MarkResult};
 use crate::geometry::InteriorOrientation;
 use crate::matching::{GreyImage, MatchingError, Result};
-use nalgebra::{Matrix2, Vector2};
+use nalgebra::Matrix2;
 use serde::{Deserialize, Serialize};
 
 /// How the scan lies relative to the fiducial system: the ideal map pixel → mm
@@ -175,50 +174,16 @@ pub(super) fn score(
     }
 }
 
-/// Grey-value standard deviation of the scan over the data strip as `io` places it;
-/// None when less than half of it lies inside the scan.
-pub(super) fn strip_std(
-    img: &GreyImage,
-    io: &InteriorOrientation,
-    strip: &DataStrip,
-) -> Option<f64> {
-    let step_mm = (io.mean_pixel_size_mm()).max(0.1);
-    let nx = (((strip.x_mm[1] - strip.x_mm[0]) / step_mm).ceil() as usize).clamp(1, 4000);
-    let ny = (((strip.y_mm[1] - strip.y_mm[0]) / step_mm).ceil() as usize).clamp(1, 4000);
-    let (mut n, mut sum, mut sq) = (0usize, 0.0, 0.0);
-    for j in 0..ny {
-        for i in 0..nx {
-            let mm = Vector2::new(
-                strip.x_mm[0] + (i as f64 + 0.5) * (strip.x_mm[1] - strip.x_mm[0]) / nx as f64,
-                strip.y_mm[0] + (j as f64 + 0.5) * (strip.y_mm[1] - strip.y_mm[0]) / ny as f64,
-            );
-            let p = io.mm_to_pixel(mm);
-            if p.x >= 0.0 && p.y >= 0.0 && p.x < img.width as f64 && p.y < img.height as f64 {
-                let v = img.at(p.x as usize, p.y as usize) as f64;
-                n += 1;
-                sum += v;
-                sq += v * v;
-            }
-        }
-    }
-    if 2 * n < nx * ny {
-        return None;
-    }
-    let mean = sum / n as f64;
-    Some((sq / n as f64 - mean * mean).max(0.0).sqrt())
-}
-
-/// Adds the data-strip cue (when every hypothesis can see the strip) and sorts the
-/// hypotheses best first; returns the margin of the best over the second.
-pub(super) fn rank(hyps: &mut [Hypothesis], img: &GreyImage, strip: Option<&DataStrip>) -> f64 {
-    if let Some(strip) = strip {
-        let stds: Vec<Option<f64>> = hyps.iter().map(|h| strip_std(img, &h.io, strip)).collect();
-        if stds.iter().all(Option::is_some) {
-            for (h, s) in hyps.iter_mut().zip(stds) {
-                let s = s.unwrap_or_default();
-                h.score.strip_std = Some(s);
-                h.score.cost /= 1.0 + s;
-            }
+/// Adds the data-strip cue (`strip_stds`: the grey-value spread where each hypothesis puts
+/// the data strip, [`super::patches::Patches::strip_std`]; empty without a data strip),
+/// when every hypothesis can see the strip, and sorts the hypotheses best first; returns
+/// the margin of the best over the second.
+pub(super) fn rank(hyps: &mut [Hypothesis], strip_stds: &[Option<f64>]) -> f64 {
+    if !strip_stds.is_empty() && strip_stds.iter().all(Option::is_some) {
+        for (h, s) in hyps.iter_mut().zip(strip_stds) {
+            let s = s.unwrap_or_default();
+            h.score.strip_std = Some(s);
+            h.score.cost /= 1.0 + s;
         }
     }
     hyps.sort_by(|a, b| a.score.cost.total_cmp(&b.score.cost));
