@@ -3,7 +3,8 @@
 Generates synthetic nadir aerial blocks (strips, 60/30 % overlap, 0.5 px noise, perturbed
 start) as COLMAP text models, runs pycolmap.bundle_adjustment and `cloudcontrol adjust`
 on the same model (with its default options, as a user runs it, and as plain least squares),
-and reports wall time and final reprojection RMS with ratios; then
+and reports wall time and final reprojection RMS with ratios, our peak memory (per
+observation) and the size of our report.json; then
 single-photo resection against pycolmap.estimate_and_refine_absolute_pose.
 
     CLOUDCONTROL_BIN=target/release/cloudcontrol CLOUDCONTROL_LIB=target/release/libcloudcontrol.so \
@@ -134,7 +135,7 @@ def bench_ba(n, mode, repeat):
     with tempfile.TemporaryDirectory() as td:
         td = pathlib.Path(td)
         write_model(td / "start", start, P0, obs)
-        t_colmap, t_cli, t_solver = [], [], []
+        t_colmap, t_cli, t_solver, peak = [], [], [], []
         for _ in range(repeat):
             rec = pycolmap.Reconstruction(str(td / "start"))
             o = pycolmap.BundleAdjustmentOptions()
@@ -147,12 +148,13 @@ def bench_ba(n, mode, repeat):
             rms_colmap = rms_of(rec)
             t = time.perf_counter()
             # Default options: Huber loss, Baarda data snooping, EO covariance, as a user runs it.
-            r = subprocess.run([BIN, "-q", "adjust", "--model", str(td / "start"), "--out", str(td / "ours"),
-                                *MODES[mode], "--no-residuals", "--report", str(td / "r.json")],
-                               capture_output=True, text=True)
+            code, stderr, rss = run_measured([BIN, "-q", "adjust", "--model", str(td / "start"), "--out", str(td / "ours"),
+                                              *MODES[mode], "--report", str(td / "r.json")])
             t_cli.append(time.perf_counter() - t)
-            if r.returncode != 0:
-                raise RuntimeError(r.stderr)
+            if code != 0:
+                raise RuntimeError(stderr)
+            peak.append(rss)
+            report_bytes = (td / "r.json").stat().st_size
             rep = json.loads((td / "r.json").read_text())
             t_solver.append(rep["adjust_time_s"])
         rms_ours = rms_of(pycolmap.Reconstruction(str(td / "ours")))
@@ -160,7 +162,19 @@ def bench_ba(n, mode, repeat):
                     colmap_s=float(np.median(t_colmap)), ours_solver_s=float(np.median(t_solver)),
                     ours_cli_s=float(np.median(t_cli)),
                     colmap_rms=rms_colmap, ours_rms=rms_ours, iterations=rep["iterations"],
-                    rejected=rep["rejected"]["count"])
+                    rejected=rep["rejected"]["count"], peak_mib=max(peak) / 1024,
+                    report_mb=report_bytes / 1e6)
+
+
+def run_measured(cmd):
+    """Runs `cmd`; its exit status, stderr and peak resident memory (KiB, from wait4: this
+    child alone, not the largest of all children so far)."""
+    with tempfile.TemporaryFile() as err:
+        p = subprocess.Popen(cmd, stdout=subprocess.DEVNULL, stderr=err)
+        _, status, usage = os.wait4(p.pid, 0)
+        p.returncode = os.waitstatus_to_exitcode(status)
+        err.seek(0)
+        return p.returncode, err.read().decode(errors="replace"), usage.ru_maxrss
 
 
 def bench_resection(trials=30, n=30, outlier_rate=0.3, seed=3):
@@ -205,12 +219,13 @@ def main():
     ap.add_argument("--repeat", type=int, default=3, help="runs per tool and size (median time)")
     a = ap.parse_args()
     print(f"pycolmap {pycolmap.__version__}, cloudcontrol CLI {BIN}")
-    print("options   photos  points    obs      colmap_s  ours_solver_s  ours_cli_s  speedup(solver)  speedup(cli)  colmap_rms  ours_rms  rms_ratio  rejected")
+    print("options   photos  points    obs      colmap_s  ours_solver_s  ours_cli_s  speedup(solver)  speedup(cli)  colmap_rms  ours_rms  rms_ratio  rejected  peak_MiB  B/obs  report_MB")
     for n in a.sizes:
         for mode in MODES:
             r = bench_ba(n, mode, a.repeat)
             print(f"{mode:8s} {r['photos']:6d} {r['points']:7d} {r['observations']:8d}  {r['colmap_s']:8.2f}  {r['ours_solver_s']:13.2f}  {r['ours_cli_s']:10.2f}"
-                  f"  {r['colmap_s']/r['ours_solver_s']:15.2f}  {r['colmap_s']/r['ours_cli_s']:12.2f}  {r['colmap_rms']:10.4f}  {r['ours_rms']:8.4f}  {r['ours_rms']/r['colmap_rms']:9.4f}  {r['rejected']:8d}", flush=True)
+                  f"  {r['colmap_s']/r['ours_solver_s']:15.2f}  {r['colmap_s']/r['ours_cli_s']:12.2f}  {r['colmap_rms']:10.4f}  {r['ours_rms']:8.4f}  {r['ours_rms']/r['colmap_rms']:9.4f}  {r['rejected']:8d}"
+                  f"  {r['peak_mib']:8.0f}  {r['peak_mib'] * 2**20 / r['observations']:5.0f}  {r['report_mb']:9.3f}", flush=True)
     if not a.skip_resection:
         r = bench_resection()
         oe, ce = np.array(r["ours_err_m"]), np.array(r["colmap_err_m"])

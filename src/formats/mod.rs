@@ -1,6 +1,7 @@
 //! Format adapters: coordinate reference systems (GDAL/PROJ), GeoTIFF rasters, and the
 //! photogrammetric exchange formats. Readers and writers only; no photogrammetry here.
 
+pub mod adjust_report;
 pub mod blocks_exchange;
 pub mod colmap;
 pub mod control_points;

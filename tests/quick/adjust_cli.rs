@@ -129,7 +129,10 @@ fn adjust_a_colmap_model_with_control_measurements_and_check_points() {
         .arg(dir.path().join("meas.csv"))
         .arg("--report")
         .arg(&report)
-        .arg("--no-residuals")
+        .arg("--observations")
+        .arg(dir.path().join("observations.csv"))
+        .arg("--photos")
+        .arg(dir.path().join("photos.csv"))
         .output()
         .unwrap();
     assert!(
@@ -161,10 +164,33 @@ fn adjust_a_colmap_model_with_control_measurements_and_check_points() {
         chk["rmse_plan_m"].as_f64().unwrap() < 0.2 && chk["rmse_height_m"].as_f64().unwrap() < 0.5,
         "{chk}"
     );
-    assert!(
-        r["rejected"]["count"].as_u64().unwrap()
-            == r["rejected"]["list"].as_array().unwrap().len() as u64
+    // The report is the bounded summary; the listings hold every observation and photo:
+    // the kept ones' residual components are the report's scalar observations.
+    assert!(r.get("residuals").is_none());
+    let count = r["rejected"]["count"].as_u64().unwrap();
+    assert_eq!(r["rejected"]["listed"].as_u64().unwrap(), count.min(100));
+    let rows: Vec<csv::StringRecord> = csv::Reader::from_path(dir.path().join("observations.csv"))
+        .unwrap()
+        .records()
+        .map(|r| r.unwrap())
+        .collect();
+    let status = |row: &csv::StringRecord| row[5].to_string();
+    assert_eq!(
+        rows.iter().filter(|row| status(row) == "rejected").count() as u64,
+        count
     );
+    let components: usize = rows
+        .iter()
+        .filter(|row| status(row) == "used")
+        .map(|row| (7..10).filter(|&k| !row[k].is_empty()).count())
+        .sum();
+    assert_eq!(components as u64, r["observations"].as_u64().unwrap());
+    let photos = csv::Reader::from_path(dir.path().join("photos.csv"))
+        .unwrap()
+        .records()
+        .count();
+    assert_eq!(photos, 24);
+    assert_eq!(r["photo_precision"]["photos"], 24);
     // The adjusted model is block-local; the side file carries the origin that brings the
     // photo centres back to world coordinates and onto the truth.
     let side: serde_json::Value = serde_json::from_slice(

@@ -16,20 +16,35 @@ pub(crate) fn data() -> PathBuf {
     }
 }
 
+/// A rejected observation as `--observations` lists it.
+#[derive(serde::Deserialize)]
+pub(crate) struct RejectedRow {
+    #[serde(rename = "type")]
+    pub kind: String,
+    pub photo: Option<i64>,
+    pub point: Option<i64>,
+    pub status: String,
+    pub with_point: Option<bool>,
+}
+
 /// `cloudcontrol adjust` of COLMAP model `model` with the block's ODM GCP file as given
-/// and 0.5 px: the JSON report.
-fn adjust(model: &Path) -> serde_json::Value {
+/// and 0.5 px: the JSON report and every rejected observation (`--observations`; the
+/// report lists only the 100 largest). The report's count agrees with the listing's.
+fn adjust(model: &Path) -> (serde_json::Value, Vec<RejectedRow>) {
     let dir = tempfile::tempdir().unwrap();
     let report = dir.path().join("report.json");
+    let listing = dir.path().join("observations.csv");
     let out = Command::new(BIN)
         .args(["-q", "adjust", "--model"])
         .arg(model)
         .arg("--gcp")
         .arg(data().join("gcp_list_subset.txt"))
-        .args(["--sigma-px", "0.5", "--no-residuals", "--out"])
+        .args(["--sigma-px", "0.5", "--out"])
         .arg(dir.path().join("out"))
         .arg("--report")
         .arg(&report)
+        .arg("--observations")
+        .arg(&listing)
         .output()
         .unwrap();
     assert!(
@@ -37,12 +52,21 @@ fn adjust(model: &Path) -> serde_json::Value {
         "{}",
         String::from_utf8_lossy(&out.stderr)
     );
-    serde_json::from_slice(&std::fs::read(&report).unwrap()).unwrap()
+    let r: serde_json::Value = serde_json::from_slice(&std::fs::read(&report).unwrap()).unwrap();
+    let rejected: Vec<RejectedRow> = csv::Reader::from_path(&listing)
+        .unwrap()
+        .deserialize()
+        .map(|row| row.unwrap())
+        .filter(|row: &RejectedRow| row.status == "rejected")
+        .collect();
+    assert_eq!(r["rejected"]["count"], rejected.len());
+    assert_eq!(r["rejected"]["listed"], rejected.len().min(100));
+    (r, rejected)
 }
 
 #[test]
 fn kite_block_adjusts_with_its_odm_gcp_file_as_given() {
-    let r = adjust(&data().join("colmap_sparse/txt"));
+    let (r, rejected) = adjust(&data().join("colmap_sparse/txt"));
     let g = &r["georeference"];
     // Six GCPs: five fix the similarity, gcp00 (one photo) constrains its photo alone;
     // none is rejected as a whole.
@@ -69,15 +93,12 @@ fn kite_block_adjusts_with_its_odm_gcp_file_as_given() {
     // control group is re-weighted on the first solution and all six stay in.
     let scale = r["control_sigma_scale"].as_f64().expect("control σ scaled");
     assert!(scale > 3.0 && scale < 20.0, "control σ × {scale}");
-    let rejected = r["rejected"]["list"].as_array().unwrap();
-    assert!(
-        rejected.iter().all(|x| x["observation"]["type"] == "image"),
-        "{:#?}",
-        rejected
-            .iter()
-            .filter(|x| x["observation"]["type"] != "image")
-            .collect::<Vec<_>>()
-    );
+    let other: Vec<(&str, Option<i64>, Option<i64>)> = rejected
+        .iter()
+        .filter(|x| x.kind != "image")
+        .map(|x| (x.kind.as_str(), x.photo, x.point))
+        .collect();
+    assert!(other.is_empty(), "{other:?}");
     let control = r["variance_components"]
         .as_array()
         .unwrap()
@@ -103,7 +124,10 @@ fn kite_block_adjusts_with_its_odm_gcp_file_as_given() {
     assert!((2.0..=5.0).contains(&d0), "{prior}");
     let ties = 35_172.0;
     let n = rejected.len() as f64;
-    let alone = rejected.iter().filter(|x| x["with_point"] == false).count() as f64;
+    let alone = rejected
+        .iter()
+        .filter(|x| x.with_point == Some(false))
+        .count() as f64;
     eprintln!(
         "kite: σ0 {s0:.3}, control σ × {scale:.2}, {n} rejected ({:.2} %, {:.2} % as themselves), test {}",
         100.0 * n / ties,
@@ -162,16 +186,11 @@ fn kite_block_finds_displaced_tie_observations() {
         out.push(row.join(" "));
     }
     std::fs::write(model.join("images.txt"), out.join("\n") + "\n").unwrap();
-    let r = adjust(&model);
-    let rejected: BTreeSet<(i64, i64)> = r["rejected"]["list"]
-        .as_array()
-        .unwrap()
+    let (_, rows) = adjust(&model);
+    let rejected: BTreeSet<(i64, i64)> = rows
         .iter()
-        .filter(|x| x["observation"]["type"] == "image")
-        .map(|x| {
-            let o = &x["observation"];
-            (o["point"].as_i64().unwrap(), o["photo"].as_i64().unwrap())
-        })
+        .filter(|x| x.kind == "image")
+        .map(|x| (x.point.unwrap(), x.photo.unwrap()))
         .collect();
     let found = rejected.intersection(&displaced).count() as f64;
     let false_ = rejected.difference(&displaced).count() as f64;

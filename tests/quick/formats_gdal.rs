@@ -14,7 +14,7 @@ fn adjust_without_gdal(extra: &[&std::ffi::OsStr], out: &std::path::Path) -> std
         .args(["-q", "adjust", "--model"])
         .arg(data().join("colmap_sparse/txt"))
         .args(extra)
-        .args(["--sigma-px", "0.5", "--no-residuals", "--out"])
+        .args(["--sigma-px", "0.5", "--out"])
         .arg(out)
         .output()
         .unwrap()

@@ -27,6 +27,7 @@ mod dense_synthetic;
 mod estimators;
 mod estimators_similarity2;
 mod estimators_similarity3;
+mod formats_adjust_report;
 mod formats_crs_input;
 mod formats_csv;
 mod formats_ortho_tiles;

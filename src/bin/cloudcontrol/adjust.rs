@@ -10,7 +10,7 @@ use cloudcontrol::block::{Block, ObjectPoint, PointId, PointKind};
 use cloudcontrol::formats::control_points::{self, Measurement, SurveyedPoint};
 use cloudcontrol::formats::csv::{read_records, read_records_renamed, Extra, Layout};
 use cloudcontrol::formats::odm_gcp::{read_odm_gcp, GcpOptions};
-use cloudcontrol::formats::write_bytes_atomically;
+use cloudcontrol::formats::{adjust_report, write_bytes_atomically};
 use cloudcontrol::geometry::{Brown, Camera, FrameCamera};
 use nalgebra::Vector3;
 use std::path::{Path, PathBuf};
@@ -70,12 +70,18 @@ pub struct AdjustArgs {
     /// Most Levenberg–Marquardt iterations per adjustment round.
     #[arg(long, default_value_t = 50)]
     pub max_iterations: usize,
-    /// JSON report path.
+    /// JSON report: a summary of bounded size whatever the block's (formats/adjust/): σ0,
+    /// variance components, self-calibration, check points, the rejections and the weakest
+    /// photos up to 100 of each; the full listings go to --observations and --photos.
     #[arg(long)]
     pub report: Option<PathBuf>,
-    /// Leave per-observation residuals out of the report.
+    /// Every observation as CSV (kept: residuals, standardised residual, redundancy
+    /// number; rejected: round, statistic, reason).
     #[arg(long)]
-    pub no_residuals: bool,
+    pub observations: Option<PathBuf>,
+    /// Every photo's exterior-orientation σ as CSV.
+    #[arg(long)]
+    pub photos: Option<PathBuf>,
     /// Skip the per-photo EO standard deviations (saves the multi-right-hand-side solve).
     #[arg(long)]
     pub no_covariance: bool,
@@ -410,29 +416,44 @@ pub fn run_adjust(a: &AdjustArgs) -> Result<serde_json::Value, String> {
             });
         }
     }
-    let mut rep = adjust(&mut block, &planes, None, &opts).map_err(text)?;
+    let rep = adjust(&mut block, &planes, None, &opts).map_err(text)?;
     let colmap_text = cloudcontrol::formats::colmap::WriteOptions {
         encoding: cloudcontrol::formats::colmap::Encoding::Text,
         layout: cloudcontrol::formats::colmap::Layout::Rigs,
     };
     cloudcontrol::formats::colmap::write(&a.out, &block, &colmap_text).map_err(text)?;
-    if a.no_residuals {
-        rep.residuals.clear();
-    }
-    let mut v = serde_json::to_value(&rep).map_err(text)?;
-    v["time_s"] = serde_json::json!(t0.elapsed().as_secs_f64());
-    v["adjust_time_s"] = serde_json::json!(rep.time_s);
-    v["origin"] = serde_json::json!(block.origin);
+    let mut extra = serde_json::Map::new();
+    extra.insert(
+        "time_s".into(),
+        serde_json::json!(t0.elapsed().as_secs_f64()),
+    );
+    extra.insert("adjust_time_s".into(), serde_json::json!(rep.time_s));
+    extra.insert("origin".into(), serde_json::json!(block.origin));
     if let Some(g) = georef {
-        v["georeference"] = serde_json::to_value(&g).map_err(text)?;
+        extra.insert(
+            "georeference".into(),
+            serde_json::to_value(&g).map_err(text)?,
+        );
     }
     if !notes.is_empty() {
-        v["notes"] = serde_json::json!(notes);
+        extra.insert("notes".into(), serde_json::json!(notes));
     }
-    if let Some(r) = &a.report {
-        let bytes = serde_json::to_vec_pretty(&v).map_err(text)?;
-        write_bytes_atomically(r, &bytes).map_err(text)?;
+    if let Some(path) = &a.observations {
+        adjust_report::write_observations_csv(path, &rep, &block).map_err(text)?;
     }
+    if let Some(path) = &a.photos {
+        adjust_report::write_photos_csv(path, &rep).map_err(text)?;
+    }
+    let v = match &a.report {
+        Some(path) => adjust_report::write_summary(path, &rep, extra).map_err(text)?,
+        None => {
+            let mut v = serde_json::to_value(adjust_report::summary(&rep)).map_err(text)?;
+            if let Some(o) = v.as_object_mut() {
+                o.extend(extra);
+            }
+            v
+        }
+    };
     Ok(v)
 }
 
@@ -485,7 +506,7 @@ pub fn run_resect(a: &ResectArgs) -> Result<serde_json::Value, String> {
     Ok(v)
 }
 
-/// Prints the result JSON (without the bulky per-observation arrays) or the error.
+/// Prints the result JSON (the adjustment's without its list of weakest photos) or the error.
 pub fn print_result(
     what: &str,
     r: Result<serde_json::Value, String>,
@@ -495,9 +516,9 @@ pub fn print_result(
         Ok(v) => {
             if !quiet {
                 let mut v = v;
-                if let Some(o) = v.as_object_mut() {
-                    o.remove("residuals");
-                    o.remove("photo_precision");
+                // The report's lists of names (up to 100 photos) are for the file.
+                if let Some(p) = v.get_mut("photo_precision").and_then(|p| p.as_object_mut()) {
+                    p.remove("weakest");
                 }
                 outln!("{}", serde_json::to_string_pretty(&v).expect("json"));
             }
