@@ -9,6 +9,13 @@ single-photo resection against pycolmap.estimate_and_refine_absolute_pose.
 
     CLOUDCONTROL_BIN=target/release/cloudcontrol CLOUDCONTROL_LIB=target/release/libcloudcontrol.so \
     PYTHONPATH=bindings/python python benches/adjust_pycolmap.py [--sizes 50 200 800]
+
+With --control-run: the robust run with control, check points and blunders (1 % of the
+rays displaced 5–30 px, a tenth of the control wrong by 1–3 m): `cloudcontrol adjust
+--control --check`, which must find the wrong control and rays itself, against pycolmap's
+procedure told which control is good (the good control held constant, Cauchy loss, rays
+beyond 2 px deleted, solved again; TOLD_ITERATIONS sets its iterations, default Ceres's
+100): time ratio and check point RMSE of both.
 """
 from __future__ import annotations
 
@@ -177,6 +184,112 @@ def run_measured(cmd):
         return p.returncode, err.read().decode(errors="replace"), usage.ru_maxrss
 
 
+def control_block(n, seed=1):
+    """The bench block with what a robust run with control must survive: 1 % of the image
+    observations displaced 5–30 px, control points (every photo's worth: n/4, at least 8)
+    surveyed to 2 cm of which a tenth (at least one) is wrong by 1–3 m, as many check
+    points given at their true coordinates."""
+    poses, start, P, P0, obs = synth(n, seed=seed)
+    rng = np.random.default_rng(seed + 1000)
+    bad_obs = 0
+    for ob in obs:
+        for k, (j, u, v) in enumerate(ob):
+            if rng.random() < 0.01:
+                a, m = rng.uniform(0, 2 * np.pi), rng.uniform(5, 30)
+                ob[k] = (j, u + m * np.cos(a), v + m * np.sin(a))
+                bad_obs += 1
+    rays = np.array([len(o) for o in obs])
+    candidates = rng.permutation(np.nonzero(rays >= 3)[0])
+    m = max(8, n // 4)
+    ctl, chk = candidates[:m], candidates[m:2 * m]
+    wrong = set(rng.choice(ctl, max(1, m // 10), replace=False).tolist())
+    surveyed = P[ctl] + rng.normal(0, 0.02, (m, 3))
+    for i, k in enumerate(ctl):
+        if k in wrong:
+            a = rng.uniform(0, 2 * np.pi)
+            surveyed[i] += rng.uniform(1, 3) * np.array([np.cos(a), np.sin(a), rng.choice([-1, 1])])
+    return poses, start, P, P0, obs, ctl, chk, wrong, surveyed, bad_obs
+
+
+MAX_ITERATIONS_TOLD = int(os.environ.get("TOLD_ITERATIONS", "100"))
+
+
+def colmap_told(model, out, P, ctl, wrong, surveyed, chk):
+    """pycolmap's robust procedure when told which control is good: the good control points
+    at their surveyed coordinates held constant (the datum), the wrong ones left out, Cauchy
+    loss (scale 1 px), every observation whose reprojection error then exceeds 2 px deleted,
+    and the adjustment solved again. Returns the check points' errors (m)."""
+    rec = pycolmap.Reconstruction(str(model))
+    for i, k in enumerate(ctl):
+        if k not in wrong:
+            rec.points3D[int(k) + 1].xyz = surveyed[i]
+    def solve():
+        config = pycolmap.BundleAdjustmentConfig()
+        for image_id in rec.reg_image_ids():
+            config.add_image(image_id)
+        for k in ctl:
+            if k not in wrong:
+                config.add_constant_point(int(k) + 1)
+        o = pycolmap.BundleAdjustmentOptions()
+        o.refine_focal_length = False
+        o.refine_principal_point = False
+        o.refine_extra_params = False
+        o.ceres.loss_function_type = pycolmap.LossFunctionType.CAUCHY
+        o.ceres.loss_function_scale = 1.0
+        o.print_summary = False
+        o.ceres.solver_options.max_num_iterations = MAX_ITERATIONS_TOLD
+        pycolmap.create_default_bundle_adjuster(o, config, rec).solve()
+    solve()
+    for image_id in list(rec.reg_image_ids()):
+        img = rec.images[image_id]
+        cam = rec.cameras[img.camera_id]
+        for idx, p2 in enumerate(img.points2D):
+            if not p2.has_point3D() or p2.point3D_id not in rec.points3D:
+                continue
+            uv = cam.img_from_cam(img.cam_from_world() * rec.points3D[p2.point3D_id].xyz)
+            if np.linalg.norm(np.asarray(uv).ravel()[:2] - p2.xy) > 2.0:
+                rec.delete_observation(image_id, idx)
+    solve()
+    return np.array([rec.points3D[int(k) + 1].xyz - P[k] if int(k) + 1 in rec.points3D
+                     else [np.nan] * 3 for k in chk])
+
+
+def bench_control(n, repeat):
+    """The robust run with control, check points and blunders: `cloudcontrol adjust
+    --control --check` (it must find the wrong control and the displaced rays itself)
+    against pycolmap's procedure told which control is good. Median wall time of each,
+    check point RMSE in plan and height."""
+    poses, start, P, P0, obs, ctl, chk, wrong, surveyed, bad_obs = control_block(n)
+    with tempfile.TemporaryDirectory() as td:
+        td = pathlib.Path(td)
+        write_model(td / "start", start, P0, obs)
+        (td / "control.csv").write_text("id,x,y,z,sigma_xy,sigma_z\n" + "".join(
+            f"{int(k) + 1},{x},{y},{z},0.02,0.02\n" for k, (x, y, z) in zip(ctl, surveyed)))
+        (td / "check.csv").write_text("id,x,y,z\n" + "".join(
+            f"{int(k) + 1},{P[k][0]},{P[k][1]},{P[k][2]}\n" for k in chk))
+        t_ours, t_colmap = [], []
+        for _ in range(repeat):
+            t = time.perf_counter()
+            code, stderr, _ = run_measured([BIN, "-q", "adjust", "--model", str(td / "start"), "--out", str(td / "ours"),
+                                            "--control", str(td / "control.csv"), "--check", str(td / "check.csv"),
+                                            "--sigma-px", "0.5", "--report", str(td / "r.json")])
+            t_ours.append(time.perf_counter() - t)
+            if code != 0:
+                raise RuntimeError(stderr)
+            t = time.perf_counter()
+            err = colmap_told(td / "start", td / "colmap", P, ctl, wrong, surveyed, chk)
+            t_colmap.append(time.perf_counter() - t)
+        rep = json.loads((td / "r.json").read_text())
+        ok = np.all(np.isfinite(err), axis=1)
+        return dict(photos=n, observations=sum(len(o) for o in obs), bad_obs=bad_obs,
+                    control=len(ctl), wrong=len(wrong), check=len(chk),
+                    ours_s=float(np.median(t_ours)), colmap_s=float(np.median(t_colmap)),
+                    ours_plan=rep["check"]["rmse_plan_m"], ours_height=rep["check"]["rmse_height_m"],
+                    colmap_plan=float(np.sqrt(np.mean(np.sum(err[ok, :2] ** 2, axis=1)))),
+                    colmap_height=float(np.sqrt(np.mean(err[ok, 2] ** 2))),
+                    rejected=rep["rejected"]["count"])
+
+
 def bench_resection(trials=30, n=30, outlier_rate=0.3, seed=3):
     rng = np.random.default_rng(seed)
     cam = pycolmap.Camera(model="PINHOLE", width=W, height=H, params=[F, F, W / 2, H / 2])
@@ -216,9 +329,19 @@ def main():
     ap = argparse.ArgumentParser()
     ap.add_argument("--sizes", type=int, nargs="+", default=[50, 200, 800])
     ap.add_argument("--skip-resection", action="store_true")
+    ap.add_argument("--control-run", action="store_true",
+                    help="only the robust run with control, check points and blunders against pycolmap told the good control")
     ap.add_argument("--repeat", type=int, default=3, help="runs per tool and size (median time)")
     a = ap.parse_args()
     print(f"pycolmap {pycolmap.__version__}, cloudcontrol CLI {BIN}")
+    if a.control_run:
+        print("robust run with control: photos  obs  blunders  control (wrong)  check  ours_s  colmap_told_s  speedup  ours plan/height m  colmap plan/height m  rejected")
+        for n in a.sizes:
+            r = bench_control(n, a.repeat)
+            print(f"{r['photos']:6d} {r['observations']:8d} {r['bad_obs']:6d} {r['control']:5d} ({r['wrong']}) {r['check']:5d}"
+                  f"  {r['ours_s']:7.2f}  {r['colmap_s']:7.2f}  {r['colmap_s'] / r['ours_s']:6.2f}"
+                  f"  {r['ours_plan']:.4f}/{r['ours_height']:.4f}  {r['colmap_plan']:.4f}/{r['colmap_height']:.4f}  {r['rejected']:6d}", flush=True)
+        return
     print("options   photos  points    obs      colmap_s  ours_solver_s  ours_cli_s  speedup(solver)  speedup(cli)  colmap_rms  ours_rms  rms_ratio  rejected  peak_MiB  B/obs  report_MB")
     for n in a.sizes:
         for mode in MODES:
