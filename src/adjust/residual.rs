@@ -167,6 +167,42 @@ impl ResidualBlock {
         }
     }
 
+    /// The whitened residual alone (rows beyond its dimension zero), as [`Self::evaluate_in`]
+    /// computes it, without the Jacobians: what a trial step of the solver needs.
+    pub fn residual(&self, s: &State) -> Option<Vector3<f64>> {
+        match &self.kind {
+            Kind::Image { pixel, sigma } => {
+                let (ph, cam, pt) = (self.photo?, self.camera?, self.point?);
+                let xc = s.poses[ph].to_camera(&s.points[pt]);
+                let p = s.cameras[cam].project_as_with_jacobian(&xc).ok()?;
+                let r = (p - pixel) * (1.0 / sigma);
+                Some(Vector3::new(r.x, r.y, 0.0))
+            }
+            Kind::PointPrior { value, sigma } => {
+                Some((s.points[self.point?] - value).component_div(sigma))
+            }
+            Kind::PosCenter { value, sigma } => {
+                Some((s.poses[self.photo?].center - value).component_div(sigma))
+            }
+            Kind::PosAttitude { rotation, sigma } => {
+                let r = s.poses[self.photo?].rotation;
+                Some(rotation_vector(&(r * rotation.transpose())) / *sigma)
+            }
+            Kind::Plane {
+                normal,
+                d,
+                sqrt_weight,
+            } => {
+                let mut x = s.points[self.point?];
+                if self.camera.is_some() {
+                    x += s.lidar_shift;
+                }
+                Some(Vector3::new((normal.dot(&x) - d) * sqrt_weight, 0.0, 0.0))
+            }
+            Kind::LidarDatum { sigma } => Some(s.lidar_shift.component_div(sigma)),
+        }
+    }
+
     fn fill(&self, s: &State, slot: &mut Option<Eval>) -> Option<()> {
         match &self.kind {
             Kind::Image { pixel, sigma } => {

@@ -417,6 +417,20 @@ impl Camera {
         Ok(self.pixel_from_distorted(pd).0)
     }
 
+    /// [`Self::project`] with [`Self::project_with_jacobian`]'s arithmetic (one reciprocal
+    /// of the depth), so a residual evaluated without Jacobians equals, to the bit, the one
+    /// evaluated with them.
+    #[inline]
+    pub fn project_as_with_jacobian(&self, xc: &Vector3<f64>) -> Result<Vector2<f64>> {
+        if xc.z.is_nan() || xc.z <= 0.0 {
+            return Err(GeometryError::BehindCamera { z: xc.z });
+        }
+        let iz = 1.0 / xc.z;
+        let pn = Vector2::new(xc.x * iz, xc.y * iz);
+        let pd = self.distortion().distort(pn);
+        Ok(self.pixel_from_distorted(pd).0)
+    }
+
     /// Projects a camera-frame point and returns ∂pixel/∂X_cam and ∂pixel/∂(interior parameters).
     pub fn project_with_jacobian(
         &self,
