@@ -224,46 +224,48 @@ pub fn write_observations_csv(path: &Path, rep: &AdjustReport, block: &Block) ->
         id.and_then(|i| block.points.get(&i))
             .map_or("", |p| p.name.as_str())
     };
+    // The fields every row has: which observation it is.
+    let row = |o: &ObservationRef| {
+        let (kind, photo, point) = ids(o);
+        ObservationRow {
+            kind,
+            photo,
+            photo_name: photo_name(photo),
+            point,
+            point_name: point_name(point),
+            status: "used",
+            round: None,
+            residual_1: None,
+            residual_2: None,
+            residual_3: None,
+            standardized: f64::NAN,
+            redundancy: None,
+            with_point: None,
+            reason: "",
+        }
+    };
     write_csv(path, |w| {
         let mut rows = 0;
         for r in &rep.residuals {
-            let (kind, photo, point) = ids(&r.observation);
             let c = |k: usize| r.residual.get(k).copied();
             w.serialize(ObservationRow {
-                kind,
-                photo,
-                photo_name: photo_name(photo),
-                point,
-                point_name: point_name(point),
-                status: "used",
-                round: None,
                 residual_1: c(0),
                 residual_2: c(1),
                 residual_3: c(2),
                 standardized: r.standardized,
                 redundancy: Some(r.redundancy),
-                with_point: None,
-                reason: "",
+                ..row(&r.observation)
             })?;
             rows += 1;
         }
         for r in &rep.rejected.list {
-            let (kind, photo, point) = ids(&r.observation);
             w.serialize(ObservationRow {
-                kind,
-                photo,
-                photo_name: photo_name(photo),
-                point,
-                point_name: point_name(point),
                 status: "rejected",
                 round: Some(r.round),
-                residual_1: None,
-                residual_2: None,
-                residual_3: None,
                 standardized: r.standardized_residual,
-                redundancy: None,
                 with_point: Some(r.with_point),
                 reason: &r.reason,
+                ..row(&r.observation)
             })?;
             rows += 1;
         }
