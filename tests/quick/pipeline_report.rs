@@ -7,6 +7,8 @@
 
 use cloudcontrol::adjust::VarianceComponent;
 use cloudcontrol::control::checkpoints::RejectedMeasurement;
+use cloudcontrol::lidar::clean::{OffsetModel, StripOffset};
+use cloudcontrol::lidar::StripOffsetReport;
 use cloudcontrol::matching::ScanOrientation;
 use cloudcontrol::pipeline::project::{Outputs, Thresholds};
 use cloudcontrol::pipeline::report::gather::{epoch_warnings, scan_rows};
@@ -315,6 +317,22 @@ fn sample_report() -> Report {
                 },
             ],
         }),
+        lidar_strips: Some(StripOffsetReport {
+            model: OffsetModel::Vertical,
+            vertical_because: Some("their horizontal normals spread 0.031".into()),
+            normal_spread: None,
+            reference: None,
+            strips: [(1, 0.031), (2, -0.031)]
+                .map(|(id, dz)| StripOffset {
+                    source_id: id,
+                    points: 24_000,
+                    offset_m: [0.0, 0.0, dz],
+                    sigma_m: [0.0, 0.0, 0.0002],
+                })
+                .to_vec(),
+            pairs: Vec::new(),
+            sigma0_m: 0.055,
+        }),
         epochs,
         ortho: None,
     }
@@ -410,6 +428,11 @@ fn report_json_has_the_documented_fields_and_statistics() {
     assert!(close(&l["rows"][1]["dz_m"], 0.04));
     assert_eq!(l["rows"][2]["lidar_z"], Value::Null);
     assert_eq!(l["radius_m"], 3.0);
+    // The strips' offsets, and why in height alone.
+    let s = &v["lidar_strips"];
+    assert_eq!(s["model"], "vertical");
+    assert!(close(&s["strips"][1]["offset_m"][2], -0.031));
+    assert!(s["vertical_because"].as_str().unwrap().contains("spread"));
     // The run: version, project hash, date, options and thresholds.
     let run = &v["run"];
     assert_eq!(run["cloudcontrol_version"], cloudcontrol::VERSION);
@@ -693,6 +716,9 @@ fn html_report_renders_in_headless_chromium() {
     let l = element(&dom, "lidar-check");
     assert!(l.contains("<td>+0.020</td>") && l.contains("<td>120.020</td>"));
     assert!(l.contains("skipped: 2 ground points within 3 m (need 6)"));
+    let s = element(&dom, "lidar-strips");
+    assert!(s.contains("a height offset per strip") && s.contains("spread 0.031"));
+    assert!(s.contains("<td>2</td><td>24000</td><td>+0.000</td><td>+0.000</td><td>-0.031</td>"));
     // Per-checkpoint table: id, dx, dy, dz in m and GSD, photos.
     let e = &sample_report().epochs[2];
     let c = &e.checkpoints[7];

@@ -120,8 +120,10 @@ pub enum LidarCommand {
         /// Skip the strip offsets.
         #[arg(long)]
         no_strips: bool,
-        /// Strip offset model.
-        #[arg(long, value_enum, default_value_t = OffsetArg::Vertical)]
+        /// Strip offset model: auto takes a 3-D shift per strip where the overlapping
+        /// planes (roofs, slopes) determine it to 1 cm in plan, a height offset alone
+        /// elsewhere; the report says which it took and why.
+        #[arg(long, value_enum, default_value_t = OffsetArg::Auto)]
         model: OffsetArg,
         /// Strip held fixed (point source id); default: the offsets have zero mean over the strips.
         #[arg(long)]
@@ -166,6 +168,7 @@ pub enum LidarCommand {
 
 #[derive(ValueEnum, Clone, Copy, Debug)]
 pub enum OffsetArg {
+    Auto,
     Vertical,
     Translation,
 }
@@ -365,6 +368,7 @@ pub fn run_lidar(cmd: LidarCommand, json_out: bool, quiet: bool) -> Result<(), S
                 outliers: (!no_filter).then_some(OutlierOptions { k, n_sigma }),
                 strips: (!no_strips).then(|| StripOffsetOptions {
                     model: match model {
+                        OffsetArg::Auto => OffsetModel::Auto,
                         OffsetArg::Vertical => OffsetModel::Vertical,
                         OffsetArg::Translation => OffsetModel::Translation,
                     },
@@ -393,6 +397,9 @@ pub fn run_lidar(cmd: LidarCommand, json_out: bool, quiet: bool) -> Result<(), S
                         s.model,
                         s.sigma0_m
                     );
+                    if let Some(why) = &s.vertical_because {
+                        outln!("  height offsets alone: {why}");
+                    }
                     for st in &s.strips {
                         outln!(
                             "  strip {:>5}: dx {:+.3} dy {:+.3} dz {:+.3} m (σ {:.3} {:.3} {:.3}), {} points",

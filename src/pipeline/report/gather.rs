@@ -517,6 +517,18 @@ pub fn make_report(
             ));
         }
     }
+    let lidar_strips =
+        read_if_file::<crate::lidar::CleanReport>(folders.sources.join("clean.json"))?
+            .and_then(|c| c.strip_offsets);
+    if let Some(why) = lidar_strips
+        .as_ref()
+        .and_then(|s| s.vertical_because.as_ref())
+    {
+        warnings.push(Warning::new(
+            WarningKind::Lidar,
+            format!("the LiDAR strips were corrected in height alone: {why}"),
+        ));
+    }
     Ok(Report {
         project: project.name.clone(),
         crs: project.crs.clone(),
@@ -528,6 +540,7 @@ pub fn make_report(
         }),
         warnings,
         lidar_checkpoints: lidar,
+        lidar_strips,
         epochs,
         ortho,
     })

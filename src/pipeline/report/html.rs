@@ -1,8 +1,9 @@
 //! The self-contained HTML page: the run (version, project hash, date, options), its
-//! warnings, accuracy through time (table and plot), the LiDAR's check, the map, and per
-//! epoch its warnings, checkpoints, rejected checkpoint measurements, film scans, plots
-//! and tie statistics. Every section has an `id` (`run-info`, `warnings`,
-//! `accuracy-by-date`, `lidar-check`, `map`, and `<section>-<epoch>` per epoch) so that a
+//! warnings, accuracy through time (table and plot), the LiDAR's check and its strips'
+//! offsets, the map, and per epoch its warnings, checkpoints, rejected checkpoint
+//! measurements, film scans, plots and tie statistics. Every section has an `id`
+//! (`run-info`, `warnings`, `accuracy-by-date`, `lidar-check`, `lidar-strips`, `map`, and
+//! `<section>-<epoch>` per epoch) so that a
 //! reader or a test can find it.
 
 use super::model::{EpochReport, Report, Warning};
@@ -188,6 +189,50 @@ fn warnings_html(report: &Report) -> String {
         ));
     }
     h.push_str("</section>");
+    h
+}
+
+/// The LiDAR strips' offsets the cleaning removed: the model, its σ0 and one row per strip.
+fn lidar_strips_html(report: &Report) -> String {
+    let Some(s) = &report.lidar_strips else {
+        return String::new();
+    };
+    let model = match s.model {
+        crate::lidar::clean::OffsetModel::Vertical => "a height offset per strip",
+        _ => "a 3-D shift per strip",
+    };
+    let datum = match s.reference {
+        Some(r) => format!("strip {r} held"),
+        None => "zero mean over the strips".into(),
+    };
+    let mut h = format!(
+        "<section id=\"lidar-strips\"><h2>LiDAR strips</h2>\
+         <p>Offsets between overlapping strips from point-to-plane distances, removed before \
+         the LiDAR serves as control: {model} ({datum}), σ0 {} m{}.</p>\
+         <table><tr><th>strip</th><th>points</th><th>dx (m)</th><th>dy (m)</th><th>dz (m)</th>\
+         <th>σ x, y, z (m)</th></tr>",
+        fmt(s.sigma0_m, 3),
+        s.vertical_because
+            .as_ref()
+            .map_or(String::new(), |w| format!(
+                "; in height alone because {}",
+                esc(w)
+            )),
+    );
+    for st in &s.strips {
+        h.push_str(&format!(
+            "<tr><td>{}</td><td>{}</td><td>{}</td><td>{}</td><td>{}</td><td>{}, {}, {}</td></tr>",
+            st.source_id,
+            st.points,
+            fmt_signed(st.offset_m[0], 3),
+            fmt_signed(st.offset_m[1], 3),
+            fmt_signed(st.offset_m[2], 3),
+            fmt(st.sigma_m[0], 4),
+            fmt(st.sigma_m[1], 4),
+            fmt(st.sigma_m[2], 4),
+        ));
+    }
+    h.push_str("</table></section>");
     h
 }
 
@@ -643,6 +688,7 @@ pub fn render_html(report: &Report) -> Result<String, String> {
     html.push_str("</section>");
     html.push_str(&surface_change_table(report));
     html.push_str(&lidar_html(report));
+    html.push_str(&lidar_strips_html(report));
     html.push_str("<h2>Control and checkpoints</h2>");
     html.push_str(&figure(
         "map",

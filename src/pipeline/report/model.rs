@@ -406,6 +406,10 @@ pub struct Report {
     /// The LiDAR against the surveyed checkpoints; `None` without LiDAR or checkpoints.
     #[serde(default)]
     pub lidar_checkpoints: Option<LidarCheck>,
+    /// The LiDAR strips' offsets the cleaning removed (`sources/clean.json`); `None`
+    /// without LiDAR or with one strip.
+    #[serde(default)]
+    pub lidar_strips: Option<crate::lidar::StripOffsetReport>,
     pub epochs: Vec<EpochReport>,
     #[serde(skip)]
     pub ortho: Option<OrthoPreview>,
