@@ -206,7 +206,10 @@ fn score_run(run: &Path, block_dir: &Path) {
     for epoch in &EPOCHS[1..] {
         match changed_area_score(run, block_dir, epoch) {
             Some(a) => println!(
-                "{epoch:<15} changed areas against today: recall {}/{} ({:.2}; of ≥ {} m²: {}/{}, {:.2}), precision {}/{} ({:.2})",
+                "{epoch:<15} changed areas against today: changed buildings found {}/{} ({:.2}); all change objects {}/{} ({:.2}; of ≥ {} m²: {}/{}, {:.2}), precision {}/{} ({:.2})",
+                a.buildings_found,
+                a.buildings,
+                a.buildings_found as f64 / a.buildings.max(1) as f64,
                 a.found,
                 a.objects,
                 a.found as f64 / a.objects.max(1) as f64,
@@ -228,7 +231,11 @@ fn score_run(run: &Path, block_dir: &Path) {
 /// covers (dh has a value: a change outside the epoch's photos cannot be found) where its
 /// true surface stands 2 m or more from the present's, as 4-connected objects of at least
 /// 25 m². An object is found when half its cells lie in a detected area; a detected area
-/// is right when half its cells are true change.
+/// is right when half its cells are true change. The recall is of the changed
+/// buildings (`truth/epochs/<epoch>/buildings.csv`: standing in the epoch or today, not
+/// both), each found when half its footprint's covered cells are detected (buildings whose
+/// footprint the epoch's surface covers less than half are not counted); the change
+/// objects count trees as well (removed, or grown since), whose crowns match poorly.
 fn changed_area_score(run: &Path, block_dir: &Path, epoch: &str) -> Option<AreaScore> {
     let dir = run.join(format!("change-{epoch}"));
     let (dh, _) = read_dem(&dir.join("dh.tif")).ok()?;
@@ -314,7 +321,47 @@ fn changed_area_score(run: &Path, block_dir: &Path, epoch: &str) -> Option<AreaS
             2 * cells.iter().filter(|&&i| truth[i] > 0.0).count() >= cells.len()
         })
         .count();
+    // Changed buildings: standing in one of the two epochs only.
+    let read = |e: &str| {
+        cloudcontrol::synth::truth::read_buildings(
+            &block_dir.join(format!("truth/epochs/{e}/buildings.csv")),
+        )
+        .ok()
+    };
+    let (then_b, now_b) = (read(epoch)?, read(EPOCHS[0])?);
+    let ids = |v: &[cloudcontrol::synth::truth::TrueBuilding]| {
+        v.iter()
+            .map(|b| b.id)
+            .collect::<std::collections::BTreeSet<_>>()
+    };
+    let (then_ids, now_ids) = (ids(&then_b), ids(&now_b));
+    let (mut buildings, mut buildings_found) = (0, 0);
+    for b in then_b
+        .iter()
+        .filter(|b| !now_ids.contains(&b.id))
+        .chain(now_b.iter().filter(|b| !then_ids.contains(&b.id)))
+    {
+        let cells: Vec<usize> = (0..n)
+            .filter(|&i| {
+                let (x, y) = centre(i);
+                b.contains(x, y)
+            })
+            .collect();
+        let covered: Vec<usize> = cells
+            .iter()
+            .copied()
+            .filter(|&i| dh.data[i].is_finite())
+            .collect();
+        if cells.is_empty() || 2 * covered.len() < cells.len() {
+            continue;
+        }
+        buildings += 1;
+        buildings_found +=
+            usize::from(2 * covered.iter().filter(|&&i| detected[i]).count() >= covered.len());
+    }
     Some(AreaScore {
+        buildings,
+        buildings_found,
         found,
         objects: objects.len(),
         large_found: large.0,
@@ -326,6 +373,9 @@ fn changed_area_score(run: &Path, block_dir: &Path, epoch: &str) -> Option<AreaS
 
 /// Changed areas scored against the truth.
 struct AreaScore {
+    /// Changed buildings, and those found.
+    buildings: usize,
+    buildings_found: usize,
     found: usize,
     objects: usize,
     /// Found among the objects of at least twice the least area.

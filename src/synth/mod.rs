@@ -358,6 +358,29 @@ pub fn render_photo(
     Ok(film::finish_digital(&radiance, w, h, seed, 1.0, 8.0, 1.5))
 }
 
+/// The buildings of `scene` as `truth/epochs/<epoch>/buildings.csv` ([`truth::read_buildings`]):
+/// which ones changed between two epochs is what the change detection is scored on.
+fn write_buildings(scene: &Scene, origin: [f64; 3], path: &Path) -> Result<(), SynthError> {
+    use std::fmt::Write;
+    let mut csv = format!("{}\n", truth::BUILDINGS_HEADER);
+    for b in &scene.buildings {
+        let _ = writeln!(
+            csv,
+            "{},{:.3},{:.3},{:.3},{:.3},{:.6},{:.3},{:.3}",
+            b.id,
+            b.center[0] + origin[0],
+            b.center[1] + origin[1],
+            b.half[0],
+            b.half[1],
+            b.angle,
+            b.base + origin[2],
+            b.eave
+        );
+    }
+    formats::write_bytes_atomically(path, csv.as_bytes())?;
+    Ok(())
+}
+
 /// Generates a complete synthetic block into `out_dir`.
 pub fn generate(config: &SynthConfig, out_dir: &Path) -> Result<SynthManifest, SynthError> {
     let start = Instant::now();
@@ -451,6 +474,11 @@ pub fn generate(config: &SynthConfig, out_dir: &Path) -> Result<SynthManifest, S
             spec.gsd,
             &crs,
             &out_dir.join(&info.truth_dir).join("dsm.tif"),
+        )?;
+        write_buildings(
+            &epoch_scene,
+            ORIGIN,
+            &out_dir.join(&info.truth_dir).join("buildings.csv"),
         )?;
         epochs.push(info);
         cp_rows.extend(rows);

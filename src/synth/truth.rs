@@ -97,3 +97,45 @@ pub fn read_scan_affine(path: &Path) -> Result<BTreeMap<String, InteriorOrientat
     }
     Ok(out)
 }
+
+/// One building of an epoch's scene as `truth/epochs/<epoch>/buildings.csv` holds it: its
+/// id (the same building keeps its id through the epochs), footprint rectangle (world
+/// centre, half length along the ridge and half width, azimuth of the long axis from east
+/// in radians) and ground-floor and eave heights (m).
+#[derive(Debug, Clone, PartialEq, Deserialize)]
+pub struct TrueBuilding {
+    pub id: u32,
+    pub x: f64,
+    pub y: f64,
+    pub half_length: f64,
+    pub half_width: f64,
+    pub angle_rad: f64,
+    pub base: f64,
+    pub eave: f64,
+}
+
+impl TrueBuilding {
+    /// Whether world point (x, y) lies within the footprint.
+    pub fn contains(&self, x: f64, y: f64) -> bool {
+        let (s, c) = self.angle_rad.sin_cos();
+        let (dx, dy) = (x - self.x, y - self.y);
+        (c * dx + s * dy).abs() <= self.half_length && (-s * dx + c * dy).abs() <= self.half_width
+    }
+}
+
+/// The header of `buildings.csv`.
+pub const BUILDINGS_HEADER: &str = "id,x,y,half_length,half_width,angle_rad,base,eave";
+
+/// `truth/epochs/<epoch>/buildings.csv`: the buildings standing in that epoch.
+pub fn read_buildings(path: &Path) -> Result<Vec<TrueBuilding>> {
+    let columns: Vec<&str> = BUILDINGS_HEADER.split(',').collect();
+    let table = read_records::<TrueBuilding>(
+        path,
+        &Layout {
+            required: &columns,
+            optional: &[],
+            extra: Extra::Ignore,
+        },
+    )?;
+    Ok(table.rows.into_iter().map(|(_, b)| b).collect())
+}

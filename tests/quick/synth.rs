@@ -455,3 +455,80 @@ fn every_epoch_has_its_true_surface_at_its_ground_pixel() {
         );
     }
 }
+
+/// `truth/epochs/<epoch>/buildings.csv` against the epoch's own true surface (GDAL): a
+/// building listed for an epoch stands at its footprint's centre (the surface at least
+/// its eave above its base), one listed for today and not for the epoch does not stand
+/// there then (the surface below half its eave height), and the ids listed
+/// in one epoch and not the other are the changed buildings both ways.
+#[test]
+fn each_epoch_lists_the_buildings_standing_then() {
+    use cloudcontrol::synth::truth::read_buildings;
+    let s = shared();
+    let height = |epoch: &synth::EpochInfo, x: f64, y: f64| -> f64 {
+        let ds = gdal::Dataset::open(s.path.join(&epoch.truth_dir).join("dsm.tif")).unwrap();
+        let gt = ds.geo_transform().unwrap();
+        let (c, r) = (
+            ((x - gt[0]) / gt[1]) as usize,
+            ((y - gt[3]) / gt[5]) as usize,
+        );
+        let band = ds.rasterband(1).unwrap();
+        band.read_as::<f32>((c as isize, r as isize), (1, 1), (1, 1), None)
+            .unwrap()
+            .data()[0] as f64
+    };
+    let today = &s.manifest.epochs[0];
+    let now = read_buildings(&s.path.join(&today.truth_dir).join("buildings.csv")).unwrap();
+    assert!(!now.is_empty());
+    for epoch in &s.manifest.epochs {
+        let then = read_buildings(&s.path.join(&epoch.truth_dir).join("buildings.csv")).unwrap();
+        for b in &then {
+            assert!(
+                b.contains(b.x, b.y)
+                    && !b.contains(b.x + 2.0 * b.half_length, b.y + 2.0 * b.half_length)
+            );
+            let z = height(epoch, b.x, b.y);
+            assert!(
+                z >= b.base + b.eave - 0.01,
+                "{} building {}: surface {z} below its eave {}",
+                epoch.name,
+                b.id,
+                b.base + b.eave
+            );
+        }
+        let gone: Vec<_> = now
+            .iter()
+            .filter(|b| then.iter().all(|t| t.id != b.id))
+            .collect();
+        let built_over = |b: &&cloudcontrol::synth::truth::TrueBuilding| {
+            then.iter().any(|t| t.contains(b.x, b.y))
+        };
+        for b in gone.iter().filter(|b| !built_over(b)) {
+            let z = height(epoch, b.x, b.y);
+            assert!(
+                z < b.base + 0.5 * b.eave,
+                "{}: building {} of today stands then ({z} m over a base of {})",
+                epoch.name,
+                b.id,
+                b.base
+            );
+        }
+        if epoch.name != today.name {
+            let added = then
+                .iter()
+                .filter(|t| now.iter().all(|b| b.id != t.id))
+                .count();
+            eprintln!(
+                "{}: {} buildings, {} of today's not yet standing, {added} gone since",
+                epoch.name,
+                then.len(),
+                gone.len()
+            );
+            assert!(
+                !gone.is_empty() || added > 0,
+                "{}: no changed building",
+                epoch.name
+            );
+        }
+    }
+}
