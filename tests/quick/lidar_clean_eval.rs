@@ -115,19 +115,25 @@ fn translation_model_and_default_reference() {
             assert!((t[2] - t1[2] - OFFSET).abs() < 0.03, "{t:?} {t1:?}");
         }
     }
-    // The default model sees that these planes cannot fix a plan offset (the 3-D
-    // estimate is 0.13/0.15 m off in plan here, with a formal σ of 7 mm) and keeps the
-    // height offsets alone, saying why.
-    // Default datum: the two offsets split the difference the overlaps measure (zero
-    // mean), so each is ∓ half of it and its σ half the difference's σ (the held
-    // solution's σ of strip 2). One strip only is an error.
-    let rep = estimate_strip_offsets(&xyz, &src, &StripOffsetOptions::default()).unwrap();
+    // The auto model sees that these planes cannot fix a plan offset (the 3-D estimate
+    // is 0.13/0.15 m off in plan here, with a formal σ of 7 mm) and keeps the height
+    // offsets alone, saying why.
+    let auto = StripOffsetOptions {
+        model: OffsetModel::Auto,
+        ..Default::default()
+    };
+    let rep = estimate_strip_offsets(&xyz, &src, &auto).unwrap();
     assert_eq!(rep.model, OffsetModel::Vertical);
     let why = rep
         .vertical_because
         .as_deref()
         .expect("the reason for height offsets alone");
     assert!(why.contains("spread 0.0"), "{why}");
+    // Default datum: the two offsets split the difference the overlaps measure (zero
+    // mean), so each is ∓ half of it and its σ half the difference's σ (the held
+    // solution's σ of strip 2). One strip only is an error.
+    let rep = estimate_strip_offsets(&xyz, &src, &StripOffsetOptions::default()).unwrap();
+    assert_eq!(rep.model, OffsetModel::Vertical);
     assert_eq!(rep.reference, None);
     let (d1, d2) = (rep.offset_of(1).unwrap()[2], rep.offset_of(2).unwrap()[2]);
     assert!((d2 - d1 - OFFSET).abs() < 0.015, "{d1} {d2}");
@@ -200,10 +206,10 @@ fn tiled_evaluation_matches_in_memory_and_flags_outliers() {
 
 /// The 3-D strip offsets of the small synthetic block's LiDAR (three strips, each shifted
 /// by N(0, 6 cm) per axis; roofs, walls and slopes in the overlaps) against the shifts the
-/// simulation applied, taken to the zero-mean datum the estimate uses: the default model
+/// simulation applied, taken to the zero-mean datum the estimate uses: the auto model
 /// finds the planes determine them and takes them.
 #[test]
-fn default_model_recovers_plan_offsets_of_the_synthetic_strips() {
+fn auto_model_recovers_plan_offsets_of_the_synthetic_strips() {
     use cloudcontrol::synth::{self, PosQuality, Preset, SynthConfig};
     // Seed 9: strip 3 lies +0.110 m in x from the strips' mean, +0.19 m from strip 1.
     let cfg = SynthConfig {
@@ -220,7 +226,11 @@ fn default_model_recovers_plan_offsets_of_the_synthetic_strips() {
         .filter(|p| p.class != 7 && p.class != 18)
         .map(|p| (p.xyz, p.source))
         .unzip();
-    let rep = estimate_strip_offsets(&xyz, &src, &StripOffsetOptions::default()).unwrap();
+    let auto = StripOffsetOptions {
+        model: OffsetModel::Auto,
+        ..Default::default()
+    };
+    let rep = estimate_strip_offsets(&xyz, &src, &auto).unwrap();
     assert_eq!(
         rep.model,
         OffsetModel::Translation,

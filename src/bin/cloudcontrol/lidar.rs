@@ -123,7 +123,7 @@ pub enum LidarCommand {
         /// Strip offset model: auto takes a 3-D shift per strip where the overlapping
         /// planes (roofs, slopes) determine it to 1 cm in plan, a height offset alone
         /// elsewhere; the report says which it took and why.
-        #[arg(long, value_enum, default_value_t = OffsetArg::Auto)]
+        #[arg(long, value_enum, default_value_t = OffsetArg::Vertical)]
         model: OffsetArg,
         /// Strip held fixed (point source id); default: the offsets have zero mean over the strips.
         #[arg(long)]
