@@ -14,6 +14,7 @@
 pub mod chi2;
 #[doc(hidden)]
 pub mod datum;
+mod evaluated;
 pub mod georef;
 mod precision;
 mod problem;

@@ -85,6 +85,18 @@ impl Kind {
         }
     }
 
+    /// Rows of the block's whitened residual (those of a prior axis with σ = ∞ included).
+    pub fn rows(&self) -> usize {
+        match self {
+            Kind::Image { .. } => 2,
+            Kind::Plane { .. } => 1,
+            Kind::PointPrior { .. }
+            | Kind::PosCenter { .. }
+            | Kind::PosAttitude { .. }
+            | Kind::LidarDatum { .. } => 3,
+        }
+    }
+
     /// Number of scalar observations of the block.
     pub fn dof(&self) -> usize {
         self.known().iter().filter(|&&k| k).count()
@@ -210,7 +222,7 @@ impl ResidualBlock {
                 let (p, j) =
                     project_with_jacobians(&s.cameras[cam], &s.poses[ph], &s.points[pt]).ok()?;
                 let w = 1.0 / sigma;
-                let e = Eval::reset(slot, 2);
+                let e = Eval::reset(slot, self.kind.rows());
                 let r = (p.pixel - pixel) * w;
                 e.r = Vector3::new(r.x, r.y, 0.0);
                 e.j_photo
@@ -226,14 +238,14 @@ impl ResidualBlock {
             }
             Kind::PointPrior { value, sigma } => {
                 let x = s.points[self.point?];
-                let e = Eval::reset(slot, 3);
+                let e = Eval::reset(slot, self.kind.rows());
                 e.r = (x - value).component_div(sigma);
                 e.j_point = Matrix3::from_diagonal(&sigma.map(|v| 1.0 / v));
                 Some(())
             }
             Kind::PosCenter { value, sigma } => {
                 let c = s.poses[self.photo?].center;
-                let e = Eval::reset(slot, 3);
+                let e = Eval::reset(slot, self.kind.rows());
                 e.r = (c - value).component_div(sigma);
                 e.j_photo
                     .fixed_view_mut::<3, 3>(0, 3)
@@ -242,7 +254,7 @@ impl ResidualBlock {
             }
             Kind::PosAttitude { rotation, sigma } => {
                 let r = s.poses[self.photo?].rotation;
-                let e = Eval::reset(slot, 3);
+                let e = Eval::reset(slot, self.kind.rows());
                 // exp(δθ)·R·R₀ᵀ: to first order the residual moves by δθ itself.
                 e.r = rotation_vector(&(r * rotation.transpose())) / *sigma;
                 e.j_photo
@@ -256,7 +268,7 @@ impl ResidualBlock {
                 sqrt_weight,
             } => {
                 let mut x = s.points[self.point?];
-                let e = Eval::reset(slot, 1);
+                let e = Eval::reset(slot, self.kind.rows());
                 let j = normal.transpose() * *sqrt_weight;
                 if self.camera.is_some() {
                     x += s.lidar_shift;
@@ -267,7 +279,7 @@ impl ResidualBlock {
                 Some(())
             }
             Kind::LidarDatum { sigma } => {
-                let e = Eval::reset(slot, 3);
+                let e = Eval::reset(slot, self.kind.rows());
                 e.r = s.lidar_shift.component_div(sigma);
                 e.j_camera
                     .fixed_view_mut::<3, 3>(0, 0)

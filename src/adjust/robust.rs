@@ -8,6 +8,7 @@
 //! intersection and re-admit against the final solution.
 
 use super::chi2;
+use super::evaluated::Evaluated;
 use super::precision::{self, intersect, Snoop};
 use super::problem::Problem;
 use super::residual::{Kind, Loss, ResidualBlock};
@@ -52,15 +53,14 @@ pub(super) struct RejectionTest {
 
 /// The test statistics of one solution.
 struct Stats {
-    ev: solver::Evaluated,
     snoop: Vec<Option<Snoop>>,
 }
 
 fn stats(st: &Structure, pb: &Problem) -> Stats {
-    let ev = solver::evaluate(&pb.res, &pb.state, Loss::None);
-    let pts = solver::point_systems(st, &pb.res, &ev, 0.0);
-    let snoop = precision::snooping(&pb.res, &ev, &pts);
-    Stats { ev, snoop }
+    let ev = Evaluated::new(&pb.res, &pb.state, Loss::None);
+    let pts = solver::point_inverses(&ev, st, 0.0);
+    let snoop = precision::snooping(&ev, &pts);
+    Stats { snoop }
 }
 
 impl RejectionTest {
@@ -141,7 +141,7 @@ impl RejectionTest {
         let s = stats(st, pb);
         self.calibrate_image(pb, &s);
         let ties = self.fit_tie_prior(st, pb);
-        let rescaled = self.scale_control(st, pb, &s.ev);
+        let rescaled = self.scale_control(st, pb);
         self.first = (!rescaled).then_some((s, ties));
         rescaled
     }
@@ -297,7 +297,7 @@ impl RejectionTest {
     /// brings the median p-value to ½, re-weighting the group (one robust variance
     /// component step, fixed for later rounds). A median does not move for a minority of
     /// wrong points: those are left for the test. Returns whether weights changed.
-    fn scale_control(&mut self, st: &Structure, pb: &mut Problem, ev: &solver::Evaluated) -> bool {
+    fn scale_control(&mut self, st: &Structure, pb: &mut Problem) -> bool {
         let alpha = self.rule.alpha().unwrap_or(f64::NAN);
         let f2 = self.image_sigma * self.image_sigma;
         let tests: Vec<(Vector3<f64>, Matrix3<f64>, Vector3<f64>)> = pb
@@ -305,7 +305,7 @@ impl RejectionTest {
             .iter()
             .enumerate()
             .filter(|(_, r)| r.active && matches!(r.kind, Kind::PointPrior { .. }))
-            .filter_map(|(i, r)| prior_vs_rays(st, pb, ev, r.point?, i))
+            .filter_map(|(i, r)| prior_vs_rays(st, pb, Loss::None, r.point?, i))
             .filter(|(_, _, sigma)| sigma.iter().any(|v| v.is_finite()))
             .collect();
         let n = tests.len();
@@ -663,7 +663,7 @@ impl RejectionTest {
             }
             let (t, dof) = match (&r.kind, r.point, r.active) {
                 (Kind::PointPrior { .. }, Some(p), true) => {
-                    match prior_vs_rays(st, pb, &s.ev, p, i) {
+                    match prior_vs_rays(st, pb, Loss::None, p, i) {
                         Some((d, q, sigma)) => prior_test(&d, &q, &sigma, f2),
                         None => continue,
                     }
@@ -714,14 +714,14 @@ impl RejectionTest {
         let (pts, s0) = match self.rule {
             Rejection::None => return false,
             Rejection::Threshold(_) => {
-                let ev = solver::evaluate(&pb.res, &pb.state, loss);
-                let pts = solver::point_systems(&st, &pb.res, &ev, 0.0);
-                let u = precision::standardized(&pb.res, &ev, &pts, 1.0);
-                (pts, threshold_sigma0(&pb.res, &ev, &u))
+                let ev = Evaluated::new(&pb.res, &pb.state, loss);
+                let pts = solver::point_inverses(&ev, &st, 0.0);
+                let u = precision::standardized(&ev, &pts, 1.0);
+                (pts, threshold_sigma0(&ev, &u))
             }
             Rejection::DataSnooping(_) => {
-                let ev = solver::evaluate(&pb.res, &pb.state, Loss::None);
-                (solver::point_systems(&st, &pb.res, &ev, 0.0), 1.0)
+                let ev = Evaluated::new(&pb.res, &pb.state, Loss::None);
+                (solver::point_inverses(&ev, &st, 0.0), 1.0)
             }
         };
         if !s0.is_finite() {
@@ -848,12 +848,8 @@ fn beyond_chance(cand: Vec<Candidate>, tested: usize, k: f64) -> Vec<Candidate> 
 /// fit better than stated: on the small block's film epoch, LSM tie points of one film
 /// fit to 0.03 px where their σ says 0.1 px, and a robust σ0 of 0.23 put the threshold at
 /// 0.6 σ, so a quarter of the image observations went (bench accuracy, seed 3).
-fn threshold_sigma0(
-    res: &[crate::adjust::residual::ResidualBlock],
-    ev: &solver::Evaluated,
-    unit: &[Option<(f64, f64)>],
-) -> f64 {
-    precision::robust_sigma0(res, ev, unit).max(1.0)
+fn threshold_sigma0(ev: &Evaluated, unit: &[Option<(f64, f64)>]) -> f64 {
+    precision::robust_sigma0(ev, unit).max(1.0)
 }
 
 /// The k·σ0 rule: standardised residual components against the round's σ0. With
@@ -864,10 +860,10 @@ fn threshold_candidates(
     loss: Loss,
     k: f64,
 ) -> (Vec<Candidate>, usize) {
-    let ev = solver::evaluate(&pb.res, &pb.state, loss);
-    let pts = solver::point_systems(st, &pb.res, &ev, 0.0);
-    let unit = precision::standardized(&pb.res, &ev, &pts, 1.0);
-    let s0 = threshold_sigma0(&pb.res, &ev, &unit);
+    let ev = Evaluated::new(&pb.res, &pb.state, loss);
+    let pts = solver::point_inverses(&ev, st, 0.0);
+    let unit = precision::standardized(&ev, &pts, 1.0);
+    let s0 = threshold_sigma0(&ev, &unit);
     if !s0.is_finite() || s0 <= 0.0 {
         return (Vec::new(), 0);
     }
@@ -878,7 +874,7 @@ fn threshold_candidates(
     for (i, r) in pb.res.iter().enumerate() {
         let w = match (&r.kind, r.point, r.active) {
             (Kind::PointPrior { .. }, Some(p), true) => {
-                let Some((d, q, sigma)) = prior_vs_rays(st, pb, &ev, p, i) else {
+                let Some((d, q, sigma)) = prior_vs_rays(st, pb, loss, p, i) else {
                     continue;
                 };
                 let known = (0..3).filter(|&c| sigma[c].is_finite());
@@ -923,10 +919,11 @@ fn threshold_candidates(
 fn prior_vs_rays(
     st: &Structure,
     pb: &Problem,
-    ev: &solver::Evaluated,
+    loss: Loss,
     p: usize,
     i: usize,
 ) -> Option<(Vector3<f64>, Matrix3<f64>, Vector3<f64>)> {
+    let ev = Evaluated::new(&pb.res, &pb.state, loss);
     let Kind::PointPrior { value, sigma } = &pb.res[i].kind else {
         return None;
     };
@@ -934,8 +931,10 @@ fn prior_vs_rays(
     let mut g = Vector3::zeros();
     let mut rays = 0;
     for &j in &st.point_res[p] {
-        if let (Kind::Image { .. }, Some(e)) = (&pb.res[j].kind, &ev.evals[j]) {
-            let w = ev.weights[j];
+        if !matches!(pb.res[j].kind, Kind::Image { .. }) {
+            continue;
+        }
+        if let Some((e, w)) = ev.at(j) {
             v += w * e.j_point.transpose() * e.j_point;
             g += w * e.j_point.transpose() * e.r;
             rays += 1;
