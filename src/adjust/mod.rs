@@ -18,6 +18,7 @@ mod evaluated;
 pub mod georef;
 mod precision;
 mod problem;
+mod ragged;
 pub mod rays;
 mod report;
 pub mod resection;

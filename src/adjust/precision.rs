@@ -53,7 +53,7 @@ pub(crate) fn snooping(ev: &Evaluated, pts: &[PointInverse]) -> Vec<Option<Snoop
         .enumerate()
         .map(|(i, r)| {
             let (e, _) = ev.at(i)?;
-            let vinv = r.point.map(|p| (pts[p].vinv, dx[p]));
+            let vinv = r.point().map(|p| (pts[p].vinv, dx[p]));
             Some(snoop_block(r, &e, vinv))
         })
         .collect()
@@ -108,7 +108,7 @@ pub(crate) fn redundancies(ev: &Evaluated, pts: &[PointInverse]) -> Vec<Option<f
         .enumerate()
         .map(|(i, r)| {
             let (e, _) = ev.at(i)?;
-            Some(local_qvv(r, &e, r.point.map(|p| &pts[p].vinv)).trace())
+            Some(local_qvv(r, &e, r.point().map(|p| &pts[p].vinv)).trace())
         })
         .collect()
 }
@@ -151,7 +151,7 @@ pub(crate) fn predicted(
 ) -> (f64, usize) {
     let image = matches!(r.kind, Kind::Image { .. });
     let mut q = Matrix3::zeros();
-    if let Some(p) = r.point {
+    if let Some(p) = r.point() {
         q = e.j_point * pts[p].vinv * e.j_point.transpose() * image_var;
     }
     let own = if image { image_var } else { 1.0 };
@@ -188,7 +188,7 @@ pub(crate) fn standardized(
             let mut w = 0.0f64;
             let known = r.kind.known();
             for k in (0..e.dim).filter(|&k| known[k]) {
-                let red = match r.point {
+                let red = match r.point() {
                     Some(p) => {
                         let jx = e.j_point.row(k);
                         let h = (jx * pts[p].vinv * jx.transpose())[(0, 0)] * weight;

@@ -44,13 +44,15 @@ pub(super) fn finish(
 
     // Per-photo image RMS.
     let mut ph_sum = vec![(0.0, 0usize); pb.photo_ids.len()];
-    let mut residuals = Vec::new();
+    // Sized once: grown by doubling, the listing held up to twice its size at the
+    // report's peak.
+    let mut residuals = Vec::with_capacity(pb.res.len());
     ev.for_each_residual(|i, v| {
         let Some(v) = v else { return };
         let r = &pb.res[i];
         let scale: Vec<f64> = match &r.kind {
             Kind::Image { sigma, .. } => {
-                let ph = r.photo.expect("image block has a photo");
+                let ph = r.photo().expect("image block has a photo");
                 ph_sum[ph].0 += v.norm_squared() * sigma * sigma;
                 ph_sum[ph].1 += 1;
                 vec![*sigma; 2]
@@ -63,7 +65,7 @@ pub(super) fn finish(
         };
         let (red, w) = std[i].unwrap_or((1.0, 0.0));
         // An axis without prior (σ = ∞) reports the adjusted minus the given coordinate.
-        let unweighted = |k: usize| match (&r.kind, r.point) {
+        let unweighted = |k: usize| match (&r.kind, r.point()) {
             (Kind::PointPrior { value, .. }, Some(p)) => pb.state.points[p][k] - value[k],
             _ => 0.0,
         };
@@ -273,7 +275,7 @@ pub(super) fn finish(
     let mut rays = vec![0usize; n_points];
     let mut active_point = vec![false; n_points];
     for r in pb.res.iter().filter(|r| r.active) {
-        if let Some(p) = r.point {
+        if let Some(p) = r.point() {
             active_point[p] = true;
             if matches!(r.kind, Kind::Image { .. }) {
                 rays[p] += 1;
@@ -476,7 +478,7 @@ fn group_variances(
         if ev.residual(i).is_none() {
             continue;
         }
-        let (q, sigma) = match (&r.kind, r.point, r.photo) {
+        let (q, sigma) = match (&r.kind, r.point(), r.photo()) {
             (Kind::PointPrior { sigma, .. }, Some(p), _) => match factor {
                 Some(f) => (
                     precision::point_cofactor(st, f, &solver::point_system(ev, st, p, 0.0)),
@@ -497,7 +499,7 @@ fn group_variances(
                 }
             }
             (Kind::LidarDatum { sigma }, _, _) => {
-                match r.camera.and_then(|c| lidar_datum_cofactor(st, cof, c)) {
+                match r.camera().and_then(|c| lidar_datum_cofactor(st, cof, c)) {
                     Some(q) => (q, *sigma),
                     None => continue,
                 }

@@ -240,7 +240,7 @@ impl RejectionTest {
             .iter()
             .zip(&s.snoop)
             .filter(|(r, _)| matches!(r.kind, Kind::Image { .. }))
-            .filter_map(|(r, t)| Some((r.point?, t.as_ref()?)))
+            .filter_map(|(r, t)| Some((r.point()?, t.as_ref()?)))
             .collect();
         let scale = |flagged: &BTreeSet<usize>| {
             let z: Vec<f64> = img
@@ -305,7 +305,7 @@ impl RejectionTest {
             .iter()
             .enumerate()
             .filter(|(_, r)| r.active && matches!(r.kind, Kind::PointPrior { .. }))
-            .filter_map(|(i, r)| prior_vs_rays(st, pb, Loss::None, r.point?, i))
+            .filter_map(|(i, r)| prior_vs_rays(st, pb, Loss::None, r.point()?, i))
             .filter(|(_, _, sigma)| sigma.iter().any(|v| v.is_finite()))
             .collect();
         let n = tests.len();
@@ -390,7 +390,7 @@ impl RejectionTest {
         let mut blamed = BTreeSet::new();
         for c in &cand {
             if matches!(pb.res[c.i].kind, Kind::PointPrior { .. }) {
-                blamed.extend(pb.res[c.i].point);
+                blamed.extend(pb.res[c.i].point());
                 out.push((c.i, c.w, c.reason.clone()));
             }
         }
@@ -400,7 +400,7 @@ impl RejectionTest {
             let r = &pb.res[c.i];
             // POS priors are not rejected: a photo without its prior may lose the datum, and
             // a POS gross error shows in the image residuals of the photo all the same.
-            let Some(p) = r.point else { continue };
+            let Some(p) = r.point() else { continue };
             if matches!(r.kind, Kind::PointPrior { .. }) || blamed.contains(&p) {
                 continue;
             }
@@ -513,10 +513,10 @@ impl RejectionTest {
                 return self.sweep_tie_point(prior, pb, rays);
             }
         }
-        let mut idx: Vec<usize> = st.point_res[p]
-            .iter()
-            .copied()
-            .filter(|&j| pb.res[j].active && pb.res[j].point == Some(p))
+        let mut idx: Vec<usize> = st
+            .point_res
+            .of(p)
+            .filter(|&j| pb.res[j].active && pb.res[j].point() == Some(p))
             .collect();
         let mut out = Vec::new();
         loop {
@@ -657,11 +657,11 @@ impl RejectionTest {
         }
         for (i, r) in pb.res.iter().enumerate() {
             if matches!(r.kind, Kind::Image { .. })
-                && r.point.is_some_and(|p| ties.contains_key(&p))
+                && r.point().is_some_and(|p| ties.contains_key(&p))
             {
                 continue;
             }
-            let (t, dof) = match (&r.kind, r.point, r.active) {
+            let (t, dof) = match (&r.kind, r.point(), r.active) {
                 (Kind::PointPrior { .. }, Some(p), true) => {
                     match prior_vs_rays(st, pb, Loss::None, p, i) {
                         Some((d, q, sigma)) => prior_test(&d, &q, &sigma, f2),
@@ -732,7 +732,7 @@ impl RejectionTest {
             .res
             .iter()
             .filter(|r| r.active)
-            .filter_map(|r| r.point)
+            .filter_map(|r| r.point())
             .collect();
         let mut readmit = Vec::new();
         rejected.retain(|rj| {
@@ -745,13 +745,13 @@ impl RejectionTest {
                 return true;
             };
             // Only when the point is still in the solution.
-            if blk.point.is_some_and(|p| !alive.contains(&p)) {
+            if blk.point().is_some_and(|p| !alive.contains(&p)) {
                 return true;
             }
             let known = blk.kind.known();
             // A tie ray against its point's other rays, as the rounds tested it.
             if let (Some(prior), Kind::Image { .. }, Some(p)) =
-                (&self.tie_prior, &blk.kind, blk.point)
+                (&self.tie_prior, &blk.kind, blk.point())
             {
                 let others = active_rays(pb, &st, p);
                 if !is_held(pb, &st, p) && others.len() >= 2 {
@@ -872,7 +872,7 @@ fn threshold_candidates(
     let mut out = Vec::new();
     let mut tested = 0;
     for (i, r) in pb.res.iter().enumerate() {
-        let w = match (&r.kind, r.point, r.active) {
+        let w = match (&r.kind, r.point(), r.active) {
             (Kind::PointPrior { .. }, Some(p), true) => {
                 let Some((d, q, sigma)) = prior_vs_rays(st, pb, loss, p, i) else {
                     continue;
@@ -930,7 +930,7 @@ fn prior_vs_rays(
     let mut v = Matrix3::zeros();
     let mut g = Vector3::zeros();
     let mut rays = 0;
-    for &j in &st.point_res[p] {
+    for j in st.point_res.of(p) {
         if !matches!(pb.res[j].kind, Kind::Image { .. }) {
             continue;
         }
@@ -964,9 +964,8 @@ fn prior_test(d: &Vector3<f64>, q: &Matrix3<f64>, sigma: &Vector3<f64>, f2: f64)
 
 /// The active image observations of object point `p`.
 fn active_rays(pb: &Problem, st: &Structure, p: usize) -> Vec<usize> {
-    st.point_res[p]
-        .iter()
-        .copied()
+    st.point_res
+        .of(p)
         .filter(|&j| pb.res[j].active && matches!(pb.res[j].kind, Kind::Image { .. }))
         .collect()
 }
@@ -1021,8 +1020,8 @@ fn ssr_at(pb: &Problem, rays: &[usize], x: &Vector3<f64>, f2: f64) -> f64 {
                 unreachable!("an image observation")
             };
             let (c, pose) = (
-                &pb.state.cameras[r.camera.expect("camera")],
-                &pb.state.poses[r.photo.expect("photo")],
+                &pb.state.cameras[r.camera().expect("camera")],
+                &pb.state.poses[r.photo().expect("photo")],
             );
             crate::geometry::project(c, pose, x)
                 .map(|q| ((q.pixel - pixel) / sigma).norm_squared())
@@ -1051,8 +1050,8 @@ fn reintersect(
             unreachable!("an image observation")
         };
         (
-            &pb.state.cameras[r.camera.expect("camera")],
-            &pb.state.poses[r.photo.expect("photo")],
+            &pb.state.cameras[r.camera().expect("camera")],
+            &pb.state.poses[r.photo().expect("photo")],
             [pixel.x, pixel.y],
             sigma,
         )
@@ -1102,10 +1101,10 @@ fn point_loo(
 /// Whether object point `p` has an active control prior (with a known axis) or a LiDAR
 /// plane besides its rays.
 fn is_held(pb: &Problem, st: &Structure, p: usize) -> bool {
-    st.point_res[p].iter().any(|&j| {
+    st.point_res.of(p).any(|j| {
         let r = &pb.res[j];
         r.active
-            && r.point == Some(p)
+            && r.point() == Some(p)
             && match r.kind {
                 Kind::PointPrior { .. } => r.kind.dof() > 0,
                 Kind::Plane { .. } => true,

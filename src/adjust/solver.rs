@@ -9,6 +9,7 @@
 //! thread count never changes a bit of the result.
 
 use super::evaluated::Evaluated;
+use super::ragged::{narrow, Ragged};
 use super::residual::{Loss, ResidualBlock, State};
 use faer::dyn_stack::{MemBuffer, MemStack};
 use faer::linalg::cholesky::llt;
@@ -41,13 +42,13 @@ pub(crate) struct Structure {
     /// Per block, its residuals the point-ordered pass of [`diagonal`] does not cover:
     /// those without an object point (POS and datum priors), and those of a point that
     /// couple this photo to a self-calibrated camera (their photo–camera block).
-    pub block_res: Vec<Vec<usize>>,
+    pub block_res: Ragged<u32>,
     /// Per block, its object points with the block's place in the point's
-    /// `point_blocks` (the point's coupling block W there).
-    pub block_points: Vec<Vec<(usize, usize)>>,
+    /// `point_blocks` (the point's coupling block W there), ascending.
+    pub block_points: Ragged<(u32, u32)>,
     /// Per object point, the camera-side blocks of its residuals, ascending.
-    pub point_blocks: Vec<Vec<usize>>,
-    pub point_res: Vec<Vec<usize>>,
+    pub point_blocks: Ragged<u32>,
+    pub point_res: Ragged<u32>,
     /// Sorted blocks b2 ≥ b1 coupled to b1 in the reduced system (b1 itself included).
     pub neighbours: Vec<Vec<usize>>,
 }
@@ -86,50 +87,53 @@ impl Structure {
             offset.push(n);
             n += f.len();
         }
-        let mut block_res = vec![Vec::new(); nb];
-        let mut point_res = vec![Vec::new(); n_points];
-        let mut pairs: Vec<Vec<usize>> = (0..nb).map(|b| vec![b]).collect();
-        for (i, r) in res.iter().enumerate() {
-            if !r.active {
-                continue;
-            }
-            let bs = blocks_of(r, &camera_block);
-            match (r.point, bs) {
-                (None, _) => {
-                    for b in bs.iter().flatten() {
-                        block_res[*b].push(i);
-                    }
-                }
-                (Some(_), [Some(a), Some(b)]) => block_res[a.min(b)].push(i),
-                _ => {}
-            }
-            if let [Some(a), Some(b)] = bs {
-                pairs[a.min(b)].push(a.max(b));
-            }
-            if let Some(p) = r.point {
-                point_res[p].push(i);
+        let active = || res.iter().enumerate().filter(|(_, r)| r.active);
+        let block_res = Ragged::from_pairs(nb, || {
+            active().flat_map(|(i, r)| {
+                let bs = blocks_of(r, &camera_block);
+                let owners = match (r.point(), bs) {
+                    (None, _) => bs,
+                    (Some(_), [Some(a), Some(b)]) => [Some(a.min(b)), None],
+                    _ => [None, None],
+                };
+                owners.into_iter().flatten().map(move |b| (b, narrow(i)))
+            })
+        });
+        let point_res = Ragged::from_pairs(n_points, || {
+            active().filter_map(|(i, r)| Some((r.point()?, narrow(i))))
+        });
+        let mut pairs = Pairs::new(nb);
+        for (_, r) in active() {
+            if let [Some(a), Some(b)] = blocks_of(r, &camera_block) {
+                pairs.add(a.min(b), &[a.max(b)]);
             }
         }
-        let mut block_points = vec![Vec::new(); nb];
-        let mut point_blocks = Vec::with_capacity(n_points);
-        for (p, rs) in point_res.iter().enumerate() {
-            let mut bs: Vec<usize> = rs
-                .iter()
-                .flat_map(|&i| blocks_of(&res[i], &camera_block))
-                .flatten()
-                .collect();
+        let mut point_blocks = Ragged::new();
+        let mut bs = Vec::new();
+        for p in 0..n_points {
+            bs.clear();
+            bs.extend(
+                point_res
+                    .of(p)
+                    .flat_map(|i| blocks_of(&res[i], &camera_block))
+                    .flatten(),
+            );
             bs.sort_unstable();
             bs.dedup();
             for (k, &a) in bs.iter().enumerate() {
-                block_points[a].push((p, k));
-                pairs[a].extend_from_slice(&bs[k..]);
+                pairs.add(a, &bs[k..]);
             }
-            point_blocks.push(bs);
+            point_blocks.push(bs.iter().map(|&b| narrow(b)));
         }
-        for p in &mut pairs {
-            p.sort_unstable();
-            p.dedup();
-        }
+        let block_points = Ragged::from_pairs(nb, || {
+            (0..n_points).flat_map(|p| {
+                point_blocks[p]
+                    .iter()
+                    .enumerate()
+                    .map(move |(k, &a)| (a as usize, (narrow(p), narrow(k))))
+            })
+        });
+        let pairs = pairs.finish();
         Self {
             n_photos,
             camera_block,
@@ -145,11 +149,47 @@ impl Structure {
     }
 }
 
+/// The reduced system's coupled block pairs as they are found, per first block: a point
+/// seen by m blocks adds m(m + 1)/2 of them, most found before, so each list is sorted
+/// and deduplicated whenever it has doubled rather than only at the end.
+struct Pairs {
+    lists: Vec<Vec<usize>>,
+    unique: Vec<usize>,
+}
+
+impl Pairs {
+    fn new(nb: usize) -> Self {
+        Self {
+            lists: (0..nb).map(|b| vec![b]).collect(),
+            unique: vec![1; nb],
+        }
+    }
+
+    fn add(&mut self, a: usize, bs: &[usize]) {
+        let l = &mut self.lists[a];
+        l.extend_from_slice(bs);
+        if l.len() > 2 * self.unique[a] + 64 {
+            l.sort_unstable();
+            l.dedup();
+            self.unique[a] = l.len();
+        }
+    }
+
+    fn finish(mut self) -> Vec<Vec<usize>> {
+        for l in &mut self.lists {
+            l.sort_unstable();
+            l.dedup();
+            l.shrink_to_fit();
+        }
+        self.lists
+    }
+}
+
 /// The camera-side blocks a residual touches: its photo, and its camera slot when that
 /// has free parameters (a self-calibrated camera of an image observation, the LiDAR
 /// datum of a plane and of its prior).
 fn blocks_of(r: &ResidualBlock, camera_block: &[Option<usize>]) -> [Option<usize>; 2] {
-    [r.photo, r.camera.and_then(|c| camera_block[c])]
+    [r.photo(), r.camera().and_then(|c| camera_block[c])]
 }
 
 /// Per-point part of the normal equations after damping: V⁻¹, gradient and the
@@ -179,9 +219,9 @@ pub(crate) fn point_system(ev: &Evaluated, st: &Structure, p: usize, lambda: f64
     // In the structure's order, so that the reduced system finds a block's W by its place.
     let mut w: Vec<(usize, M93)> = st.point_blocks[p]
         .iter()
-        .map(|&b| (b, M93::zeros()))
+        .map(|&b| (b as usize, M93::zeros()))
         .collect();
-    for &i in &st.point_res[p] {
+    for i in st.point_res.of(p) {
         let Some((e, wt)) = ev.at(i) else { continue };
         let jx = e.j_point;
         v += wt * jx.transpose() * jx;
@@ -190,7 +230,7 @@ pub(crate) fn point_system(ev: &Evaluated, st: &Structure, p: usize, lambda: f64
             .into_iter()
             .flatten()
         {
-            let jb = if ev.res[i].photo == Some(b) {
+            let jb = if ev.res[i].photo() == Some(b) {
                 e.j_photo
             } else {
                 e.j_camera
@@ -237,17 +277,19 @@ const DIAGONAL_CHUNKS: usize = 16;
 /// memory); they do not depend on the damping, so the solver sums them once a state.
 pub(crate) fn diagonal(ev: &Evaluated, st: &Structure) -> Vec<(M9, V9)> {
     let nb = st.free.len();
-    let per = st.point_res.len().div_ceil(DIAGONAL_CHUNKS).max(1);
-    let parts: Vec<Vec<(M9, V9)>> = st
-        .point_res
-        .par_chunks(per)
-        .map(|chunk| {
+    let n_points = st.point_res.len();
+    let per = n_points.div_ceil(DIAGONAL_CHUNKS).max(1);
+    let chunks: Vec<usize> = (0..n_points).step_by(per).collect();
+    let parts: Vec<Vec<(M9, V9)>> = chunks
+        .into_par_iter()
+        .map(|p0| {
             let mut acc = vec![(M9::zeros(), V9::zeros()); nb];
-            for &i in chunk.iter().flatten() {
+            for &i in st.point_res.span(p0..(p0 + per).min(n_points)) {
+                let i = i as usize;
                 let Some((e, wt)) = ev.at(i) else { continue };
                 let r = &ev.res[i];
                 for b in blocks_of(r, &st.camera_block).into_iter().flatten() {
-                    let j = if r.photo == Some(b) {
+                    let j = if r.photo() == Some(b) {
                         e.j_photo
                     } else {
                         e.j_camera
@@ -322,8 +364,9 @@ pub(crate) fn reduced_rows(
                 let slot = |b2: usize| nbr.binary_search(&b2).expect("pattern holds b2");
                 let photo1 = b1 < st.n_photos;
                 let bp = &st.block_points[b1];
-                while let Some(&(p, k1)) = bp.get(*next).filter(|(p, _)| *p < p1) {
+                while let Some(&(p, k1)) = bp.get(*next).filter(|(p, _)| (*p as usize) < p1) {
                     *next += 1;
+                    let (p, k1) = (p as usize, k1 as usize);
                     let ps = &batch[p - p0];
                     let w1v = ps.w[k1].1 * ps.vinv;
                     row.rhs += w1v * ps.g;
@@ -352,15 +395,15 @@ fn row_start(ev: &Evaluated, st: &Structure, diag: &(M9, V9), b1: usize, lambda:
     let (d, g) = diag;
     blocks[0] = *d;
     let mut rhs = -g;
-    for &i in &st.block_res[b1] {
+    for i in st.block_res.of(b1) {
         let Some((e, wt)) = ev.at(i) else { continue };
         let r = &ev.res[i];
-        let j1 = if r.photo == Some(b1) {
+        let j1 = if r.photo() == Some(b1) {
             e.j_photo
         } else {
             e.j_camera
         };
-        if r.point.is_none() {
+        if r.point().is_none() {
             if b1 < st.n_photos {
                 let j6 = j1.fixed_columns::<6>(0);
                 let mut v = blocks[0].fixed_view_mut::<6, 6>(0, 0);
