@@ -165,21 +165,6 @@ impl Eval {
             j_point: Matrix3::zeros(),
         }
     }
-    /// `slot` holding a zero record of `dim` rows (reusing the one there).
-    fn reset(slot: &mut Option<Eval>, dim: usize) -> &mut Eval {
-        match slot {
-            Some(e) => {
-                e.dim = dim;
-                e.r.fill(0.0);
-                e.j_photo.fill(0.0);
-                e.j_camera.fill(0.0);
-                e.j_point.fill(0.0);
-                e
-            }
-            None => slot.insert(Self::new(dim)),
-        }
-    }
-
     pub fn norm_sq(&self) -> f64 {
         self.r.norm_squared()
     }
@@ -223,9 +208,9 @@ impl ResidualBlock {
     /// Residual and Jacobians at `state`; `None` when the block cannot be evaluated
     /// (object point behind the camera), which the solver treats as a missing observation.
     pub fn evaluate(&self, s: &State) -> Option<Eval> {
-        let mut slot = None;
-        self.fill(s, &mut slot)?;
-        slot
+        let mut e = Eval::new(self.kind.rows());
+        self.fill(s, &mut e)?;
+        Some(e)
     }
 
     /// The whitened residual alone (rows beyond its dimension zero), as [`Self::evaluate`]
@@ -264,14 +249,14 @@ impl ResidualBlock {
         }
     }
 
-    fn fill(&self, s: &State, slot: &mut Option<Eval>) -> Option<()> {
+    /// Writes the residual and Jacobians into `e`, zero and of the block's rows.
+    fn fill(&self, s: &State, e: &mut Eval) -> Option<()> {
         match &self.kind {
             Kind::Image { pixel, sigma } => {
                 let (ph, cam, pt) = (self.photo()?, self.camera()?, self.point()?);
                 let (p, j) =
                     project_with_jacobians(&s.cameras[cam], &s.poses[ph], &s.points[pt]).ok()?;
                 let w = 1.0 / sigma;
-                let e = Eval::reset(slot, self.kind.rows());
                 let r = (p.pixel - pixel) * w;
                 e.r = Vector3::new(r.x, r.y, 0.0);
                 e.j_photo
@@ -287,14 +272,12 @@ impl ResidualBlock {
             }
             Kind::PointPrior { value, sigma } => {
                 let x = s.points[self.point()?];
-                let e = Eval::reset(slot, self.kind.rows());
                 e.r = (x - value).component_div(sigma);
                 e.j_point = Matrix3::from_diagonal(&sigma.map(|v| 1.0 / v));
                 Some(())
             }
             Kind::PosCenter { value, sigma } => {
                 let c = s.poses[self.photo()?].center;
-                let e = Eval::reset(slot, self.kind.rows());
                 e.r = (c - value).component_div(sigma);
                 e.j_photo
                     .fixed_view_mut::<3, 3>(0, 3)
@@ -303,7 +286,6 @@ impl ResidualBlock {
             }
             Kind::PosAttitude { rotation, sigma } => {
                 let r = s.poses[self.photo()?].rotation;
-                let e = Eval::reset(slot, self.kind.rows());
                 // exp(δθ)·R·R₀ᵀ: to first order the residual moves by δθ itself.
                 e.r = rotation_vector(&(r * rotation.transpose())) / *sigma;
                 e.j_photo
@@ -317,7 +299,6 @@ impl ResidualBlock {
                 sqrt_weight,
             } => {
                 let mut x = s.points[self.point()?];
-                let e = Eval::reset(slot, self.kind.rows());
                 let j = normal.transpose() * *sqrt_weight;
                 if self.camera().is_some() {
                     x += s.lidar_shift;
@@ -328,7 +309,6 @@ impl ResidualBlock {
                 Some(())
             }
             Kind::LidarDatum { sigma } => {
-                let e = Eval::reset(slot, self.kind.rows());
                 e.r = s.lidar_shift.component_div(sigma);
                 e.j_camera
                     .fixed_view_mut::<3, 3>(0, 0)
