@@ -14,9 +14,11 @@
 pub mod chi2;
 #[doc(hidden)]
 pub mod datum;
+mod evaluated;
 pub mod georef;
 mod precision;
 mod problem;
+mod ragged;
 pub mod rays;
 mod report;
 pub mod resection;

@@ -15,9 +15,10 @@
 //! χ²(d). A two-ray tie point's image observation is thus tested in one dimension (its
 //! along-base component is absorbed by the point's height).
 
+use super::evaluated::Evaluated;
 use super::residual::{Eval, Kind, ResidualBlock, State};
 use super::selinv::SelectedInverse;
-use super::solver::{self, Evaluated, Factor, PointSys, Row, Structure};
+use super::solver::{self, Factor, PointInverse, PointSys, Row, Structure};
 use crate::geometry::{Camera, Pose};
 use nalgebra::{DMatrix, Matrix3, Vector3};
 use rayon::prelude::*;
@@ -45,18 +46,15 @@ pub(crate) struct Snoop {
 /// lets a down-weighted observation keep a larger residual, and re-admission (which
 /// tests an observation against the solution without it) would then take back what the
 /// next round rejects again.
-pub(crate) fn snooping(
-    res: &[ResidualBlock],
-    ev: &Evaluated,
-    pts: &[PointSys],
-) -> Vec<Option<Snoop>> {
+pub(crate) fn snooping(ev: &Evaluated, pts: &[PointInverse]) -> Vec<Option<Snoop>> {
     let dx: Vec<Vector3<f64>> = pts.par_iter().map(|ps| -(ps.vinv * ps.g)).collect();
-    res.par_iter()
+    ev.res
+        .par_iter()
         .enumerate()
         .map(|(i, r)| {
-            let e = ev.evals[i].as_ref()?;
-            let vinv = r.point.map(|p| (pts[p].vinv, dx[p]));
-            Some(snoop_block(r, e, vinv))
+            let (e, _) = ev.at(i)?;
+            let vinv = r.point().map(|p| (pts[p].vinv, dx[p]));
+            Some(snoop_block(r, &e, vinv))
         })
         .collect()
 }
@@ -104,16 +102,13 @@ fn local_qvv(r: &ResidualBlock, e: &Eval, vinv: Option<&Matrix3<f64>>) -> Matrix
 
 /// The local redundancy of every active block, the trace of its [`local_qvv`] (the sum
 /// of its eigenvalues: Q_vv is positive semi-definite); `ev` and `pts` from unit weights.
-pub(crate) fn redundancies(
-    res: &[ResidualBlock],
-    ev: &Evaluated,
-    pts: &[PointSys],
-) -> Vec<Option<f64>> {
-    res.par_iter()
+pub(crate) fn redundancies(ev: &Evaluated, pts: &[PointInverse]) -> Vec<Option<f64>> {
+    ev.res
+        .par_iter()
         .enumerate()
         .map(|(i, r)| {
-            let e = ev.evals[i].as_ref()?;
-            Some(local_qvv(r, e, r.point.map(|p| &pts[p].vinv)).trace())
+            let (e, _) = ev.at(i)?;
+            Some(local_qvv(r, &e, r.point().map(|p| &pts[p].vinv)).trace())
         })
         .collect()
 }
@@ -151,12 +146,12 @@ fn snoop_block(r: &ResidualBlock, e: &Eval, point: Option<(Matrix3<f64>, Vector3
 pub(crate) fn predicted(
     r: &ResidualBlock,
     e: &Eval,
-    pts: &[PointSys],
+    pts: &[PointInverse],
     image_var: f64,
 ) -> (f64, usize) {
     let image = matches!(r.kind, Kind::Image { .. });
     let mut q = Matrix3::zeros();
-    if let Some(p) = r.point {
+    if let Some(p) = r.point() {
         q = e.j_point * pts[p].vinv * e.j_point.transpose() * image_var;
     }
     let own = if image { image_var } else { 1.0 };
@@ -180,23 +175,23 @@ pub(crate) fn predicted(
 /// Redundancy number and standardised residual (largest component) of every residual
 /// block; `None` for inactive blocks.
 pub(crate) fn standardized(
-    res: &[ResidualBlock],
     ev: &Evaluated,
-    pts: &[PointSys],
+    pts: &[PointInverse],
     sigma0: f64,
 ) -> Vec<Option<(f64, f64)>> {
-    res.par_iter()
+    ev.res
+        .par_iter()
         .enumerate()
         .map(|(i, r)| {
-            let e = ev.evals[i].as_ref()?;
+            let (e, weight) = ev.at(i)?;
             let mut rmin = 1.0f64;
             let mut w = 0.0f64;
             let known = r.kind.known();
             for k in (0..e.dim).filter(|&k| known[k]) {
-                let red = match r.point {
+                let red = match r.point() {
                     Some(p) => {
                         let jx = e.j_point.row(k);
-                        let h = (jx * pts[p].vinv * jx.transpose())[(0, 0)] * ev.weights[i];
+                        let h = (jx * pts[p].vinv * jx.transpose())[(0, 0)] * weight;
                         (1.0 - h).max(MIN_REDUNDANCY)
                     }
                     None => 1.0,
@@ -372,19 +367,15 @@ pub(crate) fn refine_intersection(
 /// σ0 from the residuals of the active observations and the redundancy of the system
 /// (unweighted: after gross-error elimination the remaining observations are taken as
 /// clean, and IRLS weights would bias σ0 low).
-pub(crate) fn sigma0(
-    res: &[ResidualBlock],
-    ev: &Evaluated,
-    n_unknowns: usize,
-) -> (f64, usize, usize) {
+pub(crate) fn sigma0(ev: &Evaluated, n_unknowns: usize) -> (f64, usize, usize) {
     let mut sum = 0.0;
     let mut n_obs = 0;
-    for (i, r) in res.iter().enumerate() {
-        if let (true, Some(e)) = (r.active, &ev.evals[i]) {
-            sum += e.norm_sq();
-            n_obs += r.kind.dof();
+    ev.for_each_residual(|i, v| {
+        if let Some(v) = v {
+            sum += v.norm_squared();
+            n_obs += ev.res[i].kind.dof();
         }
-    }
+    });
     let redundancy = n_obs.saturating_sub(n_unknowns);
     let s0 = if redundancy > 0 {
         (sum / redundancy as f64).sqrt()
@@ -395,14 +386,14 @@ pub(crate) fn sigma0(
 }
 
 /// RMS image residual in pixels over active image observations.
-pub(crate) fn image_rmse(res: &[ResidualBlock], ev: &Evaluated) -> f64 {
+pub(crate) fn image_rmse(ev: &Evaluated) -> f64 {
     let (mut s, mut n) = (0.0, 0usize);
-    for (i, r) in res.iter().enumerate() {
-        if let (Kind::Image { sigma, .. }, Some(e)) = (&r.kind, &ev.evals[i]) {
-            s += e.norm_sq() * sigma * sigma;
+    ev.for_each_residual(|i, v| {
+        if let (Kind::Image { sigma, .. }, Some(v)) = (&ev.res[i].kind, v) {
+            s += v.norm_squared() * sigma * sigma;
             n += 2;
         }
-    }
+    });
     if n == 0 {
         0.0
     } else {
@@ -413,27 +404,19 @@ pub(crate) fn image_rmse(res: &[ResidualBlock], ev: &Evaluated) -> f64 {
 /// Robust σ0 for the rejection test: 1.4826 × the median of |v|/√r over all active
 /// residual components. Unbiased for Gaussian errors and unaffected by the gross errors
 /// still in the solution, so the k·σ0 threshold neither cascades nor starts too wide.
-pub(crate) fn robust_sigma0(
-    res: &[ResidualBlock],
-    ev: &Evaluated,
-    std_unit: &[Option<(f64, f64)>],
-) -> f64 {
-    let v: Vec<f64> = std_unit
-        .iter()
-        .zip(&ev.evals)
-        .zip(res)
-        .filter_map(|((s, e), r)| {
-            let (red, _) = (*s)?;
-            let e = e.as_ref()?;
-            let known = r.kind.known();
-            Some(
-                (0..e.dim)
-                    .filter(move |&k| known[k])
-                    .map(move |k| e.r[k].abs() / red.sqrt()),
-            )
-        })
-        .flatten()
-        .collect();
+pub(crate) fn robust_sigma0(ev: &Evaluated, std_unit: &[Option<(f64, f64)>]) -> f64 {
+    let mut v = Vec::new();
+    ev.for_each_residual(|i, r| {
+        let (Some((red, _)), Some(r)) = (std_unit[i], r) else {
+            return;
+        };
+        let known = ev.res[i].kind.known();
+        v.extend(
+            (0..ev.res[i].kind.rows())
+                .filter(|&k| known[k])
+                .map(|k| r[k].abs() / red.sqrt()),
+        );
+    });
     robust_scale(v)
 }
 
@@ -476,7 +459,6 @@ pub(crate) fn point_cofactor(st: &Structure, factor: &Factor, ps: &PointSys) -> 
 /// numbers ([`redundancies`]); `exact` overrides them for single blocks (control and POS
 /// priors).
 pub(crate) fn variance_components(
-    res: &[ResidualBlock],
     ev: &Evaluated,
     redundancy: &[Option<f64>],
     exact: &[(usize, f64)],
@@ -491,19 +473,20 @@ pub(crate) fn variance_components(
     ];
     let mut acc = vec![(0usize, 0usize, 0.0f64, 0.0f64); groups.len()];
     let exact: std::collections::BTreeMap<usize, f64> = exact.iter().copied().collect();
-    for (i, r) in res.iter().enumerate() {
-        let (true, Some(e), Some(red)) = (r.active, &ev.evals[i], redundancy[i]) else {
-            continue;
+    ev.for_each_residual(|i, v| {
+        let (Some(v), Some(red)) = (v, redundancy[i]) else {
+            return;
         };
+        let kind = &ev.res[i].kind;
         let g = groups
             .iter()
-            .position(|g| *g == r.kind.group())
+            .position(|g| *g == kind.group())
             .expect("group");
         acc[g].0 += 1;
-        acc[g].1 += r.kind.dof();
-        acc[g].2 += e.norm_sq();
+        acc[g].1 += kind.dof();
+        acc[g].2 += v.norm_squared();
         acc[g].3 += exact.get(&i).copied().unwrap_or(red);
-    }
+    });
     groups
         .iter()
         .zip(acc)

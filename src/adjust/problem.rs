@@ -124,17 +124,16 @@ fn plane_block(
         )));
     }
     let norm = n.norm();
-    Ok(ResidualBlock {
-        kind: Kind::Plane {
+    Ok(ResidualBlock::new(
+        Kind::Plane {
             normal: n / norm,
             d: pl.d / norm,
             sqrt_weight: pl.weight.sqrt(),
         },
-        photo: None,
-        camera: lidar_datum,
-        point: Some(p),
-        active: true,
-    })
+        None,
+        lidar_datum,
+        Some(p),
+    ))
 }
 
 fn build(
@@ -208,8 +207,19 @@ fn build(
             )));
         }
     }
-    let mut res = Vec::new();
-    let mut refs = Vec::new();
+    // Reserved for every observation and prior: grown by doubling, the blocks' vector
+    // held up to twice what it used.
+    let upper = block
+        .points
+        .values()
+        .filter(|p| p.kind != PointKind::Check)
+        .map(|p| p.observations.len() + usize::from(p.kind == PointKind::Control))
+        .sum::<usize>()
+        + planes.len()
+        + 1
+        + 2 * block.photos.len();
+    let mut res = Vec::with_capacity(upper);
+    let mut refs = Vec::with_capacity(upper);
     let mut point_ids = Vec::new();
     let mut points = Vec::new();
     let mut control_positions = Vec::new();
@@ -267,16 +277,15 @@ fn build(
         point_ids.push(pt.id);
         for o in &pt.observations {
             let ph = photo_index[&o.photo];
-            res.push(ResidualBlock {
-                kind: Kind::Image {
+            res.push(ResidualBlock::new(
+                Kind::Image {
                     pixel: Vector2::new(o.pixel[0], o.pixel[1]),
                     sigma: o.sigma_px,
                 },
-                photo: Some(ph),
-                camera: Some(camera_index[&block.photos[&o.photo].camera]),
-                point: Some(p),
-                active: true,
-            });
+                Some(ph),
+                Some(camera_index[&block.photos[&o.photo].camera]),
+                Some(p),
+            ));
             refs.push(ObservationRef::Image {
                 point: pt.id,
                 photo: o.photo,
@@ -284,16 +293,15 @@ fn build(
         }
         if let Some(sigma) = prior {
             control_positions.push((pt.position, [0, 1, 2].map(|k| sigma[k].is_finite())));
-            res.push(ResidualBlock {
-                kind: Kind::PointPrior {
+            res.push(ResidualBlock::new(
+                Kind::PointPrior {
                     value: pt.position,
                     sigma,
                 },
-                photo: None,
-                camera: None,
-                point: Some(p),
-                active: true,
-            });
+                None,
+                None,
+                Some(p),
+            ));
             refs.push(ObservationRef::ControlPrior { point: pt.id });
         }
     }
@@ -322,13 +330,12 @@ fn build(
         refs.push(ObservationRef::Plane { point: pl.point });
     }
     if let Some((slot, sigma)) = lidar_datum {
-        res.push(ResidualBlock {
-            kind: Kind::LidarDatum { sigma },
-            photo: None,
-            camera: Some(slot),
-            point: None,
-            active: true,
-        });
+        res.push(ResidualBlock::new(
+            Kind::LidarDatum { sigma },
+            None,
+            Some(slot),
+            None,
+        ));
         refs.push(ObservationRef::LidarDatum);
     }
     let mut n_pos = 0;
@@ -344,16 +351,15 @@ fn build(
             )));
         }
         n_pos += 1;
-        res.push(ResidualBlock {
-            kind: Kind::PosCenter {
+        res.push(ResidualBlock::new(
+            Kind::PosCenter {
                 value: prior.center,
                 sigma: s,
             },
-            photo: Some(i),
-            camera: None,
-            point: None,
-            active: true,
-        });
+            Some(i),
+            None,
+            None,
+        ));
         refs.push(ObservationRef::PosCenter { photo: ph.id });
         if let Some(r) = prior.rotation {
             if !(prior.rotation_sigma_rad.is_finite() && prior.rotation_sigma_rad > 0.0) {
@@ -362,23 +368,22 @@ fn build(
                     ph.id, ph.name
                 )));
             }
-            res.push(ResidualBlock {
-                kind: Kind::PosAttitude {
-                    rotation: r,
+            res.push(ResidualBlock::new(
+                Kind::PosAttitude {
+                    rotation: Box::new(r),
                     sigma: prior.rotation_sigma_rad,
                 },
-                photo: Some(i),
-                camera: None,
-                point: None,
-                active: true,
-            });
+                Some(i),
+                None,
+                None,
+            ));
             refs.push(ObservationRef::PosAttitude { photo: ph.id });
         }
     }
     // Every photo must see enough adjusted points to be resected within the block.
     let mut per_photo = vec![0usize; photo_ids.len()];
     for r in &res {
-        if let (Kind::Image { .. }, Some(ph)) = (&r.kind, r.photo) {
+        if let (Kind::Image { .. }, Some(ph)) = (&r.kind, r.photo()) {
             per_photo[ph] += 1;
         }
     }
@@ -476,7 +481,7 @@ fn build(
 pub(super) fn n_unknowns(st: &Structure, res: &[ResidualBlock], n_points: usize) -> usize {
     let mut active = vec![false; n_points];
     for r in res.iter().filter(|r| r.active) {
-        if let Some(p) = r.point {
+        if let Some(p) = r.point() {
             active[p] = true;
         }
     }
@@ -490,7 +495,7 @@ fn drop_orphans(res: &mut [ResidualBlock], n_points: usize) {
     let mut rays = vec![0usize; n_points];
     let mut other = vec![false; n_points];
     for r in res.iter().filter(|r| r.active) {
-        if let Some(p) = r.point {
+        if let Some(p) = r.point() {
             match r.kind {
                 Kind::Image { .. } => rays[p] += 1,
                 Kind::PointPrior { .. } if r.kind.dof() < 3 => {}
@@ -499,7 +504,7 @@ fn drop_orphans(res: &mut [ResidualBlock], n_points: usize) {
         }
     }
     for r in res.iter_mut().filter(|r| r.active) {
-        if let Some(p) = r.point {
+        if let Some(p) = r.point() {
             if rays[p] == 0 || (rays[p] < 2 && !other[p]) {
                 r.active = false;
             }
@@ -663,16 +668,17 @@ fn refit_planes(pb: &mut Problem, rf: &mut dyn PlaneRefitter) -> Result<(), Adju
         .map(|(&id, x)| (id, *x))
         .collect();
     let new_planes = rf.refit(&pts);
-    let mut keep_res = Vec::new();
-    let mut keep_refs = Vec::new();
-    for (r, f) in pb.res.drain(..).zip(pb.refs.drain(..)) {
-        if !matches!(r.kind, Kind::Plane { .. }) {
-            keep_res.push(r);
-            keep_refs.push(f);
-        }
-    }
-    pb.res = keep_res;
-    pb.refs = keep_refs;
+    // In place: copies of the blocks and their references were a second 88 bytes an
+    // observation.
+    let plane = |r: &ResidualBlock| matches!(r.kind, Kind::Plane { .. });
+    let mut kept = pb
+        .res
+        .iter()
+        .map(|r| !plane(r))
+        .collect::<Vec<_>>()
+        .into_iter();
+    pb.refs.retain(|_| kept.next().unwrap_or(true));
+    pb.res.retain(|r| !plane(r));
     for pl in &new_planes {
         pb.res
             .push(plane_block(pl, &pb.point_index, pb.lidar_datum)?);

@@ -3,6 +3,7 @@
 //! rejected observation, no tie point left with fewer than two rays).
 
 use super::chi2;
+use super::evaluated::Evaluated;
 use super::precision::{self, cofactors};
 use super::problem::{n_unknowns, Problem};
 use super::rays::{intersect_snooped, Ray};
@@ -34,22 +35,25 @@ pub(super) fn finish(
 ) -> Result<AdjustReport, AdjustError> {
     let n_points = pb.point_ids.len();
     let t = Instant::now();
-    let ev = solver::evaluate(&pb.res, &pb.state, loss);
+    let ev = Evaluated::new(&pb.res, &pb.state, loss);
     let n_unk = n_unknowns(st, &pb.res, n_points);
-    let (s0, n_obs, redundancy) = precision::sigma0(&pb.res, &ev, n_unk);
-    let pts = solver::point_systems(st, &pb.res, &ev, 0.0);
-    let std = precision::standardized(&pb.res, &ev, &pts, if s0.is_finite() { s0 } else { 1.0 });
-    let rmse_px = precision::image_rmse(&pb.res, &ev);
+    let (s0, n_obs, redundancy) = precision::sigma0(&ev, n_unk);
+    let pts = solver::point_inverses(&ev, st, 0.0);
+    let std = precision::standardized(&ev, &pts, if s0.is_finite() { s0 } else { 1.0 });
+    let rmse_px = precision::image_rmse(&ev);
 
     // Per-photo image RMS.
     let mut ph_sum = vec![(0.0, 0usize); pb.photo_ids.len()];
-    let mut residuals = Vec::new();
-    for (i, r) in pb.res.iter().enumerate() {
-        let Some(e) = &ev.evals[i] else { continue };
+    // Sized once: grown by doubling, the listing held up to twice its size at the
+    // report's peak.
+    let mut residuals = Vec::with_capacity(pb.res.len());
+    ev.for_each_residual(|i, v| {
+        let Some(v) = v else { return };
+        let r = &pb.res[i];
         let scale: Vec<f64> = match &r.kind {
             Kind::Image { sigma, .. } => {
-                let ph = r.photo.expect("image block has a photo");
-                ph_sum[ph].0 += e.norm_sq() * sigma * sigma;
+                let ph = r.photo().expect("image block has a photo");
+                ph_sum[ph].0 += v.norm_squared() * sigma * sigma;
                 ph_sum[ph].1 += 1;
                 vec![*sigma; 2]
             }
@@ -61,16 +65,16 @@ pub(super) fn finish(
         };
         let (red, w) = std[i].unwrap_or((1.0, 0.0));
         // An axis without prior (σ = ∞) reports the adjusted minus the given coordinate.
-        let unweighted = |k: usize| match (&r.kind, r.point) {
+        let unweighted = |k: usize| match (&r.kind, r.point()) {
             (Kind::PointPrior { value, .. }, Some(p)) => pb.state.points[p][k] - value[k],
             _ => 0.0,
         };
         residuals.push(ResidualReport {
             observation: pb.refs[i].clone(),
-            residual: (0..e.dim)
+            residual: (0..r.kind.rows())
                 .map(|k| {
                     if scale[k].is_finite() {
-                        e.r[k] * scale[k]
+                        v[k] * scale[k]
                     } else {
                         unweighted(k)
                     }
@@ -79,13 +83,16 @@ pub(super) fn finish(
             standardized: w,
             redundancy: red,
         });
-    }
+    });
+    // Read into the listing: freed before the reduced system is assembled, the report's
+    // peak (24 bytes an observation).
+    drop(std);
 
     let t_residuals = t.elapsed().as_secs_f64();
     // Precision from the undamped reduced camera system.
     let mut photo_precision = Vec::new();
     let mut calibration = Vec::new();
-    let rows = solver::reduced_rows(st, &pb.res, &ev, &pts, 0.0);
+    let rows = solver::reduced_rows(&ev, st, &solver::diagonal(&ev, st), 0.0);
     let mut cache = solver::SymbolicCache::default();
     let factor = solver::factorize(st, &rows, &mut cache);
     let var0 = if s0.is_finite() { s0 * s0 } else { 1.0 };
@@ -271,7 +278,7 @@ pub(super) fn finish(
     let mut rays = vec![0usize; n_points];
     let mut active_point = vec![false; n_points];
     for r in pb.res.iter().filter(|r| r.active) {
-        if let Some(p) = r.point {
+        if let Some(p) = r.point() {
             active_point[p] = true;
             if matches!(r.kind, Kind::Image { .. }) {
                 rays[p] += 1;
@@ -455,27 +462,31 @@ fn group_variances(
     st: &Structure,
     opts: &AdjustOptions,
     loss: Loss,
-    ev: &solver::Evaluated,
-    pts: &[solver::PointSys],
+    ev: &Evaluated,
+    pts: &[solver::PointInverse],
     factor: Option<&solver::Factor>,
     cof: Option<&precision::Cofactors>,
 ) -> Vec<super::VarianceComponent> {
     // The redundancy numbers are least squares'; the solution's own when it is.
-    let ls = (loss != Loss::None).then(|| {
-        let ev_ls = solver::evaluate(&pb.res, &pb.state, Loss::None);
-        let pts_ls = solver::point_systems(st, &pb.res, &ev_ls, 0.0);
-        (ev_ls, pts_ls)
-    });
-    let (ev_ls, pts_ls) = ls.as_ref().map_or((ev, pts), |(e, p)| (e, p.as_slice()));
-    let red = precision::redundancies(&pb.res, ev_ls, pts_ls);
+    let ev_ls = Evaluated::new(&pb.res, &pb.state, Loss::None);
+    let ls = (loss != Loss::None).then(|| solver::point_inverses(&ev_ls, st, 0.0));
+    let (ev_ls, pts_ls) = ls.as_ref().map_or((ev, pts), |p| (&ev_ls, p.as_slice()));
+    let red = precision::redundancies(ev_ls, pts_ls);
     let mut exact = Vec::new();
     for (i, r) in pb.res.iter().enumerate() {
-        if !r.active || ev.evals[i].is_none() {
+        // Image observations, the bulk, have no exact redundancy: not evaluated for it.
+        if !r.active || matches!(r.kind, Kind::Image { .. } | Kind::Plane { .. }) {
             continue;
         }
-        let (q, sigma) = match (&r.kind, r.point, r.photo) {
+        if ev.residual(i).is_none() {
+            continue;
+        }
+        let (q, sigma) = match (&r.kind, r.point(), r.photo()) {
             (Kind::PointPrior { sigma, .. }, Some(p), _) => match factor {
-                Some(f) => (precision::point_cofactor(st, f, &pts[p]), *sigma),
+                Some(f) => (
+                    precision::point_cofactor(st, f, &solver::point_system(ev, st, p, 0.0)),
+                    *sigma,
+                ),
                 None => continue,
             },
             (Kind::PosCenter { sigma, .. }, _, Some(ph)) if opts.covariance => {
@@ -491,7 +502,7 @@ fn group_variances(
                 }
             }
             (Kind::LidarDatum { sigma }, _, _) => {
-                match r.camera.and_then(|c| lidar_datum_cofactor(st, cof, c)) {
+                match r.camera().and_then(|c| lidar_datum_cofactor(st, cof, c)) {
                     Some(q) => (q, *sigma),
                     None => continue,
                 }
@@ -504,7 +515,7 @@ fn group_variances(
             .sum();
         exact.push((i, red));
     }
-    precision::variance_components(&pb.res, ev_ls, &red, &exact)
+    precision::variance_components(ev_ls, &red, &exact)
 }
 
 /// 3×3 cofactor of the LiDAR datum shift in camera slot `slot` (its block is always

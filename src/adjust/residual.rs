@@ -35,8 +35,12 @@ pub(crate) enum Kind {
         value: Vector3<f64>,
         sigma: Vector3<f64>,
     },
-    /// POS attitude (world→camera rotation), σ per angle in radians.
-    PosAttitude { rotation: Matrix3<f64>, sigma: f64 },
+    /// POS attitude (world→camera rotation), σ per angle in radians; the rotation boxed,
+    /// one a photo, as inline it was the size of every block.
+    PosAttitude {
+        rotation: Box<Matrix3<f64>>,
+        sigma: f64,
+    },
     /// Distance of an object point to a LiDAR plane n·X = d, times √weight. With a
     /// `camera` slot the block holds the LiDAR datum shift b there and the point X + b
     /// is on the plane: the LiDAR is X's surface displaced by its own datum error.
@@ -85,21 +89,58 @@ impl Kind {
         }
     }
 
+    /// Rows of the block's whitened residual (those of a prior axis with σ = ∞ included).
+    pub fn rows(&self) -> usize {
+        match self {
+            Kind::Image { .. } => 2,
+            Kind::Plane { .. } => 1,
+            Kind::PointPrior { .. }
+            | Kind::PosCenter { .. }
+            | Kind::PosAttitude { .. }
+            | Kind::LidarDatum { .. } => 3,
+        }
+    }
+
     /// Number of scalar observations of the block.
     pub fn dof(&self) -> usize {
         self.known().iter().filter(|&&k| k).count()
     }
 }
 
-/// A residual block and the parameter blocks it touches.
+/// A residual block and the parameter blocks it touches. One an observation: 72 bytes,
+/// where `Option<usize>` indices and the attitude prior's rotation inline made 144.
 #[derive(Debug, Clone)]
 pub(crate) struct ResidualBlock {
     pub kind: Kind,
-    pub photo: Option<usize>,
-    pub camera: Option<usize>,
-    pub point: Option<usize>,
+    photo: Slot,
+    camera: Slot,
+    point: Slot,
     /// False once rejected as a gross error.
     pub active: bool,
+}
+
+const _: () = assert!(std::mem::size_of::<ResidualBlock>() <= 72);
+
+/// An optional index of a parameter block in four bytes (`u32::MAX` for none).
+#[derive(Debug, Clone, Copy)]
+struct Slot(u32);
+
+impl Slot {
+    fn new(i: Option<usize>) -> Self {
+        match i {
+            Some(i) => Slot(
+                u32::try_from(i)
+                    .ok()
+                    .filter(|&i| i != u32::MAX)
+                    .expect("parameter block index within u32"),
+            ),
+            None => Slot(u32::MAX),
+        }
+    }
+
+    fn get(self) -> Option<usize> {
+        (self.0 != u32::MAX).then_some(self.0 as usize)
+    }
 }
 
 /// Whitened residual (first `dim` rows used) and Jacobians. Exterior orientation uses
@@ -124,21 +165,6 @@ impl Eval {
             j_point: Matrix3::zeros(),
         }
     }
-    /// `slot` holding a zero record of `dim` rows (reusing the one there).
-    fn reset(slot: &mut Option<Eval>, dim: usize) -> &mut Eval {
-        match slot {
-            Some(e) => {
-                e.dim = dim;
-                e.r.fill(0.0);
-                e.j_photo.fill(0.0);
-                e.j_camera.fill(0.0);
-                e.j_point.fill(0.0);
-                e
-            }
-            None => slot.insert(Self::new(dim)),
-        }
-    }
-
     pub fn norm_sq(&self) -> f64 {
         self.r.norm_squared()
     }
@@ -150,42 +176,62 @@ pub(crate) fn rotation_vector(r: &Matrix3<f64>) -> Vector3<f64> {
 }
 
 impl ResidualBlock {
-    /// Residual and Jacobians at `state`; `None` when the block cannot be evaluated
-    /// (object point behind the camera), which the solver treats as a missing observation.
-    pub fn evaluate(&self, s: &State) -> Option<Eval> {
-        let mut slot = None;
-        self.evaluate_in(s, &mut slot);
-        slot
-    }
-
-    /// [`evaluate`](Self::evaluate) written into `slot` in place: the solver evaluates every
-    /// residual per iteration, and returning the 552-byte record by value cost a copy of
-    /// each (9 % of a 50-photo adjustment's time in memmove).
-    pub fn evaluate_in(&self, s: &State, slot: &mut Option<Eval>) {
-        if self.fill(s, slot).is_none() {
-            *slot = None;
+    /// An active block of `kind` on the photo, camera slot and object point given.
+    pub fn new(
+        kind: Kind,
+        photo: Option<usize>,
+        camera: Option<usize>,
+        point: Option<usize>,
+    ) -> Self {
+        Self {
+            kind,
+            photo: Slot::new(photo),
+            camera: Slot::new(camera),
+            point: Slot::new(point),
+            active: true,
         }
     }
 
-    /// The whitened residual alone (rows beyond its dimension zero), as [`Self::evaluate_in`]
+    pub fn photo(&self) -> Option<usize> {
+        self.photo.get()
+    }
+
+    /// The camera, or for a LiDAR block the slot of the LiDAR datum shift.
+    pub fn camera(&self) -> Option<usize> {
+        self.camera.get()
+    }
+
+    pub fn point(&self) -> Option<usize> {
+        self.point.get()
+    }
+
+    /// Residual and Jacobians at `state`; `None` when the block cannot be evaluated
+    /// (object point behind the camera), which the solver treats as a missing observation.
+    pub fn evaluate(&self, s: &State) -> Option<Eval> {
+        let mut e = Eval::new(self.kind.rows());
+        self.fill(s, &mut e)?;
+        Some(e)
+    }
+
+    /// The whitened residual alone (rows beyond its dimension zero), as [`Self::evaluate`]
     /// computes it, without the Jacobians: what a trial step of the solver needs.
     pub fn residual(&self, s: &State) -> Option<Vector3<f64>> {
         match &self.kind {
             Kind::Image { pixel, sigma } => {
-                let (ph, cam, pt) = (self.photo?, self.camera?, self.point?);
+                let (ph, cam, pt) = (self.photo()?, self.camera()?, self.point()?);
                 let xc = s.poses[ph].to_camera(&s.points[pt]);
                 let p = s.cameras[cam].project_as_with_jacobian(&xc).ok()?;
                 let r = (p - pixel) * (1.0 / sigma);
                 Some(Vector3::new(r.x, r.y, 0.0))
             }
             Kind::PointPrior { value, sigma } => {
-                Some((s.points[self.point?] - value).component_div(sigma))
+                Some((s.points[self.point()?] - value).component_div(sigma))
             }
             Kind::PosCenter { value, sigma } => {
-                Some((s.poses[self.photo?].center - value).component_div(sigma))
+                Some((s.poses[self.photo()?].center - value).component_div(sigma))
             }
             Kind::PosAttitude { rotation, sigma } => {
-                let r = s.poses[self.photo?].rotation;
+                let r = s.poses[self.photo()?].rotation;
                 Some(rotation_vector(&(r * rotation.transpose())) / *sigma)
             }
             Kind::Plane {
@@ -193,8 +239,8 @@ impl ResidualBlock {
                 d,
                 sqrt_weight,
             } => {
-                let mut x = s.points[self.point?];
-                if self.camera.is_some() {
+                let mut x = s.points[self.point()?];
+                if self.camera().is_some() {
                     x += s.lidar_shift;
                 }
                 Some(Vector3::new((normal.dot(&x) - d) * sqrt_weight, 0.0, 0.0))
@@ -203,14 +249,14 @@ impl ResidualBlock {
         }
     }
 
-    fn fill(&self, s: &State, slot: &mut Option<Eval>) -> Option<()> {
+    /// Writes the residual and Jacobians into `e`, zero and of the block's rows.
+    fn fill(&self, s: &State, e: &mut Eval) -> Option<()> {
         match &self.kind {
             Kind::Image { pixel, sigma } => {
-                let (ph, cam, pt) = (self.photo?, self.camera?, self.point?);
+                let (ph, cam, pt) = (self.photo()?, self.camera()?, self.point()?);
                 let (p, j) =
                     project_with_jacobians(&s.cameras[cam], &s.poses[ph], &s.points[pt]).ok()?;
                 let w = 1.0 / sigma;
-                let e = Eval::reset(slot, 2);
                 let r = (p.pixel - pixel) * w;
                 e.r = Vector3::new(r.x, r.y, 0.0);
                 e.j_photo
@@ -225,15 +271,13 @@ impl ResidualBlock {
                 Some(())
             }
             Kind::PointPrior { value, sigma } => {
-                let x = s.points[self.point?];
-                let e = Eval::reset(slot, 3);
+                let x = s.points[self.point()?];
                 e.r = (x - value).component_div(sigma);
                 e.j_point = Matrix3::from_diagonal(&sigma.map(|v| 1.0 / v));
                 Some(())
             }
             Kind::PosCenter { value, sigma } => {
-                let c = s.poses[self.photo?].center;
-                let e = Eval::reset(slot, 3);
+                let c = s.poses[self.photo()?].center;
                 e.r = (c - value).component_div(sigma);
                 e.j_photo
                     .fixed_view_mut::<3, 3>(0, 3)
@@ -241,8 +285,7 @@ impl ResidualBlock {
                 Some(())
             }
             Kind::PosAttitude { rotation, sigma } => {
-                let r = s.poses[self.photo?].rotation;
-                let e = Eval::reset(slot, 3);
+                let r = s.poses[self.photo()?].rotation;
                 // exp(δθ)·R·R₀ᵀ: to first order the residual moves by δθ itself.
                 e.r = rotation_vector(&(r * rotation.transpose())) / *sigma;
                 e.j_photo
@@ -255,10 +298,9 @@ impl ResidualBlock {
                 d,
                 sqrt_weight,
             } => {
-                let mut x = s.points[self.point?];
-                let e = Eval::reset(slot, 1);
+                let mut x = s.points[self.point()?];
                 let j = normal.transpose() * *sqrt_weight;
-                if self.camera.is_some() {
+                if self.camera().is_some() {
                     x += s.lidar_shift;
                     e.j_camera.fixed_view_mut::<1, 3>(0, 0).copy_from(&j);
                 }
@@ -267,7 +309,6 @@ impl ResidualBlock {
                 Some(())
             }
             Kind::LidarDatum { sigma } => {
-                let e = Eval::reset(slot, 3);
                 e.r = s.lidar_shift.component_div(sigma);
                 e.j_camera
                     .fixed_view_mut::<3, 3>(0, 0)

@@ -8,6 +8,7 @@
 //! intersection and re-admit against the final solution.
 
 use super::chi2;
+use super::evaluated::Evaluated;
 use super::precision::{self, intersect, Snoop};
 use super::problem::Problem;
 use super::residual::{Kind, Loss, ResidualBlock};
@@ -52,15 +53,14 @@ pub(super) struct RejectionTest {
 
 /// The test statistics of one solution.
 struct Stats {
-    ev: solver::Evaluated,
     snoop: Vec<Option<Snoop>>,
 }
 
 fn stats(st: &Structure, pb: &Problem) -> Stats {
-    let ev = solver::evaluate(&pb.res, &pb.state, Loss::None);
-    let pts = solver::point_systems(st, &pb.res, &ev, 0.0);
-    let snoop = precision::snooping(&pb.res, &ev, &pts);
-    Stats { ev, snoop }
+    let ev = Evaluated::new(&pb.res, &pb.state, Loss::None);
+    let pts = solver::point_inverses(&ev, st, 0.0);
+    let snoop = precision::snooping(&ev, &pts);
+    Stats { snoop }
 }
 
 impl RejectionTest {
@@ -141,7 +141,7 @@ impl RejectionTest {
         let s = stats(st, pb);
         self.calibrate_image(pb, &s);
         let ties = self.fit_tie_prior(st, pb);
-        let rescaled = self.scale_control(st, pb, &s.ev);
+        let rescaled = self.scale_control(st, pb);
         self.first = (!rescaled).then_some((s, ties));
         rescaled
     }
@@ -240,7 +240,7 @@ impl RejectionTest {
             .iter()
             .zip(&s.snoop)
             .filter(|(r, _)| matches!(r.kind, Kind::Image { .. }))
-            .filter_map(|(r, t)| Some((r.point?, t.as_ref()?)))
+            .filter_map(|(r, t)| Some((r.point()?, t.as_ref()?)))
             .collect();
         let scale = |flagged: &BTreeSet<usize>| {
             let z: Vec<f64> = img
@@ -297,7 +297,7 @@ impl RejectionTest {
     /// brings the median p-value to ½, re-weighting the group (one robust variance
     /// component step, fixed for later rounds). A median does not move for a minority of
     /// wrong points: those are left for the test. Returns whether weights changed.
-    fn scale_control(&mut self, st: &Structure, pb: &mut Problem, ev: &solver::Evaluated) -> bool {
+    fn scale_control(&mut self, st: &Structure, pb: &mut Problem) -> bool {
         let alpha = self.rule.alpha().unwrap_or(f64::NAN);
         let f2 = self.image_sigma * self.image_sigma;
         let tests: Vec<(Vector3<f64>, Matrix3<f64>, Vector3<f64>)> = pb
@@ -305,7 +305,7 @@ impl RejectionTest {
             .iter()
             .enumerate()
             .filter(|(_, r)| r.active && matches!(r.kind, Kind::PointPrior { .. }))
-            .filter_map(|(i, r)| prior_vs_rays(st, pb, ev, r.point?, i))
+            .filter_map(|(i, r)| prior_vs_rays(st, pb, Loss::None, r.point()?, i))
             .filter(|(_, _, sigma)| sigma.iter().any(|v| v.is_finite()))
             .collect();
         let n = tests.len();
@@ -390,7 +390,7 @@ impl RejectionTest {
         let mut blamed = BTreeSet::new();
         for c in &cand {
             if matches!(pb.res[c.i].kind, Kind::PointPrior { .. }) {
-                blamed.extend(pb.res[c.i].point);
+                blamed.extend(pb.res[c.i].point());
                 out.push((c.i, c.w, c.reason.clone()));
             }
         }
@@ -400,7 +400,7 @@ impl RejectionTest {
             let r = &pb.res[c.i];
             // POS priors are not rejected: a photo without its prior may lose the datum, and
             // a POS gross error shows in the image residuals of the photo all the same.
-            let Some(p) = r.point else { continue };
+            let Some(p) = r.point() else { continue };
             if matches!(r.kind, Kind::PointPrior { .. }) || blamed.contains(&p) {
                 continue;
             }
@@ -513,10 +513,10 @@ impl RejectionTest {
                 return self.sweep_tie_point(prior, pb, rays);
             }
         }
-        let mut idx: Vec<usize> = st.point_res[p]
-            .iter()
-            .copied()
-            .filter(|&j| pb.res[j].active && pb.res[j].point == Some(p))
+        let mut idx: Vec<usize> = st
+            .point_res
+            .of(p)
+            .filter(|&j| pb.res[j].active && pb.res[j].point() == Some(p))
             .collect();
         let mut out = Vec::new();
         loop {
@@ -657,13 +657,13 @@ impl RejectionTest {
         }
         for (i, r) in pb.res.iter().enumerate() {
             if matches!(r.kind, Kind::Image { .. })
-                && r.point.is_some_and(|p| ties.contains_key(&p))
+                && r.point().is_some_and(|p| ties.contains_key(&p))
             {
                 continue;
             }
-            let (t, dof) = match (&r.kind, r.point, r.active) {
+            let (t, dof) = match (&r.kind, r.point(), r.active) {
                 (Kind::PointPrior { .. }, Some(p), true) => {
-                    match prior_vs_rays(st, pb, &s.ev, p, i) {
+                    match prior_vs_rays(st, pb, Loss::None, p, i) {
                         Some((d, q, sigma)) => prior_test(&d, &q, &sigma, f2),
                         None => continue,
                     }
@@ -714,14 +714,14 @@ impl RejectionTest {
         let (pts, s0) = match self.rule {
             Rejection::None => return false,
             Rejection::Threshold(_) => {
-                let ev = solver::evaluate(&pb.res, &pb.state, loss);
-                let pts = solver::point_systems(&st, &pb.res, &ev, 0.0);
-                let u = precision::standardized(&pb.res, &ev, &pts, 1.0);
-                (pts, threshold_sigma0(&pb.res, &ev, &u))
+                let ev = Evaluated::new(&pb.res, &pb.state, loss);
+                let pts = solver::point_inverses(&ev, &st, 0.0);
+                let u = precision::standardized(&ev, &pts, 1.0);
+                (pts, threshold_sigma0(&ev, &u))
             }
             Rejection::DataSnooping(_) => {
-                let ev = solver::evaluate(&pb.res, &pb.state, Loss::None);
-                (solver::point_systems(&st, &pb.res, &ev, 0.0), 1.0)
+                let ev = Evaluated::new(&pb.res, &pb.state, Loss::None);
+                (solver::point_inverses(&ev, &st, 0.0), 1.0)
             }
         };
         if !s0.is_finite() {
@@ -732,7 +732,7 @@ impl RejectionTest {
             .res
             .iter()
             .filter(|r| r.active)
-            .filter_map(|r| r.point)
+            .filter_map(|r| r.point())
             .collect();
         let mut readmit = Vec::new();
         rejected.retain(|rj| {
@@ -745,13 +745,13 @@ impl RejectionTest {
                 return true;
             };
             // Only when the point is still in the solution.
-            if blk.point.is_some_and(|p| !alive.contains(&p)) {
+            if blk.point().is_some_and(|p| !alive.contains(&p)) {
                 return true;
             }
             let known = blk.kind.known();
             // A tie ray against its point's other rays, as the rounds tested it.
             if let (Some(prior), Kind::Image { .. }, Some(p)) =
-                (&self.tie_prior, &blk.kind, blk.point)
+                (&self.tie_prior, &blk.kind, blk.point())
             {
                 let others = active_rays(pb, &st, p);
                 if !is_held(pb, &st, p) && others.len() >= 2 {
@@ -848,12 +848,8 @@ fn beyond_chance(cand: Vec<Candidate>, tested: usize, k: f64) -> Vec<Candidate> 
 /// fit better than stated: on the small block's film epoch, LSM tie points of one film
 /// fit to 0.03 px where their σ says 0.1 px, and a robust σ0 of 0.23 put the threshold at
 /// 0.6 σ, so a quarter of the image observations went (bench accuracy, seed 3).
-fn threshold_sigma0(
-    res: &[crate::adjust::residual::ResidualBlock],
-    ev: &solver::Evaluated,
-    unit: &[Option<(f64, f64)>],
-) -> f64 {
-    precision::robust_sigma0(res, ev, unit).max(1.0)
+fn threshold_sigma0(ev: &Evaluated, unit: &[Option<(f64, f64)>]) -> f64 {
+    precision::robust_sigma0(ev, unit).max(1.0)
 }
 
 /// The k·σ0 rule: standardised residual components against the round's σ0. With
@@ -864,10 +860,10 @@ fn threshold_candidates(
     loss: Loss,
     k: f64,
 ) -> (Vec<Candidate>, usize) {
-    let ev = solver::evaluate(&pb.res, &pb.state, loss);
-    let pts = solver::point_systems(st, &pb.res, &ev, 0.0);
-    let unit = precision::standardized(&pb.res, &ev, &pts, 1.0);
-    let s0 = threshold_sigma0(&pb.res, &ev, &unit);
+    let ev = Evaluated::new(&pb.res, &pb.state, loss);
+    let pts = solver::point_inverses(&ev, st, 0.0);
+    let unit = precision::standardized(&ev, &pts, 1.0);
+    let s0 = threshold_sigma0(&ev, &unit);
     if !s0.is_finite() || s0 <= 0.0 {
         return (Vec::new(), 0);
     }
@@ -876,9 +872,9 @@ fn threshold_candidates(
     let mut out = Vec::new();
     let mut tested = 0;
     for (i, r) in pb.res.iter().enumerate() {
-        let w = match (&r.kind, r.point, r.active) {
+        let w = match (&r.kind, r.point(), r.active) {
             (Kind::PointPrior { .. }, Some(p), true) => {
-                let Some((d, q, sigma)) = prior_vs_rays(st, pb, &ev, p, i) else {
+                let Some((d, q, sigma)) = prior_vs_rays(st, pb, loss, p, i) else {
                     continue;
                 };
                 let known = (0..3).filter(|&c| sigma[c].is_finite());
@@ -923,19 +919,22 @@ fn threshold_candidates(
 fn prior_vs_rays(
     st: &Structure,
     pb: &Problem,
-    ev: &solver::Evaluated,
+    loss: Loss,
     p: usize,
     i: usize,
 ) -> Option<(Vector3<f64>, Matrix3<f64>, Vector3<f64>)> {
+    let ev = Evaluated::new(&pb.res, &pb.state, loss);
     let Kind::PointPrior { value, sigma } = &pb.res[i].kind else {
         return None;
     };
     let mut v = Matrix3::zeros();
     let mut g = Vector3::zeros();
     let mut rays = 0;
-    for &j in &st.point_res[p] {
-        if let (Kind::Image { .. }, Some(e)) = (&pb.res[j].kind, &ev.evals[j]) {
-            let w = ev.weights[j];
+    for j in st.point_res.of(p) {
+        if !matches!(pb.res[j].kind, Kind::Image { .. }) {
+            continue;
+        }
+        if let Some((e, w)) = ev.at(j) {
             v += w * e.j_point.transpose() * e.j_point;
             g += w * e.j_point.transpose() * e.r;
             rays += 1;
@@ -965,9 +964,8 @@ fn prior_test(d: &Vector3<f64>, q: &Matrix3<f64>, sigma: &Vector3<f64>, f2: f64)
 
 /// The active image observations of object point `p`.
 fn active_rays(pb: &Problem, st: &Structure, p: usize) -> Vec<usize> {
-    st.point_res[p]
-        .iter()
-        .copied()
+    st.point_res
+        .of(p)
         .filter(|&j| pb.res[j].active && matches!(pb.res[j].kind, Kind::Image { .. }))
         .collect()
 }
@@ -1022,8 +1020,8 @@ fn ssr_at(pb: &Problem, rays: &[usize], x: &Vector3<f64>, f2: f64) -> f64 {
                 unreachable!("an image observation")
             };
             let (c, pose) = (
-                &pb.state.cameras[r.camera.expect("camera")],
-                &pb.state.poses[r.photo.expect("photo")],
+                &pb.state.cameras[r.camera().expect("camera")],
+                &pb.state.poses[r.photo().expect("photo")],
             );
             crate::geometry::project(c, pose, x)
                 .map(|q| ((q.pixel - pixel) / sigma).norm_squared())
@@ -1052,8 +1050,8 @@ fn reintersect(
             unreachable!("an image observation")
         };
         (
-            &pb.state.cameras[r.camera.expect("camera")],
-            &pb.state.poses[r.photo.expect("photo")],
+            &pb.state.cameras[r.camera().expect("camera")],
+            &pb.state.poses[r.photo().expect("photo")],
             [pixel.x, pixel.y],
             sigma,
         )
@@ -1103,10 +1101,10 @@ fn point_loo(
 /// Whether object point `p` has an active control prior (with a known axis) or a LiDAR
 /// plane besides its rays.
 fn is_held(pb: &Problem, st: &Structure, p: usize) -> bool {
-    st.point_res[p].iter().any(|&j| {
+    st.point_res.of(p).any(|j| {
         let r = &pb.res[j];
         r.active
-            && r.point == Some(p)
+            && r.point() == Some(p)
             && match r.kind {
                 Kind::PointPrior { .. } => r.kind.dof() > 0,
                 Kind::Plane { .. } => true,

@@ -8,7 +8,9 @@
 //! point, one row of the reduced system) and adds its terms in a fixed order, so the
 //! thread count never changes a bit of the result.
 
-use super::residual::{Eval, Loss, ResidualBlock, State};
+use super::evaluated::Evaluated;
+use super::ragged::{narrow, Ragged};
+use super::residual::{Loss, ResidualBlock, State};
 use faer::dyn_stack::{MemBuffer, MemStack};
 use faer::linalg::cholesky::llt;
 use faer::sparse::linalg::cholesky::{
@@ -40,13 +42,13 @@ pub(crate) struct Structure {
     /// Per block, its residuals the point-ordered pass of [`diagonal`] does not cover:
     /// those without an object point (POS and datum priors), and those of a point that
     /// couple this photo to a self-calibrated camera (their photo–camera block).
-    pub block_res: Vec<Vec<usize>>,
+    pub block_res: Ragged<u32>,
     /// Per block, its object points with the block's place in the point's
-    /// `point_blocks` (the point's coupling block W there).
-    pub block_points: Vec<Vec<(usize, usize)>>,
+    /// `point_blocks` (the point's coupling block W there), ascending.
+    pub block_points: Ragged<(u32, u32)>,
     /// Per object point, the camera-side blocks of its residuals, ascending.
-    pub point_blocks: Vec<Vec<usize>>,
-    pub point_res: Vec<Vec<usize>>,
+    pub point_blocks: Ragged<u32>,
+    pub point_res: Ragged<u32>,
     /// Sorted blocks b2 ≥ b1 coupled to b1 in the reduced system (b1 itself included).
     pub neighbours: Vec<Vec<usize>>,
 }
@@ -85,50 +87,53 @@ impl Structure {
             offset.push(n);
             n += f.len();
         }
-        let mut block_res = vec![Vec::new(); nb];
-        let mut point_res = vec![Vec::new(); n_points];
-        let mut pairs: Vec<Vec<usize>> = (0..nb).map(|b| vec![b]).collect();
-        for (i, r) in res.iter().enumerate() {
-            if !r.active {
-                continue;
-            }
-            let bs = blocks_of(r, &camera_block);
-            match (r.point, bs) {
-                (None, _) => {
-                    for b in bs.iter().flatten() {
-                        block_res[*b].push(i);
-                    }
-                }
-                (Some(_), [Some(a), Some(b)]) => block_res[a.min(b)].push(i),
-                _ => {}
-            }
-            if let [Some(a), Some(b)] = bs {
-                pairs[a.min(b)].push(a.max(b));
-            }
-            if let Some(p) = r.point {
-                point_res[p].push(i);
+        let active = || res.iter().enumerate().filter(|(_, r)| r.active);
+        let block_res = Ragged::from_pairs(nb, || {
+            active().flat_map(|(i, r)| {
+                let bs = blocks_of(r, &camera_block);
+                let owners = match (r.point(), bs) {
+                    (None, _) => bs,
+                    (Some(_), [Some(a), Some(b)]) => [Some(a.min(b)), None],
+                    _ => [None, None],
+                };
+                owners.into_iter().flatten().map(move |b| (b, narrow(i)))
+            })
+        });
+        let point_res = Ragged::from_pairs(n_points, || {
+            active().filter_map(|(i, r)| Some((r.point()?, narrow(i))))
+        });
+        let mut pairs = Pairs::new(nb);
+        for (_, r) in active() {
+            if let [Some(a), Some(b)] = blocks_of(r, &camera_block) {
+                pairs.add(a.min(b), &[a.max(b)]);
             }
         }
-        let mut block_points = vec![Vec::new(); nb];
-        let mut point_blocks = Vec::with_capacity(n_points);
-        for (p, rs) in point_res.iter().enumerate() {
-            let mut bs: Vec<usize> = rs
-                .iter()
-                .flat_map(|&i| blocks_of(&res[i], &camera_block))
-                .flatten()
-                .collect();
+        let mut point_blocks = Ragged::new();
+        let mut bs = Vec::new();
+        for p in 0..n_points {
+            bs.clear();
+            bs.extend(
+                point_res
+                    .of(p)
+                    .flat_map(|i| blocks_of(&res[i], &camera_block))
+                    .flatten(),
+            );
             bs.sort_unstable();
             bs.dedup();
             for (k, &a) in bs.iter().enumerate() {
-                block_points[a].push((p, k));
-                pairs[a].extend_from_slice(&bs[k..]);
+                pairs.add(a, &bs[k..]);
             }
-            point_blocks.push(bs);
+            point_blocks.push(bs.iter().map(|&b| narrow(b)));
         }
-        for p in &mut pairs {
-            p.sort_unstable();
-            p.dedup();
-        }
+        let block_points = Ragged::from_pairs(nb, || {
+            (0..n_points).flat_map(|p| {
+                point_blocks[p]
+                    .iter()
+                    .enumerate()
+                    .map(move |(k, &a)| (a as usize, (narrow(p), narrow(k))))
+            })
+        });
+        let pairs = pairs.finish();
         Self {
             n_photos,
             camera_block,
@@ -144,11 +149,47 @@ impl Structure {
     }
 }
 
+/// The reduced system's coupled block pairs as they are found, per first block: a point
+/// seen by m blocks adds m(m + 1)/2 of them, most found before, so each list is sorted
+/// and deduplicated whenever it has doubled rather than only at the end.
+struct Pairs {
+    lists: Vec<Vec<usize>>,
+    unique: Vec<usize>,
+}
+
+impl Pairs {
+    fn new(nb: usize) -> Self {
+        Self {
+            lists: (0..nb).map(|b| vec![b]).collect(),
+            unique: vec![1; nb],
+        }
+    }
+
+    fn add(&mut self, a: usize, bs: &[usize]) {
+        let l = &mut self.lists[a];
+        l.extend_from_slice(bs);
+        if l.len() > 2 * self.unique[a] + 64 {
+            l.sort_unstable();
+            l.dedup();
+            self.unique[a] = l.len();
+        }
+    }
+
+    fn finish(mut self) -> Vec<Vec<usize>> {
+        for l in &mut self.lists {
+            l.sort_unstable();
+            l.dedup();
+            l.shrink_to_fit();
+        }
+        self.lists
+    }
+}
+
 /// The camera-side blocks a residual touches: its photo, and its camera slot when that
 /// has free parameters (a self-calibrated camera of an image observation, the LiDAR
 /// datum of a plane and of its prior).
 fn blocks_of(r: &ResidualBlock, camera_block: &[Option<usize>]) -> [Option<usize>; 2] {
-    [r.photo, r.camera.and_then(|c| camera_block[c])]
+    [r.photo(), r.camera().and_then(|c| camera_block[c])]
 }
 
 /// Per-point part of the normal equations after damping: V⁻¹, gradient and the
@@ -159,118 +200,64 @@ pub(crate) struct PointSys {
     pub w: Vec<(usize, M93)>,
 }
 
-#[derive(Default)]
-pub(crate) struct Evaluated {
-    pub evals: Vec<Option<Eval>>,
-    pub weights: Vec<f64>,
-    pub cost: f64,
-    pub failed: usize,
-}
-
-pub(crate) fn evaluate(res: &[ResidualBlock], state: &State, loss: Loss) -> Evaluated {
-    let mut ev = Evaluated::default();
-    evaluate_into(res, state, loss, &mut ev);
-    ev
-}
-
-/// [`evaluate`] into `out`'s buffers. The solver's trial evaluations reuse one: a fresh
-/// 30 MB of Jacobians per trial (200 photos) spent more time in page faults than in
-/// the projections.
-pub(crate) fn evaluate_into(res: &[ResidualBlock], state: &State, loss: Loss, out: &mut Evaluated) {
-    out.evals.resize(res.len(), None);
-    out.evals
-        .par_iter_mut()
-        .zip(res.par_iter())
-        .for_each(|(slot, r)| {
-            if r.active {
-                r.evaluate_in(state, slot)
-            } else {
-                *slot = None
-            }
-        });
-    out.weights.clear();
-    out.weights.resize(res.len(), 0.0);
-    let (mut cost, mut failed) = (0.0, 0);
-    for (i, (r, e)) in res.iter().zip(&out.evals).enumerate() {
-        match e {
-            Some(e) => {
-                let (rho, w) = loss.rho(e.norm_sq());
-                cost += rho;
-                out.weights[i] = w;
-            }
-            None if r.active => failed += 1,
-            None => {}
-        }
-    }
-    out.cost = cost;
-    out.failed = failed;
-}
-
-/// The cost and the failed evaluations of `state` without Jacobians (a trial step's):
-/// the same sum, in the same order, as [`evaluate_into`]'s.
-pub(crate) fn evaluate_cost(res: &[ResidualBlock], state: &State, loss: Loss) -> (f64, usize) {
-    let rho: Vec<Option<f64>> = res
-        .par_iter()
-        .map(|r| {
-            if !r.active {
-                return Some(f64::NAN);
-            }
-            r.residual(state).map(|v| loss.rho(v.norm_squared()).0)
-        })
-        .collect();
-    let (mut cost, mut failed) = (0.0, 0);
-    for v in rho {
-        match v {
-            Some(v) if v.is_nan() => {}
-            Some(v) => cost += v,
-            None => failed += 1,
-        }
-    }
-    (cost, failed)
+/// A point's V⁻¹ and gradient without its coupling blocks: what the precision and the
+/// tests read of every point (96 bytes a point where its W took 224 an observation).
+#[derive(Debug, Clone, Copy)]
+pub(crate) struct PointInverse {
+    pub vinv: Matrix3<f64>,
+    pub g: Vector3<f64>,
 }
 
 fn damp(d: f64, lambda: f64) -> f64 {
     lambda * d.clamp(1e-6, 1e32)
 }
 
-pub(crate) fn point_systems(
-    st: &Structure,
-    res: &[ResidualBlock],
-    ev: &Evaluated,
-    lambda: f64,
-) -> Vec<PointSys> {
-    st.point_res
-        .par_iter()
-        .zip(&st.point_blocks)
-        .map(|(rs, bs)| {
-            let mut v = Matrix3::zeros();
-            let mut g = Vector3::zeros();
-            // In the structure's order, so that the reduced system finds a block's W
-            // by its place.
-            let mut w: Vec<(usize, M93)> = bs.iter().map(|&b| (b, M93::zeros())).collect();
-            for &i in rs {
-                let Some(e) = &ev.evals[i] else { continue };
-                let wt = ev.weights[i];
-                let jx = e.j_point;
-                v += wt * jx.transpose() * jx;
-                g += wt * jx.transpose() * e.r;
-                for b in blocks_of(&res[i], &st.camera_block).into_iter().flatten() {
-                    let jb = if res[i].photo == Some(b) {
-                        e.j_photo
-                    } else {
-                        e.j_camera
-                    };
-                    let c = wt * jb.transpose() * jx;
-                    if let Some((_, m)) = w.iter_mut().find(|(k, _)| *k == b) {
-                        *m += c;
-                    }
-                }
+/// Object point `p`'s system, its residuals' Jacobians evaluated afresh.
+pub(crate) fn point_system(ev: &Evaluated, st: &Structure, p: usize, lambda: f64) -> PointSys {
+    let mut v = Matrix3::zeros();
+    let mut g = Vector3::zeros();
+    // In the structure's order, so that the reduced system finds a block's W by its place.
+    let mut w: Vec<(usize, M93)> = st.point_blocks[p]
+        .iter()
+        .map(|&b| (b as usize, M93::zeros()))
+        .collect();
+    for i in st.point_res.of(p) {
+        let Some((e, wt)) = ev.at(i) else { continue };
+        let jx = e.j_point;
+        v += wt * jx.transpose() * jx;
+        g += wt * jx.transpose() * e.r;
+        for b in blocks_of(&ev.res[i], &st.camera_block)
+            .into_iter()
+            .flatten()
+        {
+            let jb = if ev.res[i].photo() == Some(b) {
+                e.j_photo
+            } else {
+                e.j_camera
+            };
+            let c = wt * jb.transpose() * jx;
+            if let Some((_, m)) = w.iter_mut().find(|(k, _)| *k == b) {
+                *m += c;
             }
-            for k in 0..3 {
-                v[(k, k)] += damp(v[(k, k)], lambda);
+        }
+    }
+    for k in 0..3 {
+        v[(k, k)] += damp(v[(k, k)], lambda);
+    }
+    let vinv = v.try_inverse().unwrap_or_else(Matrix3::zeros);
+    PointSys { vinv, g, w }
+}
+
+/// Every object point's [`PointInverse`].
+pub(crate) fn point_inverses(ev: &Evaluated, st: &Structure, lambda: f64) -> Vec<PointInverse> {
+    (0..st.point_res.len())
+        .into_par_iter()
+        .map(|p| {
+            let ps = point_system(ev, st, p, lambda);
+            PointInverse {
+                vinv: ps.vinv,
+                g: ps.g,
             }
-            let vinv = v.try_inverse().unwrap_or_else(Matrix3::zeros);
-            PointSys { vinv, g, w }
         })
         .collect()
 }
@@ -287,22 +274,22 @@ const DIAGONAL_CHUNKS: usize = 16;
 
 /// The diagonal blocks JᵀJ and gradients Jᵀr of every camera-side block from the
 /// residuals of object points, in one pass in point order (the residuals' order in
-/// memory). Gathering them per photo instead read each photo's residuals scattered
-/// through 125 MB of Jacobians (800 photos): half the reduced system's time was
-/// spent waiting on those reads.
-fn diagonal(st: &Structure, res: &[ResidualBlock], ev: &Evaluated) -> Vec<(M9, V9)> {
+/// memory); they do not depend on the damping, so the solver sums them once a state.
+pub(crate) fn diagonal(ev: &Evaluated, st: &Structure) -> Vec<(M9, V9)> {
     let nb = st.free.len();
-    let per = st.point_res.len().div_ceil(DIAGONAL_CHUNKS).max(1);
-    let parts: Vec<Vec<(M9, V9)>> = st
-        .point_res
-        .par_chunks(per)
-        .map(|chunk| {
+    let n_points = st.point_res.len();
+    let per = n_points.div_ceil(DIAGONAL_CHUNKS).max(1);
+    let chunks: Vec<usize> = (0..n_points).step_by(per).collect();
+    let parts: Vec<Vec<(M9, V9)>> = chunks
+        .into_par_iter()
+        .map(|p0| {
             let mut acc = vec![(M9::zeros(), V9::zeros()); nb];
-            for &i in chunk.iter().flatten() {
-                let Some(e) = &ev.evals[i] else { continue };
-                let (wt, r) = (ev.weights[i], &res[i]);
+            for &i in st.point_res.span(p0..(p0 + per).min(n_points)) {
+                let i = i as usize;
+                let Some((e, wt)) = ev.at(i) else { continue };
+                let r = &ev.res[i];
                 for b in blocks_of(r, &st.camera_block).into_iter().flatten() {
-                    let j = if r.photo == Some(b) {
+                    let j = if r.photo() == Some(b) {
                         e.j_photo
                     } else {
                         e.j_camera
@@ -336,72 +323,109 @@ fn diagonal(st: &Structure, res: &[ResidualBlock], ev: &Evaluated) -> Vec<(M9, V
     sum
 }
 
+/// Observations of the object points whose systems are held at once while the reduced
+/// system is assembled: their W blocks (224 bytes an observation) for all points were a
+/// quarter of the peak memory.
+const BATCH_OBSERVATIONS: usize = 1 << 17;
+
+/// The reduced camera system at damping `lambda`, `diag` from [`diagonal`]. Each row
+/// adds its points' terms in ascending point order as before, a batch of point systems
+/// at a time: the same sums in the same order, so the same bits.
 pub(crate) fn reduced_rows(
-    st: &Structure,
-    res: &[ResidualBlock],
     ev: &Evaluated,
-    pts: &[PointSys],
+    st: &Structure,
+    diag: &[(M9, V9)],
     lambda: f64,
 ) -> Vec<Row> {
-    let diag = diagonal(st, res, ev);
-    (0..st.free.len())
+    let mut rows: Vec<Row> = (0..st.free.len())
         .into_par_iter()
-        .map(|b1| {
-            let nbr = &st.neighbours[b1];
-            let slot = |b2: usize| nbr.binary_search(&b2).expect("pattern holds b2");
-            let mut blocks = vec![M9::zeros(); nbr.len()];
-            let (d, g) = &diag[b1];
-            blocks[0] = *d;
-            let mut rhs = -g;
-            for &i in &st.block_res[b1] {
-                let Some(e) = &ev.evals[i] else { continue };
-                let wt = ev.weights[i];
-                let r = &res[i];
-                let j1 = if r.photo == Some(b1) {
-                    e.j_photo
-                } else {
-                    e.j_camera
-                };
-                if r.point.is_none() {
-                    if b1 < st.n_photos {
-                        let j6 = j1.fixed_columns::<6>(0);
-                        let mut v = blocks[0].fixed_view_mut::<6, 6>(0, 0);
-                        v += wt * j6.transpose() * j6;
-                        let mut g = rhs.fixed_rows_mut::<6>(0);
-                        g -= wt * j6.transpose() * e.r;
-                    } else {
-                        blocks[0] += wt * j1.transpose() * j1;
-                        rhs -= wt * j1.transpose() * e.r;
+        .map(|b1| row_start(ev, st, &diag[b1], b1, lambda))
+        .collect();
+    // Per row, its next entry of `block_points`.
+    let mut next = vec![0usize; rows.len()];
+    let n_points = st.point_res.len();
+    let mut p0 = 0;
+    while p0 < n_points {
+        let mut p1 = p0;
+        let mut n = 0;
+        while p1 < n_points && (p1 == p0 || n < BATCH_OBSERVATIONS) {
+            n += st.point_res[p1].len();
+            p1 += 1;
+        }
+        let batch: Vec<PointSys> = (p0..p1)
+            .into_par_iter()
+            .map(|p| point_system(ev, st, p, lambda))
+            .collect();
+        rows.par_iter_mut()
+            .zip(next.par_iter_mut())
+            .enumerate()
+            .for_each(|(b1, (row, next))| {
+                let nbr = &st.neighbours[b1];
+                let slot = |b2: usize| nbr.binary_search(&b2).expect("pattern holds b2");
+                let photo1 = b1 < st.n_photos;
+                let bp = &st.block_points[b1];
+                while let Some(&(p, k1)) = bp.get(*next).filter(|(p, _)| (*p as usize) < p1) {
+                    *next += 1;
+                    let (p, k1) = (p as usize, k1 as usize);
+                    let ps = &batch[p - p0];
+                    let w1v = ps.w[k1].1 * ps.vinv;
+                    row.rhs += w1v * ps.g;
+                    // The point's blocks ascend: b2 ≥ b1 from b1's own place on.
+                    for (b2, w2) in &ps.w[k1..] {
+                        let blk = &mut row.blocks[slot(*b2)];
+                        if photo1 && *b2 < st.n_photos {
+                            subtract_eo_outer(blk, &w1v, w2);
+                        } else {
+                            *blk -= w1v * w2.transpose();
+                        }
                     }
                 }
-                if let [Some(p), Some(c)] = blocks_of(r, &st.camera_block) {
-                    if p == b1 && c > b1 {
-                        blocks[slot(c)] += wt * j1.transpose() * e.j_camera;
-                    }
-                }
+            });
+        p0 = p1;
+    }
+    rows
+}
+
+/// Row `b1` before its object points' terms: its diagonal, the residuals without a point
+/// and the photo–camera couplings, damped.
+fn row_start(ev: &Evaluated, st: &Structure, diag: &(M9, V9), b1: usize, lambda: f64) -> Row {
+    let nbr = &st.neighbours[b1];
+    let slot = |b2: usize| nbr.binary_search(&b2).expect("pattern holds b2");
+    let mut blocks = vec![M9::zeros(); nbr.len()];
+    let (d, g) = diag;
+    blocks[0] = *d;
+    let mut rhs = -g;
+    for i in st.block_res.of(b1) {
+        let Some((e, wt)) = ev.at(i) else { continue };
+        let r = &ev.res[i];
+        let j1 = if r.photo() == Some(b1) {
+            e.j_photo
+        } else {
+            e.j_camera
+        };
+        if r.point().is_none() {
+            if b1 < st.n_photos {
+                let j6 = j1.fixed_columns::<6>(0);
+                let mut v = blocks[0].fixed_view_mut::<6, 6>(0, 0);
+                v += wt * j6.transpose() * j6;
+                let mut g = rhs.fixed_rows_mut::<6>(0);
+                g -= wt * j6.transpose() * e.r;
+            } else {
+                blocks[0] += wt * j1.transpose() * j1;
+                rhs -= wt * j1.transpose() * e.r;
             }
-            for k in 0..9 {
-                let d = blocks[0][(k, k)];
-                blocks[0][(k, k)] += damp(d, lambda);
+        }
+        if let [Some(p), Some(c)] = blocks_of(r, &st.camera_block) {
+            if p == b1 && c > b1 {
+                blocks[slot(c)] += wt * j1.transpose() * e.j_camera;
             }
-            let photo1 = b1 < st.n_photos;
-            for &(p, k1) in &st.block_points[b1] {
-                let ps = &pts[p];
-                let w1v = ps.w[k1].1 * ps.vinv;
-                rhs += w1v * ps.g;
-                // The point's blocks ascend: b2 ≥ b1 from b1's own place on.
-                for (b2, w2) in &ps.w[k1..] {
-                    let blk = &mut blocks[slot(*b2)];
-                    if photo1 && *b2 < st.n_photos {
-                        subtract_eo_outer(blk, &w1v, w2);
-                    } else {
-                        *blk -= w1v * w2.transpose();
-                    }
-                }
-            }
-            Row { blocks, rhs }
-        })
-        .collect()
+        }
+    }
+    for k in 0..9 {
+        let d = blocks[0][(k, k)];
+        blocks[0][(k, k)] += damp(d, lambda);
+    }
+    Row { blocks, rhs }
 }
 
 /// blk[..6, ..6] −= a[..6, :] · b[..6, :]ᵀ: the photo–photo coupling of one object point,
@@ -573,12 +597,14 @@ pub(crate) fn reduced_upper(st: &Structure, rows: &[Row]) -> Option<SparseColMat
     SparseColMat::<usize, f64>::try_new_from_triplets(st.n, st.n, &trip).ok()
 }
 
-/// Solves for the camera-side update and back-substitutes the points.
+/// Solves for the camera-side update and back-substitutes the points, their systems
+/// evaluated again as [`reduced_rows`] did (the same bits).
 pub(crate) fn solve_step(
+    ev: &Evaluated,
     st: &Structure,
     rows: &[Row],
-    pts: &[PointSys],
     factor: &Factor,
+    lambda: f64,
 ) -> (Vec<V9>, Vec<Vector3<f64>>) {
     let mut x = DMatrix::zeros(st.n, 1);
     for (b, row) in rows.iter().enumerate() {
@@ -596,9 +622,10 @@ pub(crate) fn solve_step(
             v
         })
         .collect();
-    let dpoints = pts
-        .par_iter()
-        .map(|ps| {
+    let dpoints = (0..st.point_res.len())
+        .into_par_iter()
+        .map(|p| {
+            let ps = point_system(ev, st, p, lambda);
             let mut r = -ps.g;
             for (b, w) in &ps.w {
                 r -= w.transpose() * dblocks[*b];
@@ -676,60 +703,64 @@ pub(crate) fn levenberg_marquardt(
     opts: &LmOptions,
 ) -> LmOutcome {
     let mut cache = SymbolicCache::default();
-    let mut ev = evaluate(res, state, loss);
-    let initial_cost = ev.cost;
+    let mut cur = Evaluated::new(res, state, loss).cost();
+    let initial_cost = cur.cost;
     let mut lambda = 1e-4;
     let mut iterations = 0;
     let mut converged = false;
     while iterations < opts.max_iterations {
         iterations += 1;
-        let mut accepted = false;
-        while lambda < 1e12 {
+        let mut taken = None;
+        {
+            let ev = Evaluated::new(res, state, loss);
             let t = std::time::Instant::now();
-            let pts = point_systems(st, res, &ev, lambda);
-            let t_points = t.elapsed().as_secs_f64();
-            let rows = reduced_rows(st, res, &ev, &pts, lambda);
-            let t_rows = t.elapsed().as_secs_f64();
-            let factor = factorize(st, &rows, &mut cache);
-            tracing::debug!(
-                t_points,
-                t_rows = t_rows - t_points,
-                t_factor = t.elapsed().as_secs_f64() - t_rows,
-                n = st.n,
-                "normal equations"
-            );
-            let Some(f) = factor else {
-                lambda *= 10.0;
-                continue;
-            };
-            let (db, dp) = solve_step(st, &rows, &pts, &f);
-            let step_max = db
-                .iter()
-                .map(|v| v.amax())
-                .chain(dp.iter().map(|v| v.amax() * 1e-3))
-                .fold(0.0f64, f64::max);
-            let trial = apply(st, state, &db, &dp);
-            let t = std::time::Instant::now();
-            // The trial needs only its cost: a second buffer of Jacobians (544 B an
-            // observation) was half the adjustment's peak memory.
-            let (cost, failed) = evaluate_cost(res, &trial, loss);
-            tracing::debug!(t_eval = t.elapsed().as_secs_f64(), "trial residuals");
-            if cost.is_finite() && failed <= ev.failed && cost <= ev.cost {
-                let rel = (ev.cost - cost) / ev.cost.max(f64::MIN_POSITIVE);
-                *state = trial;
-                evaluate_into(res, state, loss, &mut ev);
-                lambda = (lambda / 3.0).max(1e-12);
-                accepted = true;
-                if rel < opts.function_tolerance || step_max < opts.parameter_tolerance {
-                    converged = true;
+            let diag = diagonal(&ev, st);
+            tracing::debug!(t_diagonal = t.elapsed().as_secs_f64(), "diagonal blocks");
+            while lambda < 1e12 {
+                let t = std::time::Instant::now();
+                let rows = reduced_rows(&ev, st, &diag, lambda);
+                let t_rows = t.elapsed().as_secs_f64();
+                let factor = factorize(st, &rows, &mut cache);
+                tracing::debug!(
+                    t_rows,
+                    t_factor = t.elapsed().as_secs_f64() - t_rows,
+                    n = st.n,
+                    "normal equations"
+                );
+                let Some(f) = factor else {
+                    lambda *= 10.0;
+                    continue;
+                };
+                let (db, dp) = solve_step(&ev, st, &rows, &f, lambda);
+                let step_max = db
+                    .iter()
+                    .map(|v| v.amax())
+                    .chain(dp.iter().map(|v| v.amax() * 1e-3))
+                    .fold(0.0f64, f64::max);
+                let trial = apply(st, state, &db, &dp);
+                let t = std::time::Instant::now();
+                let c = Evaluated::new(res, &trial, loss).cost();
+                tracing::debug!(t_eval = t.elapsed().as_secs_f64(), "trial residuals");
+                if c.cost.is_finite() && c.failed <= cur.failed && c.cost <= cur.cost {
+                    let rel = (cur.cost - c.cost) / cur.cost.max(f64::MIN_POSITIVE);
+                    taken = Some((trial, c));
+                    lambda = (lambda / 3.0).max(1e-12);
+                    if rel < opts.function_tolerance || step_max < opts.parameter_tolerance {
+                        converged = true;
+                    }
+                    break;
                 }
-                break;
+                lambda *= 10.0;
             }
-            lambda *= 10.0;
+        }
+        let accepted = taken.is_some();
+        if let Some((trial, c)) = taken {
+            *state = trial;
+            cur = c;
         }
         tracing::debug!(
             iterations,
-            cost = ev.cost,
+            cost = cur.cost,
             lambda,
             "bundle adjustment iteration"
         );
@@ -745,12 +776,8 @@ pub(crate) fn levenberg_marquardt(
     LmOutcome {
         iterations,
         initial_cost,
-        final_cost: ev.cost,
+        final_cost: cur.cost,
         converged,
-        fully_weighted: ev
-            .evals
-            .iter()
-            .zip(&ev.weights)
-            .all(|(e, &w)| e.is_none() || w == 1.0),
+        fully_weighted: cur.fully_weighted,
     }
 }
