@@ -105,7 +105,8 @@ pub enum OffsetModel {
     Vertical,
     /// A 3-D shift per strip (needs planes of several orientations: roofs, slopes).
     Translation,
-    /// The 3-D shift where the overlaps' planes determine it (every strip's plan σ within
+    /// The 3-D shift where the overlaps' planes determine it (their horizontal normals
+    /// spread at least [`AUTO_MIN_NORMAL_SPREAD`] and every strip's plan σ within
     /// [`AUTO_PLAN_SIGMA_M`]), the height offset alone where they do not (flat land).
     /// Strips of one flight are off in plan as much as in height, and a height-only model
     /// reads a plan offset on a sloped roof as a height offset: on the synthetic LiDAR of

@@ -465,29 +465,33 @@ fn every_epoch_has_its_true_surface_at_its_ground_pixel() {
 fn each_epoch_lists_the_buildings_standing_then() {
     use cloudcontrol::synth::truth::read_buildings;
     let s = shared();
-    let height = |epoch: &synth::EpochInfo, x: f64, y: f64| -> f64 {
+    // Each epoch's true surface read once with GDAL; its height at a point by its cell.
+    let surface = |epoch: &synth::EpochInfo| {
         let ds = gdal::Dataset::open(s.path.join(&epoch.truth_dir).join("dsm.tif")).unwrap();
         let gt = ds.geo_transform().unwrap();
-        let (c, r) = (
-            ((x - gt[0]) / gt[1]) as usize,
-            ((y - gt[3]) / gt[5]) as usize,
-        );
+        let (w, h) = ds.raster_size();
         let band = ds.rasterband(1).unwrap();
-        band.read_as::<f32>((c as isize, r as isize), (1, 1), (1, 1), None)
-            .unwrap()
-            .data()[0] as f64
+        let z = band.read_as::<f32>((0, 0), (w, h), (w, h), None).unwrap();
+        move |x: f64, y: f64| -> f64 {
+            let (c, r) = (
+                ((x - gt[0]) / gt[1]) as usize,
+                ((y - gt[3]) / gt[5]) as usize,
+            );
+            z.data()[r * w + c] as f64
+        }
     };
     let today = &s.manifest.epochs[0];
     let now = read_buildings(&s.path.join(&today.truth_dir).join("buildings.csv")).unwrap();
     assert!(!now.is_empty());
     for epoch in &s.manifest.epochs {
         let then = read_buildings(&s.path.join(&epoch.truth_dir).join("buildings.csv")).unwrap();
+        let height = surface(epoch);
         for b in &then {
             assert!(
                 b.contains(b.x, b.y)
                     && !b.contains(b.x + 2.0 * b.half_length, b.y + 2.0 * b.half_length)
             );
-            let z = height(epoch, b.x, b.y);
+            let z = height(b.x, b.y);
             assert!(
                 z >= b.base + b.eave - 0.01,
                 "{} building {}: surface {z} below its eave {}",
@@ -504,7 +508,7 @@ fn each_epoch_lists_the_buildings_standing_then() {
             then.iter().any(|t| t.contains(b.x, b.y))
         };
         for b in gone.iter().filter(|b| !built_over(b)) {
-            let z = height(epoch, b.x, b.y);
+            let z = height(b.x, b.y);
             assert!(
                 z < b.base + 0.5 * b.eave,
                 "{}: building {} of today stands then ({z} m over a base of {})",
