@@ -306,6 +306,21 @@ pub struct CheckSummary {
     pub rejected: Vec<RejectedCheckRay>,
 }
 
+/// The reduced camera system as the last solution factorised it: its size, how it was
+/// ordered and how much the factor filled in (archive-scale blocks: strips make the
+/// system banded, cross strips and long tracks widen the band).
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub struct ReducedSystemReport {
+    /// Unknowns of the photos and cameras (the points eliminated).
+    pub unknowns: usize,
+    /// "AMD" (sparse Cholesky with approximate minimum degree) or "dense".
+    pub ordering: String,
+    /// Non-zero entries of its upper triangle.
+    pub nonzeros: usize,
+    /// Entries the Cholesky factor stores (supernodes' dense blocks included).
+    pub factor_nonzeros: usize,
+}
+
 /// The adjusted shift of the LiDAR's datum from the block's.
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 pub struct LidarDatumReport {
@@ -397,6 +412,9 @@ pub struct AdjustReport {
     /// The LiDAR datum shift, when adjusted (`lidar_datum_sigma_m`).
     #[serde(default)]
     pub lidar_datum: Option<LidarDatumReport>,
+    /// None when the system was singular at the solution.
+    #[serde(default)]
+    pub reduced_system: Option<ReducedSystemReport>,
     pub check: Option<CheckSummary>,
     /// Residuals of every observation (image residuals can be many; omit from JSON by
     /// clearing when not wanted).

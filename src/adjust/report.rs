@@ -12,8 +12,8 @@ use super::robust::RejectionTest;
 use super::solver::{self, Structure};
 use super::{
     AdjustError, AdjustOptions, AdjustReport, CalibrationReport, CheckPointReport, CheckSummary,
-    LidarDatumReport, Loss, ObservationRef, PhotoPrecision, Rejected, RejectedCheckRay,
-    RejectedSummary, ResidualReport,
+    LidarDatumReport, Loss, ObservationRef, PhotoPrecision, ReducedSystemReport, Rejected,
+    RejectedCheckRay, RejectedSummary, ResidualReport,
 };
 use crate::block::{Block, PointKind};
 use nalgebra::Vector3;
@@ -102,6 +102,12 @@ pub(super) fn finish(
     if factor.is_none() {
         tracing::warn!("the reduced camera system is singular at the solution: no precision");
     }
+    let reduced_system = factor.as_ref().map(|f| ReducedSystemReport {
+        unknowns: st.n,
+        ordering: f.ordering().into(),
+        nonzeros: solver::reduced_nonzeros(st),
+        factor_nonzeros: f.nonzeros(),
+    });
     tracing::debug!(
         t_residuals,
         t_cofactors = t.elapsed().as_secs_f64() - t_residuals,
@@ -343,6 +349,7 @@ pub(super) fn finish(
         photo_precision,
         calibration,
         lidar_datum,
+        reduced_system,
         check,
         residuals,
     })

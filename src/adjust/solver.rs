@@ -461,6 +461,22 @@ pub(crate) enum Factor {
 }
 
 impl Factor {
+    /// How the system was ordered before it was factorised.
+    pub fn ordering(&self) -> &'static str {
+        match self {
+            Factor::Dense(_) => "dense",
+            Factor::Sparse { .. } => "AMD",
+        }
+    }
+
+    /// Stored entries of the factor (a dense one counted as its lower triangle).
+    pub fn nonzeros(&self) -> usize {
+        match self {
+            Factor::Dense(m) => m.nrows() * (m.nrows() + 1) / 2,
+            Factor::Sparse { values, .. } => values.len(),
+        }
+    }
+
     /// Solves in place on the column-major storage of `x` (no copy either way).
     pub fn solve_in_place(&self, x: &mut DMatrix<f64>) {
         let (r, c) = x.shape();
@@ -576,6 +592,26 @@ pub(crate) fn factorize(st: &Structure, rows: &[Row], cache: &mut SymbolicCache)
         )
         .ok()?;
     Some(Factor::Sparse { symbolic, values })
+}
+
+/// Entries of the reduced camera system's upper triangle that its structure makes
+/// non-zero (counted as [`reduced_upper`] stores them).
+pub(crate) fn reduced_nonzeros(st: &Structure) -> usize {
+    (0..st.free.len())
+        .map(|b1| {
+            let n1 = st.free[b1].len();
+            st.neighbours[b1]
+                .iter()
+                .map(|&b2| {
+                    if b1 == b2 {
+                        n1 * (n1 + 1) / 2
+                    } else {
+                        n1 * st.free[b2].len()
+                    }
+                })
+                .sum::<usize>()
+        })
+        .sum()
 }
 
 /// The upper triangle of the reduced camera system as a sparse matrix.

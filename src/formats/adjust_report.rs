@@ -75,6 +75,7 @@ struct ReportCore<'a> {
     time_s: f64,
     calibration: &'a [crate::adjust::CalibrationReport],
     lidar_datum: &'a Option<crate::adjust::LidarDatumReport>,
+    reduced_system: &'a Option<crate::adjust::ReducedSystemReport>,
     check: &'a Option<crate::adjust::CheckSummary>,
 }
 
@@ -100,6 +101,7 @@ pub fn summary(rep: &AdjustReport) -> ReportSummary<'_> {
             time_s: rep.time_s,
             calibration: &rep.calibration,
             lidar_datum: &rep.lidar_datum,
+            reduced_system: &rep.reduced_system,
             check: &rep.check,
         },
         rejected: rejected_listing(&rep.rejected),

@@ -40,6 +40,30 @@ fn recovers_the_truth_and_sigma0_on_a_100_photo_block() {
     assert!((rep.sigma0 / 0.5 - 1.0).abs() < 0.10, "σ0 = {}", rep.sigma0);
     assert_eq!(rep.datum, "control");
     assert!(rep.converged);
+    // The reduced camera system: six unknowns a photo (control fixes the datum), a full
+    // 6 × 6 block for every pair of photos that see a common point, counted here from the
+    // block itself.
+    let pairs: std::collections::BTreeSet<(u32, u32)> = syn
+        .start
+        .points
+        .values()
+        .flat_map(|p| {
+            let ids: Vec<u32> = p.observations.iter().map(|o| o.photo).collect();
+            let mut v = Vec::new();
+            for (i, &a) in ids.iter().enumerate() {
+                for &b in &ids[i + 1..] {
+                    v.push((a.min(b), a.max(b)));
+                }
+            }
+            v
+        })
+        .collect();
+    let rs = rep.reduced_system.as_ref().expect("the system's report");
+    let n = 6 * b.photos.len();
+    assert_eq!(rs.unknowns, n);
+    assert_eq!(rs.ordering, "AMD");
+    assert_eq!(rs.nonzeros, b.photos.len() * 21 + pairs.len() * 36);
+    assert!(rs.factor_nonzeros >= rs.nonzeros && rs.factor_nonzeros <= n * (n + 1) / 2);
     // Truth to the noise level: each photo's centre error against its own σ.
     let mut chi = 0.0;
     let mut n = 0.0;
