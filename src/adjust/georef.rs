@@ -21,7 +21,7 @@
 
 use super::chi2;
 use super::rays::{intersect_rays, intersect_robust, intersection_cofactor, Ray};
-use super::{adjust, AdjustError, AdjustOptions};
+use super::{adjust, AdjustError, AdjustOptions, ObservationRef, Rejected};
 use crate::block::{Block, Observation, PhotoId, PointId, PointKind};
 use crate::estimators::similarity3::{PointPair, Similarity3Estimator};
 use crate::estimators::{RobustMethod, RobustOptions};
@@ -105,6 +105,11 @@ pub struct Georeference {
     pub misfit_variance_factor: f64,
     pub rejected_measurements: Vec<RejectedMeasurement>,
     pub rejected_points: Vec<RejectedControl>,
+    /// The image observations the free-network adjustment rejected as gross errors, for
+    /// [`adjust_with_rejected`](super::adjust_with_rejected) to start without them
+    /// (they are tested again on its final solution, and its report lists them).
+    #[serde(skip)]
+    pub free_network_rejected: Vec<Rejected>,
 }
 
 /// The rays of `observations` with the orientations of `frame`.
@@ -134,7 +139,10 @@ fn rays_of<'a>(
 /// The block's shape as a free network of its tie points (control and check points
 /// enter as tie points when they have two rays, without their coordinates; POS priors
 /// are left out so that nothing but the images shapes the model).
-fn free_network(block: &Block, opts: &AdjustOptions) -> Result<(Block, f64), AdjustError> {
+fn free_network(
+    block: &Block,
+    opts: &AdjustOptions,
+) -> Result<(Block, f64, Vec<Rejected>), AdjustError> {
     let mut shape = block.clone();
     for ph in shape.photos.values_mut() {
         ph.prior = None;
@@ -164,7 +172,13 @@ fn free_network(block: &Block, opts: &AdjustOptions) -> Result<(Block, f64), Adj
         }
     }
     let rep = adjust(&mut shape, &[], None, opts)?;
-    Ok((shape, rep.sigma0))
+    let images = rep
+        .rejected
+        .list
+        .into_iter()
+        .filter(|r| matches!(r.observation, ObservationRef::Image { .. }))
+        .collect();
+    Ok((shape, rep.sigma0, images))
 }
 
 /// Finds the blunders of the control, moves the block onto the control and enters the
@@ -196,7 +210,7 @@ pub fn georeference(
             });
         }
     }
-    let (shape, sigma0) = free_network(block, &opts.adjust)?;
+    let (shape, sigma0, free_network_rejected) = free_network(block, &opts.adjust)?;
     // Rays are tested on w = √(χ²(2)), the normalised length of the 2-D residual.
     let ray_critical = chi2::critical(2, opts.alpha).sqrt();
     let name = |p: PointId| block.points[&p].name.clone();
@@ -392,6 +406,7 @@ pub fn georeference(
         misfit_variance_factor: factor,
         rejected_measurements,
         rejected_points,
+        free_network_rejected,
     })
 }
 

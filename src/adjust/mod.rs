@@ -33,7 +33,7 @@ pub mod synthetic;
 pub mod tie_prior;
 
 pub use precision::intersect;
-pub use problem::adjust;
+pub use problem::{adjust, adjust_with_rejected};
 pub use report::checkpoint_rmse;
 pub use resection::{resect, ResectionOptions, ResectionResult};
 pub use residual::Loss;

@@ -729,7 +729,27 @@ pub(crate) struct LmOptions {
     pub function_tolerance: f64,
     /// Stop when the largest update (radians, metres, interior units) falls below this.
     pub parameter_tolerance: f64,
+    /// Stop when the camera-side update's squared length in units of its own precision,
+    /// δᵀSδ with S the reduced camera system (see [`camera_decrement`]), falls below this;
+    /// 0 leaves it to the other two.
+    pub camera_tolerance: f64,
 }
+
+/// δᵀ(S + λD)δ = δᵀb of the camera-side update δ solved from the reduced system's rows
+/// (right-hand sides b): the squared Mahalanobis length of the step in the orientations
+/// at unit variance (σ0 = 1), an upper bound of δᵀSδ. Every function f of the orientations
+/// moves by at most √(δᵀSδ) times its own standard deviation, since
+/// |∇fᵀδ| ≤ √(δᵀSδ)·√(∇fᵀS⁻¹∇f).
+fn camera_decrement(st: &Structure, rows: &[Row], dblocks: &[V9]) -> f64 {
+    rows.iter()
+        .zip(dblocks)
+        .zip(&st.free)
+        .map(|((row, d), free)| free.iter().map(|&k| d[k] * row.rhs[k]).sum::<f64>())
+        .sum()
+}
+
+/// The damping each run starts at, relative to the normal equations' diagonal.
+const LAMBDA_START: f64 = 1e-4;
 
 pub(crate) fn levenberg_marquardt(
     st: &Structure,
@@ -741,12 +761,13 @@ pub(crate) fn levenberg_marquardt(
     let mut cache = SymbolicCache::default();
     let mut cur = Evaluated::new(res, state, loss).cost();
     let initial_cost = cur.cost;
-    let mut lambda = 1e-4;
+    let mut lambda = LAMBDA_START;
     let mut iterations = 0;
     let mut converged = false;
     while iterations < opts.max_iterations {
         iterations += 1;
         let mut taken = None;
+        let mut decrement = f64::NAN;
         {
             let ev = Evaluated::new(res, state, loss);
             let t = std::time::Instant::now();
@@ -768,6 +789,7 @@ pub(crate) fn levenberg_marquardt(
                     continue;
                 };
                 let (db, dp) = solve_step(&ev, st, &rows, &f, lambda);
+                decrement = camera_decrement(st, &rows, &db);
                 let step_max = db
                     .iter()
                     .map(|v| v.amax())
@@ -779,9 +801,15 @@ pub(crate) fn levenberg_marquardt(
                 tracing::debug!(t_eval = t.elapsed().as_secs_f64(), "trial residuals");
                 if c.cost.is_finite() && c.failed <= cur.failed && c.cost <= cur.cost {
                     let rel = (cur.cost - c.cost) / cur.cost.max(f64::MIN_POSITIVE);
+                    // A strongly damped step is short for the damping's sake, not because
+                    // the orientations are there.
+                    let settled = lambda <= LAMBDA_START && decrement < opts.camera_tolerance;
                     taken = Some((trial, c));
                     lambda = (lambda / 3.0).max(1e-12);
-                    if rel < opts.function_tolerance || step_max < opts.parameter_tolerance {
+                    if rel < opts.function_tolerance
+                        || step_max < opts.parameter_tolerance
+                        || settled
+                    {
                         converged = true;
                     }
                     break;
@@ -798,6 +826,7 @@ pub(crate) fn levenberg_marquardt(
             iterations,
             cost = cur.cost,
             lambda,
+            camera_decrement = decrement,
             "bundle adjustment iteration"
         );
         if !accepted {

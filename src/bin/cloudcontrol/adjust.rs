@@ -4,7 +4,7 @@
 use clap::Args;
 use cloudcontrol::adjust::georef::{georeference, GeorefOptions, SurveyedInput};
 use cloudcontrol::adjust::{
-    adjust, resect, AdjustOptions, Loss, PlaneConstraint, Rejection, ResectionOptions,
+    adjust_with_rejected, resect, AdjustOptions, Loss, PlaneConstraint, Rejection, ResectionOptions,
 };
 use cloudcontrol::block::{Block, ObjectPoint, PointId, PointKind};
 use cloudcontrol::formats::control_points::{self, Measurement, SurveyedPoint};
@@ -416,7 +416,12 @@ pub fn run_adjust(a: &AdjustArgs) -> Result<serde_json::Value, String> {
             });
         }
     }
-    let rep = adjust(&mut block, &planes, None, &opts).map_err(text)?;
+    // The free network's rejections are the block's gross errors found already: the
+    // adjustment starts without them and tests them again on its final solution.
+    let earlier = georef
+        .as_ref()
+        .map_or(&[][..], |g| &g.free_network_rejected[..]);
+    let rep = adjust_with_rejected(&mut block, &planes, None, &opts, earlier).map_err(text)?;
     let colmap_text = cloudcontrol::formats::colmap::WriteOptions {
         encoding: cloudcontrol::formats::colmap::Encoding::Text,
         layout: cloudcontrol::formats::colmap::Layout::Rigs,
