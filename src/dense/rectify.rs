@@ -131,25 +131,15 @@ impl BandGrid {
         (lo <= hi).then_some((lo, hi))
     }
 
-    /// Hull of the prior surface's disparities around left rectified pixel (col, row): over
-    /// its node cell and the eight around it; `None` where none is known.
+    /// Hull of the prior surface's disparities in the node cell of left rectified pixel
+    /// (col, row); `None` where none is known.
     pub fn surface_at(&self, col: usize, row: usize) -> Option<(f32, f32)> {
         let (i, j) = (col / self.step, row / self.step);
         if i >= self.cols || j >= self.rows {
             return None;
         }
-        let (i0, j0) = (i.saturating_sub(1), j.saturating_sub(1));
-        let (i1, j1) = ((i + 1).min(self.cols - 1), (j + 1).min(self.rows - 1));
-        let (mut lo, mut hi) = (f32::INFINITY, f32::NEG_INFINITY);
-        for b in j0..=j1 {
-            for a in i0..=i1 {
-                let k = b * self.cols + a;
-                if self.surface_min[k].is_finite() {
-                    lo = lo.min(self.surface_min[k]);
-                    hi = hi.max(self.surface_max[k]);
-                }
-            }
-        }
+        let k = j * self.cols + i;
+        let (lo, hi) = (self.surface_min[k], self.surface_max[k]);
         (lo <= hi).then_some((lo, hi))
     }
 }
