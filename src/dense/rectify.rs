@@ -12,7 +12,7 @@
 //! forward map).
 
 use super::{invalid, DenseError, Result};
-use crate::geometry::{Brown, Camera, FrameCamera, Pose, Ray};
+use crate::geometry::{Brown, Camera, Dem, FrameCamera, Pose, Ray};
 use crate::matching::oriented::Surface;
 use crate::matching::resample::bilinear;
 use crate::matching::GreyImage;
@@ -75,6 +75,10 @@ pub struct RectifiedImage {
 /// A prior band of disparities over the left rectified image on a grid of nodes every
 /// `step` pixels: node (i, j) holds the band at pixel (i·step, j·step); a pixel's band is
 /// the hull of the four nodes around it. NaN marks a node without a prior.
+///
+/// `surface_min` / `surface_max` hold, per node, the hull of the prior surface's own
+/// disparities (no margin) over the node's cell of `step × step` pixels to its lower right
+/// (NaN: none known, e.g. a plane prior).
 #[derive(Debug, Clone, PartialEq)]
 pub struct BandGrid {
     pub step: usize,
@@ -82,6 +86,8 @@ pub struct BandGrid {
     pub rows: usize,
     pub min: Vec<f32>,
     pub max: Vec<f32>,
+    pub surface_min: Vec<f32>,
+    pub surface_max: Vec<f32>,
 }
 
 impl BandGrid {
@@ -93,6 +99,8 @@ impl BandGrid {
             rows,
             min: vec![f32::NAN; cols * rows],
             max: vec![f32::NAN; cols * rows],
+            surface_min: vec![f32::NAN; cols * rows],
+            surface_max: vec![f32::NAN; cols * rows],
         }
     }
 
@@ -120,6 +128,18 @@ impl BandGrid {
                 hi = hi.max(h);
             }
         }
+        (lo <= hi).then_some((lo, hi))
+    }
+
+    /// Hull of the prior surface's disparities in the node cell of left rectified pixel
+    /// (col, row); `None` where none is known.
+    pub fn surface_at(&self, col: usize, row: usize) -> Option<(f32, f32)> {
+        let (i, j) = (col / self.step, row / self.step);
+        if i >= self.cols || j >= self.rows {
+            return None;
+        }
+        let k = j * self.cols + i;
+        let (lo, hi) = (self.surface_min[k], self.surface_max[k]);
         (lo <= hi).then_some((lo, hi))
     }
 }
@@ -461,7 +481,58 @@ impl RectifiedPair {
             grid.min[k] = lo;
             grid.max[k] = hi;
         }
+        if let Surface::Dem { dem, origin, .. } = surface {
+            self.splat_surface(dem, origin, &mut grid);
+        }
         grid
+    }
+
+    /// Fills the grid's surface hulls from a DEM (heights in world less `origin`): every
+    /// cell's centre projected into the left rectified view, its disparity kept in the
+    /// node whose cell it falls in. A roof narrower than a coarse pyramid level's census
+    /// window is matched there at the ground's disparity, and the finer levels, searching
+    /// around the coarser one's disparities, would never reach it; the prior knows it.
+    /// Cells the left view does not see (behind a roof) widen a hull a little, never narrow it.
+    fn splat_surface(&self, dem: &Dem, origin: &Vector3<f64>, grid: &mut BandGrid) {
+        let (cols, rows, step) = (grid.cols, grid.rows, grid.step as f64);
+        let (w, h) = (self.left.width as f64, self.height as f64);
+        let n = cols * rows;
+        let empty = || (vec![f32::INFINITY; n], vec![f32::NEG_INFINITY; n]);
+        let (lo, hi) = (0..dem.height)
+            .into_par_iter()
+            .fold(empty, |(mut lo, mut hi), r| {
+                for c in 0..dem.width {
+                    let z = dem.data[r * dem.width + c];
+                    if !z.is_finite() {
+                        continue;
+                    }
+                    let (x, y) = dem.transform.pixel_to_world(c as f64 + 0.5, r as f64 + 0.5);
+                    let p = Vector3::new(x, y, z as f64) - origin;
+                    let Some(([u, v], d)) = self.disparity_of(&p) else {
+                        continue;
+                    };
+                    if !(u >= 0.0 && u < w && v >= 0.0 && v < h && d.is_finite()) {
+                        continue;
+                    }
+                    let k = (v / step) as usize * cols + (u / step) as usize;
+                    lo[k] = lo[k].min(d as f32);
+                    hi[k] = hi[k].max(d as f32);
+                }
+                (lo, hi)
+            })
+            .reduce(empty, |(mut a, mut b), (c, d)| {
+                for k in 0..n {
+                    a[k] = a[k].min(c[k]);
+                    b[k] = b[k].max(d[k]);
+                }
+                (a, b)
+            });
+        for k in 0..n {
+            if lo[k] <= hi[k] {
+                grid.surface_min[k] = lo[k];
+                grid.surface_max[k] = hi[k];
+            }
+        }
     }
 }
 

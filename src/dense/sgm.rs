@@ -5,7 +5,10 @@
 //! finer level searches, per pixel, the hull of the coarser level's valid disparities
 //! around it, doubled and widened by a margin, and never beyond the prior's band. Where
 //! the coarser level found nothing nearby, a wider neighbourhood and at last the prior
-//! band are searched. The prior narrows the search; the matching decides.
+//! band are searched. Where the prior is a surface model, its own disparities around the
+//! pixel are searched at every finer level too: a roof narrower than the coarser level's
+//! census window is matched there at the ground's disparity. The prior narrows the search;
+//! the matching decides.
 //!
 //! Per level: census cost over the bands ([`super::census`], [`super::volume`]), eight
 //! aggregation paths ([`super::aggregate`]), winner-take-all with a uniqueness ratio,
@@ -208,6 +211,13 @@ impl DisparityPrior<'_> {
             None => Some((lo, hi)),
         }
     }
+
+    /// Hull of the prior surface's own disparities (px at full resolution) around window
+    /// pixel (col, row) ([`BandGrid::surface_at`]); `None` where the grid knows none.
+    fn surface(&self, col: usize, row: usize) -> Option<(f32, f32)> {
+        self.grid
+            .and_then(|g| g.surface_at(col, row + self.first_row))
+    }
 }
 
 /// Work of one pyramid level.
@@ -369,7 +379,23 @@ pub fn match_images(
                 return None;
             }
             let (plo, phi) = prior_band(x, y)?;
-            match hood.as_ref().and_then(|h| h.band(x, y)) {
+            // The coarser level cannot resolve what is narrower than its census window (a
+            // roof at the film's ground pixel): it matches it at the ground's disparity, and
+            // a band around that alone never reaches the roof. The prior surface's own
+            // disparities around the pixel stay searched; the matching decides between them.
+            let surface = || {
+                let (a, b) =
+                    prior.surface((x << l) + half, ((y << l) + half).min(left.height - 1))?;
+                Some((
+                    (a / scale).floor() as i32 - options.band_margin,
+                    (b / scale).ceil() as i32 + options.band_margin,
+                ))
+            };
+            let hull = match (hood.as_ref().and_then(|h| h.band(x, y)), surface()) {
+                (Some((a, b)), Some((c, d))) => Some((a.min(c), b.max(d))),
+                (band, _) => band,
+            };
+            match hull {
                 Some((a, b)) if a.max(plo) <= b.min(phi) => Some((a.max(plo), b.min(phi))),
                 _ => Some((plo, phi)),
             }
