@@ -354,7 +354,7 @@ pub fn render_photo(
         [bbox[0] - 5.0, bbox[1] - 5.0, bbox[2] + 5.0, bbox[3] + 5.0],
         1.0,
     );
-    let radiance = render(&caster, camera, pose, 1, 0.4);
+    let radiance = render(&caster, camera, pose, 1, 0.4, &|_, _| true);
     Ok(film::finish_digital(&radiance, w, h, seed, 1.0, 8.0, 1.5))
 }
 
