@@ -28,7 +28,7 @@ fn calibration_seconds() -> f64 {
             let mut h = (z ^ (z >> 30)).wrapping_mul(0xBF58_476D_1CE4_E5B9);
             h = (h ^ (h >> 27)).wrapping_mul(0x94D0_49BB_1331_11EB);
             let x = (h >> 11) as f64 * (1.0 / (1u64 << 53) as f64);
-            acc += (x * 6.283).sin() * x.sqrt();
+            acc += (x * 5.0).sin() * x.sqrt();
         }
         std::hint::black_box(acc);
     };
