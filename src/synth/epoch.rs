@@ -277,17 +277,12 @@ pub(crate) fn generate_epoch(
     let photo_seed =
         config.seed ^ super::noise::mix(spec.name.len() as u64 * 7 + spec.gsd.to_bits());
     for (k, (ph, cam)) in photos.iter().zip(&cameras).enumerate() {
+        // A film scan's frame around the format is painted by `finish_scan`, not seen.
         let radiance = match cam {
-            Camera::Film(fc) => render::render(
-                &caster,
-                cam,
-                &ph.pose,
-                1,
-                0.4,
-                &film::exposed(fc, &film_def),
-            ),
-            _ => render::render(&caster, cam, &ph.pose, 1, 0.4, &|_, _| true),
+            Camera::Film(fc) => film::exposed(fc, &film_def),
+            _ => Box::new(|_, _| true),
         };
+        let radiance = render::render(&caster, cam, &ph.pose, 1, 0.4, &radiance);
         // Checkpoints visible in this photo (inside the image, not occluded).
         let mut visible = Vec::new();
         for t in &scene.targets {

@@ -226,7 +226,7 @@ pub fn finish_scan(
                 let v = if let Some(fi) = near {
                     let f = &def.fiducials[fi];
                     let dmm = Vector2::new(mm.x - f.x_mm, mm.y - f.y_mm).norm();
-                    if dmm > FIDUCIAL_FIELD_MM && mm.x.abs() < half[0] && mm.y.abs() < half[1] {
+                    if dmm > FIDUCIAL_FIELD_MM && inside(mm, half) {
                         None
                     } else {
                         let mut cov = 0.0;
@@ -244,7 +244,7 @@ pub fn finish_scan(
                         }
                         Some(FRAME_DN + (MARK_DN - FRAME_DN) * cov / 64.0)
                     }
-                } else if mm.x.abs() >= half[0] || mm.y.abs() >= half[1] {
+                } else if !inside(mm, half) {
                     Some(FRAME_DN)
                 } else {
                     None
@@ -280,18 +280,25 @@ pub fn finish_scan(
 
 /// Whether a scan pixel (column, row) shows the scene: inside the format, where
 /// [`finish_scan`] reads the radiance; the frame around it is film base and marks.
-pub fn exposed(camera: &FilmCamera, def: &FilmCameraDef) -> impl Fn(u32, u32) -> bool + Sync {
+pub fn exposed(camera: &FilmCamera, def: &FilmCameraDef) -> Box<dyn Fn(u32, u32) -> bool + Sync> {
     let io = camera.interior.clone();
     let half = format_half(def);
-    move |col, row| {
-        let mm = io.pixel_to_mm(Vector2::new(col as f64 + 0.5, row as f64 + 0.5));
-        mm.x.abs() < half[0] && mm.y.abs() < half[1]
-    }
+    Box::new(move |col, row| {
+        inside(
+            io.pixel_to_mm(Vector2::new(col as f64 + 0.5, row as f64 + 0.5)),
+            half,
+        )
+    })
 }
 
 /// Half the exposed format (mm): a millimetre inside the frame's edge.
 fn format_half(def: &FilmCameraDef) -> [f64; 2] {
     [def.format_mm[0] / 2.0 - 1.0, def.format_mm[1] / 2.0 - 1.0]
+}
+
+/// Whether a point of the film (mm) lies inside the exposed format of half size `half`.
+fn inside(mm: Vector2<f64>, half: [f64; 2]) -> bool {
+    mm.x.abs() < half[0] && mm.y.abs() < half[1]
 }
 
 /// Digital sensor output: exposure, gain, vignetting and shot/read noise, 8-bit.
