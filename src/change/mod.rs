@@ -47,21 +47,28 @@ pub(crate) fn invalid(what: &str, message: impl Into<String>) -> ChangeError {
     }
 }
 
-/// Median of finite `values` (sorted in place); NaN when there is none.
+/// Median of finite `values` (reordered in place); NaN when there is none.
 pub(crate) fn median(values: &mut [f64]) -> f64 {
     quantile(values, 0.5)
 }
 
-/// The `q` quantile of `values` (sorted in place) by linear interpolation between order
-/// statistics (numpy's default, so numbers agree with xdem's); NaN when empty.
+/// The `q` quantile of `values` (reordered in place) by linear interpolation between order
+/// statistics (numpy's default, so numbers agree with xdem's); NaN when empty. The two
+/// order statistics are selected, not sorted for: a sort was half of a change stage's
+/// time (perf, the demo's digital epoch: 14.4 s, 32 % in the sort).
 pub(crate) fn quantile(values: &mut [f64], q: f64) -> f64 {
     if values.is_empty() {
         return f64::NAN;
     }
-    values.sort_unstable_by(f64::total_cmp);
     let pos = q.clamp(0.0, 1.0) * (values.len() - 1) as f64;
     let (lo, hi) = (pos.floor() as usize, pos.ceil() as usize);
-    values[lo] + (values[hi] - values[lo]) * (pos - lo as f64)
+    let (_, &mut low, above) = values.select_nth_unstable_by(lo, f64::total_cmp);
+    let high = if hi > lo {
+        above.iter().copied().min_by(f64::total_cmp).unwrap_or(low)
+    } else {
+        low
+    };
+    low + (high - low) * (pos - lo as f64)
 }
 
 /// 1.4826 × the median absolute deviation from the median (xdem's `nmad`).
