@@ -516,10 +516,17 @@ fn run_stages(
     let has_reference = project.reference.is_some();
     let o = &project.outputs;
     let want_outputs = o.colmap || o.blocks_exchange || o.orthophoto || o.dem;
+    // Sources; the orthophoto's DCP; each epoch, and the DCP of each but the oldest; each
+    // epoch's surface and change; the control's surfaces; each epoch's products; the
+    // report.
+    let n = epochs.len();
     let total = 1
         + usize::from(project.control.orthophoto.is_some())
+        + n
+        + n.saturating_sub(1)
+        + n * (usize::from(o.dsm) + usize::from(o.dsm && o.change) + usize::from(want_outputs))
         + usize::from(o.dem)
-        + epochs.len() * (2 + usize::from(want_outputs) + usize::from(o.dsm));
+        + 1;
     let mut index = 0;
     let mut products: BTreeMap<String, Vec<PathBuf>> = BTreeMap::new();
     let mut stage_seconds = Vec::new();
