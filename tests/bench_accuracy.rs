@@ -1,4 +1,4 @@
-//! `cloudcontrol bench accuracy` on the small preset, seeds 1–3 (issue 15: CI runs the
+//! `cloudcontrol bench accuracy --no-surfaces` on the small preset, seeds 1–3 (issue 15: CI runs the
 //! targets as assertions). Each epoch row must meet the targets (≥ 95 % of the photos
 //! oriented; reference plan and height ≤ 1 GSD, or within 10 % of what the true
 //! orientation scores; archive plan ≤ 1 GSD, height ≤ 1.5 GSD), except the rows listed in
@@ -30,13 +30,33 @@ fn small_preset_three_seeds_against_the_targets() {
     let v = json_of(
         &Command::new(exe())
             .args(["--json", "bench", "accuracy", "--preset", "small"])
-            .args(["--seeds", "1..3", "--reuse-blocks", "--out"])
+            .args([
+                "--seeds",
+                "1..3",
+                "--reuse-blocks",
+                "--no-surfaces",
+                "--out",
+            ])
             .arg(&out)
             .output()
             .unwrap(),
     );
     let runs = v["runs"].as_array().unwrap();
     assert_eq!(runs.len(), 3);
+    // The orientation alone was run (the surfaces are pipeline_run's and dense_epoch's).
+    assert_eq!(v["surfaces"], false);
+    for seed in 1..=3 {
+        let run = out.join(format!("small-{seed}/run"));
+        let surfaces = std::fs::read_dir(&run)
+            .unwrap()
+            .filter(|e| {
+                let n = e.as_ref().unwrap().file_name();
+                let n = n.to_string_lossy();
+                n.starts_with("surface-") || n.starts_with("change-")
+            })
+            .count();
+        assert_eq!(surfaces, 0, "{}", run.display());
+    }
     for r in runs {
         assert_eq!(r["completed"], true, "{r}");
         eprintln!(

@@ -60,6 +60,12 @@ pub struct AccuracyArgs {
     /// or its orthophoto and DEM alone (`project_orthophoto.toml`).
     #[arg(long, value_enum, default_value = "lidar")]
     control: ControlArg,
+    /// Run without the epochs' surfaces and their changes (`outputs.dsm` and
+    /// `outputs.change` off, in a copy of the project beside it): the bench scores the
+    /// orientation, and on the small preset dense matching and the change analysis are
+    /// half of a run's time.
+    #[arg(long)]
+    no_surfaces: bool,
 }
 
 #[derive(Clone, Copy, clap::ValueEnum)]
@@ -136,6 +142,31 @@ fn run_child(project: &Path, log: &Path) -> Result<ChildRun, String> {
     })
 }
 
+/// Writes the project `from` to `to` with the epochs' surfaces and changes off (and
+/// orthophotos on the control's ground, which is all that is left to rectify onto).
+fn without_surfaces(from: &Path, to: &Path) -> Result<(), String> {
+    let text = std::fs::read_to_string(from).map_err(|e| format!("{}: {e}", from.display()))?;
+    let mut doc: toml::Table = text
+        .parse()
+        .map_err(|e| format!("{}: {e}", from.display()))?;
+    let outputs = doc
+        .entry("outputs")
+        .or_insert_with(|| toml::Value::Table(toml::Table::new()))
+        .as_table_mut()
+        .ok_or_else(|| format!("{}: outputs is not a table", from.display()))?;
+    outputs.insert("dsm".into(), false.into());
+    outputs.insert("change".into(), false.into());
+    if outputs.contains_key("ortho_surface") {
+        outputs.insert("ortho_surface".into(), "control".into());
+    }
+    let text = format!(
+        "# {} without the epochs' surfaces (cloudcontrol bench accuracy --no-surfaces).\n{}",
+        from.file_name().unwrap_or_default().to_string_lossy(),
+        toml::to_string(&doc).map_err(|e| e.to_string())?
+    );
+    std::fs::write(to, text).map_err(|e| format!("{}: {e}", to.display()))
+}
+
 /// The last lines of a run's log: why it stopped.
 fn tail(log: &Path) -> String {
     let text = std::fs::read_to_string(log).unwrap_or_default();
@@ -157,10 +188,18 @@ fn one_seed(args: &AccuracyArgs, seed: u64, targets: &Targets) -> Result<SeedRes
         .unwrap_or_default();
     let dir = args.out.join(format!("{preset}-{seed}"));
     let block = dir.join("block");
-    let project_path = block.join(match args.control {
+    let written = block.join(match args.control {
         ControlArg::Lidar => "project.toml",
         ControlArg::Orthophoto => "project_orthophoto.toml",
     });
+    let project_path = if args.no_surfaces {
+        written.with_file_name(format!(
+            "{}_no_surfaces.toml",
+            written.file_stem().unwrap_or_default().to_string_lossy()
+        ))
+    } else {
+        written.clone()
+    };
     if args.reuse_blocks && synth::holds_block(&block, &config) {
         // A fresh run over the kept block.
         if let Ok(p) = Project::load(&project_path) {
@@ -169,6 +208,9 @@ fn one_seed(args: &AccuracyArgs, seed: u64, targets: &Targets) -> Result<SeedRes
     } else {
         let _ = std::fs::remove_dir_all(&dir);
         synth::generate(&config, &block).map_err(|e| format!("synthetic block: {e}"))?;
+    }
+    if args.no_surfaces {
+        without_surfaces(&written, &project_path)?;
     }
     let child = run_child(&project_path, &dir.join("run.log"))?;
     if !child.success {
@@ -264,6 +306,7 @@ pub fn run(cmd: BenchCommand, json: bool) -> Result<(), String> {
             ControlArg::Lidar => "lidar",
             ControlArg::Orthophoto => "orthophoto",
         },
+        "surfaces": !args.no_surfaces,
         "targets": targets,
         "runs": runs,
         "rows": rows,
