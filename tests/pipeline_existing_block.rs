@@ -14,7 +14,7 @@ use std::path::{Path, PathBuf};
 use std::process::Command;
 
 mod common;
-use common::{block_copy, epoch, exe, finished, px};
+use common::{block_copy, epoch, exe, finished, px, without_surfaces};
 
 /// The synthetic block's project with its reference replaced by `block` (a table body),
 /// writing into `output`.
@@ -82,6 +82,7 @@ fn an_existing_block_controls_the_archive_epochs_as_our_own_reference_does() {
     let tmp = tempfile::tempdir().unwrap();
     let blk = tmp.path().join("block");
     block_copy("small", 4, "rough", &blk);
+    without_surfaces(&blk.join("project.toml"));
     // Today's workflow: the reference oriented against the LiDAR.
     let o = Command::new(exe())
         .arg("run")

@@ -10,13 +10,15 @@ use std::path::Path;
 use std::process::Command;
 
 mod common;
-use common::{block_copy, epoch, exe, json_of, px};
+use common::{block_copy, epoch, exe, json_of, px, without_surfaces};
 
 #[test]
 fn the_small_block_is_oriented_from_its_orthophoto_and_dem_alone() {
     let tmp = tempfile::tempdir().unwrap();
     let blk = tmp.path().join("block");
     block_copy("small", 2, "rough", &blk);
+    without_surfaces(&blk.join("project.toml"));
+    without_surfaces(&blk.join("project_orthophoto.toml"));
     let project = std::fs::read_to_string(blk.join("project_orthophoto.toml")).unwrap();
     assert!(!project.contains("lidar") && !project.contains("[reference]"));
     let out = Command::new(exe())

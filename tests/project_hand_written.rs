@@ -193,6 +193,9 @@ colmap = true
 blocks_exchange = true
 orthophoto = false
 dem = true
+# the orientation is what this test checks: no surfaces, no changes
+dsm = false
+change = false
 html_report = false
 "#
     );

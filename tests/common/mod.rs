@@ -64,20 +64,23 @@ pub fn cli_in(dir: &std::path::Path, args: &[&str]) -> (bool, String, String) {
     )
 }
 
-/// A synthetic block made once per build of the binary and shared by every test binary
-/// and the Python tests (`CARGO_TARGET_TMPDIR/blocks/<preset>-<seed>-<pos>`): the small
-/// blocks cost 120–140 CPU s each to render, and six tests used three of them twice over.
-/// The block is generated into a private folder and renamed into place, so no test ever
-/// sees a half-written one; a stamp of the binary (size and modification time) beside it
-/// makes a rebuilt binary generate it again. Tests take a [`copy_block`] of it, never the
+/// A folder made once per build of the binary by `make` and shared by every test binary
+/// and the Python tests (`CARGO_TARGET_TMPDIR/blocks/<key>`). A stamp of the binary (size
+/// and modification time) written beside it once it is complete makes a rebuilt binary
+/// make it again. It is made in a private folder and renamed into place, or (`in_place`:
+/// a run's products name their inputs by absolute paths, which must stay valid) made
+/// where it stays, its stamp removed first. Tests take a [`copy_block`] of it, never the
 /// shared folder itself.
-pub fn shared_block(preset: &str, seed: u64, pos: &str) -> std::path::PathBuf {
+fn shared_folder(
+    key: &str,
+    in_place: bool,
+    make: impl FnOnce(&std::path::Path),
+) -> std::path::PathBuf {
     use std::sync::Mutex;
     static LOCK: Mutex<()> = Mutex::new(());
     let _held = LOCK.lock().unwrap_or_else(|e| e.into_inner());
     let root = std::path::Path::new(env!("CARGO_TARGET_TMPDIR")).join("blocks");
-    let key = format!("{preset}-{seed}-{pos}");
-    let dir = root.join(&key);
+    let dir = root.join(key);
     let stamp_file = root.join(format!("{key}.stamp"));
     let meta = std::fs::metadata(exe()).unwrap();
     let modified = meta
@@ -86,24 +89,64 @@ pub fn shared_block(preset: &str, seed: u64, pos: &str) -> std::path::PathBuf {
         .duration_since(std::time::UNIX_EPOCH)
         .unwrap();
     let stamp = format!("{}-{}", meta.len(), modified.as_nanos());
-    if dir.join("manifest.json").is_file()
-        && std::fs::read_to_string(&stamp_file).is_ok_and(|s| s.trim() == stamp)
-    {
+    if dir.is_dir() && std::fs::read_to_string(&stamp_file).is_ok_and(|s| s.trim() == stamp) {
         return dir;
     }
-    let tmp = root.join(format!(".{key}.{}", std::process::id()));
-    let _ = std::fs::remove_dir_all(&tmp);
-    let o = std::process::Command::new(exe())
-        .args(["synth", "-q", "--preset", preset, "--pos", pos])
-        .args(["--seed", &seed.to_string(), "--out"])
-        .arg(&tmp)
-        .output()
-        .unwrap();
-    assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
-    let _ = std::fs::remove_dir_all(&dir);
-    std::fs::rename(&tmp, &dir).unwrap();
+    std::fs::create_dir_all(&root).unwrap();
+    let _ = std::fs::remove_file(&stamp_file);
+    if in_place {
+        let _ = std::fs::remove_dir_all(&dir);
+        make(&dir);
+    } else {
+        let tmp = root.join(format!(".{key}.{}", std::process::id()));
+        let _ = std::fs::remove_dir_all(&tmp);
+        make(&tmp);
+        let _ = std::fs::remove_dir_all(&dir);
+        std::fs::rename(&tmp, &dir).unwrap();
+    }
     std::fs::write(&stamp_file, stamp).unwrap();
     dir
+}
+
+/// A synthetic block (`<preset>-<seed>-<pos>`, a [`shared_folder`]): the small blocks cost
+/// 120–140 CPU s each to render, and six tests used three of them twice over.
+pub fn shared_block(preset: &str, seed: u64, pos: &str) -> std::path::PathBuf {
+    shared_folder(&format!("{preset}-{seed}-{pos}"), false, |tmp| {
+        let o = std::process::Command::new(exe())
+            .args(["synth", "-q", "--preset", preset, "--pos", pos])
+            .args(["--seed", &seed.to_string(), "--out"])
+            .arg(tmp)
+            .output()
+            .unwrap();
+        assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+    })
+}
+
+/// `cloudcontrol demo > demo.log 2>&1` run once (a [`shared_folder`] `demo`: the demo's
+/// block and run, and its log `demo.log` beside them), from the shared block the demo makes
+/// (small, seed 7, rough POS). The README's first command and `pipeline_run` both need a
+/// finished demo, which takes 150 s on 2 cores; a copy of this one is a demo whose every
+/// stage is done, as a second `cloudcontrol demo` finds it; its products name the photos
+/// in this folder by their absolute paths.
+pub fn shared_demo() -> std::path::PathBuf {
+    let block = shared_block("small", 7, "rough");
+    shared_folder("demo", true, |tmp| {
+        copy_block(&block, &tmp.join("block"));
+        let log = std::fs::File::create(tmp.join("demo.log")).unwrap();
+        let status = std::process::Command::new(exe())
+            .arg("demo")
+            .arg("--out")
+            .arg(tmp)
+            .stdout(log.try_clone().unwrap())
+            .stderr(log)
+            .status()
+            .unwrap();
+        assert!(
+            status.success(),
+            "demo: {status}\n{}",
+            std::fs::read_to_string(tmp.join("demo.log")).unwrap_or_default()
+        );
+    })
 }
 
 /// A private copy of `src` (a [`shared_block`]) at `dest`, which is replaced.
@@ -122,6 +165,17 @@ pub fn copy_block(src: &std::path::Path, dest: &std::path::Path) {
             }
         }
     }
+}
+
+/// Turns the epochs' surfaces and their changes off in the project file `path` (one
+/// without an `[outputs]` table, as synth writes them), for a test of orientation: dense
+/// matching and the change analysis are half of a small block's run, and `pipeline_run`
+/// and the dense tests check them.
+pub fn without_surfaces(path: &std::path::Path) {
+    let mut text = std::fs::read_to_string(path).unwrap();
+    assert!(!text.contains("[outputs]"), "{}", path.display());
+    text.push_str("\n[outputs]\ndsm = false\nchange = false\n");
+    std::fs::write(path, text).unwrap();
 }
 
 /// Every regular file below `dir`, sorted.
