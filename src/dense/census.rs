@@ -32,6 +32,32 @@ pub(crate) fn census_row_generic(
     stride: usize,
     bits: &mut [u64],
 ) {
+    window_bits(img, y, [cw, ch, stride], bits, |n, c| n < c);
+}
+
+/// One row of [`support_masks`] (the kernel the SIMD dispatch instantiates).
+#[inline(always)]
+pub(crate) fn support_row_generic(
+    img: &GreyImage,
+    y: usize,
+    window: [usize; 3],
+    tau: f32,
+    bits: &mut [u64],
+) {
+    window_bits(img, y, window, bits, |n, c| (n - c).abs() <= tau);
+}
+
+/// Sets bit k of each pixel of row `y` where `test(sample, centre)` holds for the k-th
+/// sample of its window (`[columns, rows, stride]`; row-major, centre skipped, clamped
+/// at the image edges).
+#[inline(always)]
+fn window_bits(
+    img: &GreyImage,
+    y: usize,
+    [cw, ch, stride]: [usize; 3],
+    bits: &mut [u64],
+    test: impl Fn(f32, f32) -> bool,
+) {
     let (w, h) = (img.width, img.height);
     let (rx, ry) = ((cw / 2) as isize, (ch / 2) as isize);
     let st = stride.max(1) as isize;
@@ -50,13 +76,48 @@ pub(crate) fn census_row_generic(
             let hi = (w as isize - dx.max(0)).max(lo as isize) as usize;
             let shifted = &nb[(lo as isize + dx) as usize..(hi as isize + dx) as usize];
             for ((b, &c), &n) in bits[lo..hi].iter_mut().zip(&centre[lo..hi]).zip(shifted) {
-                *b |= ((n < c) as u64) << k;
+                *b |= (test(n, c) as u64) << k;
             }
             for x in (0..lo).chain(hi..w) {
                 let nx = (x as isize + dx).clamp(0, w as isize - 1) as usize;
-                bits[x] |= ((nb[nx] < centre[x]) as u64) << k;
+                bits[x] |= (test(nb[nx], centre[x]) as u64) << k;
             }
             k += 1;
         }
     }
+}
+
+/// Support of each pixel's census window: bit k (the census's order) is set where the
+/// window's k-th sample differs from the centre by at most `tau` grey values, i.e. likely
+/// lies on the centre's own surface (adaptive support, after Yoon & Kweon 2005, as a mask
+/// over the census bits; the cost counts the differing bits within it). A window across a
+/// roof's eave then compares the pixel with the samples of its own side only, so the
+/// nearer surface's disparity is not carried across the edge (edge fattening).
+pub fn support_masks(img: &GreyImage, cw: usize, ch: usize, stride: usize, tau: f32) -> Vec<u64> {
+    let w = img.width;
+    let mut out = vec![0u64; w * img.height];
+    out.par_chunks_mut(w)
+        .enumerate()
+        .for_each(|(y, bits)| super::simd::support_row(img, y, [cw, ch, stride], tau, bits));
+    out
+}
+
+/// The 2nd to 98th percentile range of the grey values of the pixels with data (of every
+/// 7th such pixel: the range, not its last grey value, matters), 0 without data.
+pub(crate) fn grey_range(img: &GreyImage, valid: &[bool]) -> f32 {
+    let mut v: Vec<f32> = img
+        .data
+        .iter()
+        .zip(valid)
+        .step_by(7)
+        .filter(|(g, ok)| **ok && g.is_finite())
+        .map(|(g, _)| *g)
+        .collect();
+    if v.is_empty() {
+        return 0.0;
+    }
+    let n = v.len() - 1;
+    let lo = *v.select_nth_unstable_by(n / 50, f32::total_cmp).1;
+    let hi = *v.select_nth_unstable_by(n - n / 50, f32::total_cmp).1;
+    hi - lo
 }

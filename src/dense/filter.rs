@@ -156,3 +156,99 @@ pub fn texture_mask(image: &GreyImage, radius: usize, min_std: f32) -> Vec<bool>
     });
     out
 }
+
+/// Marks as occluded the pixels the right image cannot see at their disparity: along a
+/// row the right positions `x − d` of a visible surface keep the left order, so a pixel
+/// whose right position lies more than `tolerance` beyond that of a pixel to its right is
+/// hidden there by the nearer surface (Scharstein & Szeliski's ordering constraint). A
+/// wall the left photo sees and the right one does not is otherwise matched at the
+/// ground's disparity behind it and triangulated under the roof; the left–right check
+/// passes it, since the right image's winner there is the ground's too.
+pub fn remove_occluded(
+    disparity: &mut [f32],
+    status: &mut [PixelStatus],
+    width: usize,
+    tolerance: f32,
+) {
+    disparity
+        .par_chunks_mut(width)
+        .zip(status.par_chunks_mut(width))
+        .for_each(|(d, s)| {
+            let mut least = f32::INFINITY;
+            for x in (0..d.len()).rev() {
+                if !d[x].is_finite() {
+                    continue;
+                }
+                let r = x as f32 - d[x];
+                if r > least + tolerance {
+                    d[x] = f32::NAN;
+                    s[x] = PixelStatus::Occluded;
+                } else {
+                    least = least.min(r);
+                }
+            }
+        });
+}
+
+/// Moves depth edges onto the image's edges: where neighbouring disparities jump by more
+/// than `jump` px, the pixels between the jump and the strongest grey-value step within
+/// `reach` px of it (`[columns, rows]`, half the census window: how far a window carries a
+/// nearer surface's disparity onto its neighbours, "edge fattening") are removed, along
+/// rows and along columns. A roof's outline is a grey-value edge; the band the census
+/// window fattened past it is not.
+pub fn trim_depth_edges(
+    disparity: &mut [f32],
+    status: &mut [PixelStatus],
+    image: &GreyImage,
+    reach: [usize; 2],
+    jump: f32,
+) {
+    let (w, h) = (image.width, image.height);
+    let mut remove = vec![false; w * h];
+    // Along rows, then along columns: offsets of a line's k-th pixel.
+    let lines: [(usize, usize, usize, usize); 2] = [(h, w, w, 1), (w, h, 1, w)];
+    for (axis, &(count, len, line_step, step)) in lines.iter().enumerate() {
+        let r = reach[axis];
+        if r == 0 {
+            continue;
+        }
+        for line in 0..count {
+            let at = |k: usize| line * line_step + k * step;
+            for k in 0..len.saturating_sub(1) {
+                let (a, b) = (disparity[at(k)], disparity[at(k + 1)]);
+                if !(a.is_finite() && b.is_finite() && (a - b).abs() > jump) {
+                    continue;
+                }
+                // Steps between pixels e and e + 1 for e within reach of k.
+                let lo = k.saturating_sub(r);
+                let hi = (k + r).min(len - 2);
+                let mut edge = k;
+                let mut best = -1.0f32;
+                for e in lo..=hi {
+                    let g = (image.data[at(e + 1)] - image.data[at(e)]).abs();
+                    if g > best {
+                        best = g;
+                        edge = e;
+                    }
+                }
+                if edge == k {
+                    continue;
+                }
+                let (from, to) = if edge < k {
+                    (edge + 1, k)
+                } else {
+                    (k + 1, edge)
+                };
+                for m in from..=to {
+                    remove[at(m)] = true;
+                }
+            }
+        }
+    }
+    for ((d, s), r) in disparity.iter_mut().zip(status.iter_mut()).zip(remove) {
+        if r && d.is_finite() {
+            *d = f32::NAN;
+            *s = PixelStatus::DepthEdge;
+        }
+    }
+}

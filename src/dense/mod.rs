@@ -30,7 +30,7 @@ pub mod simd;
 mod volume;
 
 pub use census::census_transform;
-pub use filter::{median3, remove_speckles, texture_mask};
+pub use filter::{median3, remove_occluded, remove_speckles, texture_mask, trim_depth_edges};
 pub use pair::{match_pair, PairTile, Tiling};
 pub use rectify::{BandGrid, RectifiedImage, RectifiedPair, RectifiedView, Side};
 pub use sgm::{

@@ -10,14 +10,16 @@
 //! census window is matched there at the ground's disparity. The prior narrows the search;
 //! the matching decides.
 //!
-//! Per level: census cost over the bands ([`super::census`], [`super::volume`]), eight
-//! aggregation paths ([`super::aggregate`]), winner-take-all with a uniqueness ratio,
-//! a left–right check against the right image's winners of the same sums, sub-pixel
-//! refinement, a texture mask, the 3 × 3 median and the speckle filter.
+//! Per level: census cost over the bands within each pixel's adaptive support
+//! ([`super::census`], [`super::volume`]), eight aggregation paths
+//! ([`super::aggregate`]), winner-take-all with a uniqueness ratio, a left–right check
+//! against the right image's winners of the same sums, a texture mask; at full
+//! resolution sub-pixel refinement, the ordering check and the trimming of depth edges
+//! back to the image's edges ([`super::filter`]); the 3 × 3 median and the speckle filter.
 
 use super::aggregate::{aggregate, Penalties, SweepInput};
-use super::census::census_transform;
-use super::filter::{median3, remove_speckles, texture_mask};
+use super::census::{census_transform, grey_range, support_masks};
+use super::filter::{median3, remove_occluded, remove_speckles, texture_mask, trim_depth_edges};
 use super::rectify::BandGrid;
 use super::refine::refine_disparities;
 use super::volume::{census_costs, Bands};
@@ -50,6 +52,11 @@ pub enum PixelStatus {
     /// The census costs of the matches around the pixel are those of unrelated pixels
     /// ([`SgmOptions::max_cost`]): the band holds no match (e.g. a prior that missed).
     HighCost = 7,
+    /// Hidden in the right image by a nearer surface at its disparity
+    /// ([`SgmOptions::occlusion_tolerance`]).
+    Occluded = 8,
+    /// Between a depth edge and the image edge it belongs on ([`SgmOptions::edge_jump`]).
+    DepthEdge = 9,
 }
 
 /// Sub-pixel refinement of the winning disparity from its two neighbours' sums.
@@ -74,6 +81,13 @@ pub struct SgmOptions {
     /// none).
     pub smooth: f32,
 
+    /// Adaptive support: a census sample counts in the cost only where its grey value is
+    /// within this share of the left image's grey-value range (2nd to 98th percentile) of
+    /// the window's centre (0: every sample counts). Against edge fattening: a window
+    /// across a roof's eave otherwise carries the roof's disparity onto the ground beside
+    /// it, by up to half its width (about 5 m on a 0.6 m film).
+    pub support: f32,
+
     /// Penalty of a disparity step of one pixel between neighbours.
     pub p1: u16,
     /// Penalty of a larger step where the grey value does not change.
@@ -85,6 +99,12 @@ pub struct SgmOptions {
     pub uniqueness: f32,
     /// Largest difference of the left and right winners (px).
     pub lr_max_diff: f32,
+    /// Ordering check: how far (px) a pixel's right position may lie beyond that of a
+    /// pixel to its right before it counts as occluded (negative: no check).
+    pub occlusion_tolerance: f32,
+    /// Disparity step (px) between neighbours that makes a depth edge, whose pixels up to
+    /// the nearest strong grey-value step are removed (0: none).
+    pub edge_jump: f32,
     pub subpixel: Subpixel,
     /// 3 × 3 median of the disparities.
     pub median: bool,
@@ -111,11 +131,14 @@ impl Default for SgmOptions {
             census: [9, 7],
             census_stride: 2,
             smooth: 1.2,
+            support: 0.08,
             p1: 16,
             p2: 200,
             p2_gradient: 12.0,
             uniqueness: 0.05,
             lr_max_diff: 1.0,
+            occlusion_tolerance: 1.0,
+            edge_jump: 2.0,
             subpixel: Subpixel::Equiangular,
             median: true,
             speckle_size: 100,
@@ -155,10 +178,15 @@ impl SgmOptions {
             (self.min_texture, "min_texture"),
             (self.max_cost, "max_cost"),
             (self.smooth, "smooth"),
+            (self.edge_jump, "edge_jump"),
+            (self.support, "support"),
         ] {
             if !(v.is_finite() && v >= 0.0) {
                 return Err(invalid(what, format!("must be finite and ≥ 0, got {v}")));
             }
+        }
+        if self.occlusion_tolerance.is_nan() {
+            return Err(invalid("occlusion_tolerance", "must be a number"));
         }
         if self.census_stride == 0 || self.census_stride > 8 {
             return Err(invalid("census_stride", "must be 1 to 8"));
@@ -581,17 +609,36 @@ fn match_level(
     };
     let [cw, ch] = options.census;
     let stride = options.census_stride;
-    let census = |img: &GreyImage| {
-        if options.smooth > 0.0 {
-            census_transform(&gaussian_blur(img, options.smooth), cw, ch, stride)
+    fn blurred(img: &GreyImage, sigma: f32) -> std::borrow::Cow<'_, GreyImage> {
+        if sigma > 0.0 {
+            std::borrow::Cow::Owned(gaussian_blur(img, sigma))
         } else {
-            census_transform(img, cw, ch, stride)
+            std::borrow::Cow::Borrowed(img)
         }
-    };
-    let (cl, cr) = rayon::join(|| census(left), || census(right));
+    }
+    let ((cl, support), cr) = rayon::join(
+        || {
+            let img = blurred(left, options.smooth);
+            let support = (options.support > 0.0).then(|| {
+                let tau = options.support * grey_range(&img, left_valid);
+                support_masks(&img, cw, ch, stride, tau)
+            });
+            (census_transform(&img, cw, ch, stride), support)
+        },
+        || census_transform(&blurred(right, options.smooth), cw, ch, stride),
+    );
     stage("census");
     let bits = (cw * ch - 1) as u8;
-    let costs = census_costs(bands, &cl, &cr, right.width, right_valid, bits);
+    let costs = census_costs(
+        bands,
+        &cl,
+        support.as_deref(),
+        &cr,
+        right.width,
+        right_valid,
+        bits,
+    );
+    drop(support);
     drop((cl, cr));
     stage("costs");
     let sum = aggregate(&SweepInput {
@@ -650,6 +697,14 @@ fn match_level(
             &status,
         );
         stage("refinement");
+        if options.occlusion_tolerance >= 0.0 {
+            remove_occluded(&mut disparity, &mut status, w, options.occlusion_tolerance);
+        }
+        if options.edge_jump > 0.0 {
+            let reach = [cw / 2 * stride, ch / 2 * stride];
+            trim_depth_edges(&mut disparity, &mut status, left, reach, options.edge_jump);
+        }
+        stage("occlusions and depth edges");
     }
     if options.median {
         disparity = median3(&disparity, w, h);

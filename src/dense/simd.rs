@@ -3,7 +3,7 @@
 //! popcnt), chosen per row by CPU detection as the NCC kernels are.
 
 use super::aggregate::{sweep_row_generic, SweepInput, SweepState};
-use super::census::census_row_generic;
+use super::census::{census_row_generic, support_row_generic};
 use super::sgm::{wta_row_generic, PixelStatus, WtaRow};
 use super::volume::costs_row_generic;
 use crate::matching::GreyImage;
@@ -51,7 +51,7 @@ dispatch!(sweep_row<const INIT: bool>(
 ) => sweep_row_generic);
 
 dispatch!(costs_row(
-    cl: &[u64],
+    left: (&[u64], &[u64], &[u16]),
     cr: &[u64],
     penalty: &[u8],
     dmin: &[i32],
@@ -75,3 +75,11 @@ dispatch!(census_row(
     stride: usize,
     bits: &mut [u64],
 ) => census_row_generic);
+
+dispatch!(support_row(
+    img: &GreyImage,
+    y: usize,
+    window: [usize; 3],
+    tau: f32,
+    bits: &mut [u64],
+) => support_row_generic);

@@ -122,10 +122,15 @@ impl Bands {
 
 /// Census matching costs of the whole volume: the Hamming distance between the left
 /// pixel's census and the right one's at `x − d`; `cost_max` where the right pixel has
-/// no data or lies beyond the right image.
+/// no data or lies beyond the right image. With `support` (each left pixel's mask of
+/// census bits, [`super::census::support_masks`]) only the bits within the mask count,
+/// scaled to all of them; a pixel with fewer than a quarter of the bits in its support (a
+/// lone speck of grey) is matched on all of them rather than on a handful.
+#[allow(clippy::too_many_arguments)]
 pub(crate) fn census_costs(
     bands: &Bands,
     left: &[u64],
+    support: Option<&[u64]>,
     right: &[u64],
     right_width: usize,
     right_valid: &[bool],
@@ -150,9 +155,34 @@ pub(crate) fn census_costs(
             .copy_from_slice(&right[y * right_width..(y + 1) * right_width]);
         let cl = &left[y * w..(y + 1) * w];
         let base = y * w;
+        // Each pixel's support and the factor (Q8) that scales its share of the bits to
+        // all of them, so the costs of pixels with more or fewer support bits stay on
+        // one scale for the aggregation's penalties.
+        let all = if cost_max >= 64 {
+            u64::MAX
+        } else {
+            (1u64 << cost_max) - 1
+        };
+        let mask: Vec<u64> = match support {
+            Some(m) => m[base..base + w]
+                .iter()
+                .map(|&m| {
+                    if m.count_ones() * 4 >= cost_max as u32 {
+                        m
+                    } else {
+                        all
+                    }
+                })
+                .collect(),
+            None => vec![all; w],
+        };
+        let scale: Vec<u16> = mask
+            .iter()
+            .map(|m| ((cost_max as u32 * 256) / m.count_ones().max(1)) as u16)
+            .collect();
         let row0 = bands.offset[base] as usize;
         super::simd::costs_row(
-            cl,
+            (cl, &mask, &scale),
             &cr,
             &penalty,
             &bands.dmin[base..base + w],
@@ -164,10 +194,12 @@ pub(crate) fn census_costs(
     costs
 }
 
-/// One row of [`census_costs`] (the kernel the SIMD dispatch instantiates).
+/// One row of [`census_costs`] (the kernel the SIMD dispatch instantiates). `left`: each
+/// left pixel's census, its support (a mask of the census bits) and the factor (Q8) that
+/// scales the bits differing within it to all of them.
 #[inline(always)]
 pub(crate) fn costs_row_generic(
-    cl: &[u64],
+    (cl, mask, scale): (&[u64], &[u64], &[u16]),
     cr: &[u64],
     penalty: &[u8],
     dmin: &[i32],
@@ -188,8 +220,10 @@ pub(crate) fn costs_row_generic(
         let o = &mut out[s..e];
         let r = &cr[lo..=hi];
         let p = &penalty[lo..=hi];
+        let (m, f) = (mask[x], scale[x] as u32);
         for ((o, &rv), &pv) in o.iter_mut().zip(r.iter().rev()).zip(p.iter().rev()) {
-            *o = ((c ^ rv).count_ones() as u8).max(pv);
+            *o = ((((c ^ rv) & m).count_ones() * f + 128) >> 8).min(255) as u8;
+            *o = (*o).max(pv);
         }
     }
 }

@@ -229,6 +229,179 @@ pub mod tests {
     }
 }
 
+mod depth_edges {
+    use super::tests::Texture;
+    use cloudcontrol::dense::{
+        match_images, DisparityMap, DisparityPrior, PixelStatus, SgmOptions,
+    };
+    use cloudcontrol::matching::GreyImage;
+
+    const W: usize = 320;
+    const H: usize = 240;
+    /// The roof: left-image columns and rows, its disparity and the ground's.
+    const ROOF: (usize, usize, usize, usize) = (140, 200, 80, 160);
+    const D_ROOF: f64 = 34.0;
+    const D_GROUND: f64 = 12.0;
+
+    fn on_roof(x: f64, y: f64) -> bool {
+        let (x0, x1, y0, y1) = ROOF;
+        x >= x0 as f64 && x < x1 as f64 && y >= y0 as f64 && y < y1 as f64
+    }
+
+    /// A brighter textured roof standing on textured ground, seen from both views: the
+    /// right view sees the roof shifted by its own disparity and, beside it, ground the
+    /// left view cannot see (and the other way round).
+    fn building() -> (GreyImage, GreyImage) {
+        let (ground, roof) = (Texture::new(21, 1.7), Texture::new(22, 1.7));
+        let left = GreyImage::from_fn(W, H, |x, y| {
+            if on_roof(x, y) {
+                roof.at(x, y) * 0.5 + 120.0
+            } else {
+                ground.at(x, y) * 0.5
+            }
+        });
+        let right = GreyImage::from_fn(W, H, |x, y| {
+            if on_roof(x + D_ROOF, y) {
+                roof.at(x + D_ROOF, y) * 0.5 + 120.0
+            } else {
+                ground.at(x + D_GROUND, y) * 0.5
+            }
+        });
+        (left, right)
+    }
+
+    /// Ground pixels within 8 px of the roof (outside the ground the right view cannot
+    /// see) matched nearer than half way to the roof: the roof fattened onto the ground.
+    fn fattened(map: &DisparityMap) -> usize {
+        let (x0, x1, y0, y1) = ROOF;
+        let occluded_from = x0 - (D_ROOF - D_GROUND) as usize;
+        let mut n = 0;
+        for y in y0 - 8..y1 + 8 {
+            for x in occluded_from - 8..x1 + 8 {
+                let near = !on_roof(x as f64 + 0.5, y as f64 + 0.5);
+                let hidden = x >= occluded_from && x < x0 && y >= y0 && y < y1;
+                if near
+                    && !hidden
+                    && map
+                        .at(x, y)
+                        .is_some_and(|d| d as f64 > (D_ROOF + D_GROUND) / 2.0)
+                {
+                    n += 1;
+                }
+            }
+        }
+        n
+    }
+
+    fn run(options: &SgmOptions) -> DisparityMap {
+        let (l, r) = building();
+        match_images(
+            &l,
+            None,
+            &r,
+            None,
+            &DisparityPrior::range(0.0, 48.0),
+            options,
+        )
+        .unwrap()
+    }
+
+    /// The adaptive support and the trimming of depth edges keep the roof's disparity off
+    /// the ground beside it (138 such pixels with the centred census window, 80 with
+    /// both; either alone 105), and the ground the right view cannot see is not matched.
+    #[test]
+    fn a_roof_is_not_fattened_onto_the_ground_and_hidden_ground_is_not_matched() {
+        let plain = run(&SgmOptions {
+            support: 0.0,
+            occlusion_tolerance: -1.0,
+            edge_jump: 0.0,
+            ..Default::default()
+        });
+        let map = run(&SgmOptions::default());
+        let (before, after) = (fattened(&plain), fattened(&map));
+        eprintln!("fattened ground pixels: {before} with the centred window, {after} with support and edge trimming");
+        assert!(before > 100 && after * 3 < before * 2, "{before} → {after}");
+        // The roof itself is still matched.
+        let (x0, x1, y0, y1) = ROOF;
+        let mut roof = (0, 0);
+        for y in y0 + 8..y1 - 8 {
+            for x in x0 + 8..x1 - 8 {
+                roof.1 += 1;
+                if map
+                    .at(x, y)
+                    .is_some_and(|d| (d as f64 - D_ROOF).abs() < 0.5)
+                {
+                    roof.0 += 1;
+                }
+            }
+        }
+        assert!(
+            roof.0 * 10 > roof.1 * 9,
+            "roof matched {} of {}",
+            roof.0,
+            roof.1
+        );
+        // Ground hidden from the right view: not matched (the left–right check).
+        let occluded_from = x0 - (D_ROOF - D_GROUND) as usize;
+        let hidden: Vec<PixelStatus> = (y0 + 4..y1 - 4)
+            .flat_map(|y| (occluded_from + 2..x0 - 2).map(move |x| (x, y)))
+            .map(|(x, y)| map.status[y * W + x])
+            .collect();
+        let valid = hidden.iter().filter(|s| **s == PixelStatus::Valid).count();
+        eprintln!("hidden ground: {valid} valid of {}", hidden.len());
+        assert!(
+            valid * 10 < hidden.len(),
+            "{valid} of {} hidden pixels valid",
+            hidden.len()
+        );
+    }
+}
+
+mod occlusion_filters {
+    use cloudcontrol::dense::{remove_occluded, trim_depth_edges, PixelStatus};
+    use cloudcontrol::matching::GreyImage;
+
+    /// One row: ground (disparity 10), a wall the left view sees but matched at the
+    /// ground's disparity behind it, then the roof (30). In the right view the roof covers
+    /// right positions from 8 − 30 = −22 on, where the wall's and the ground's pixels
+    /// would land (−10 … −3): both are hidden there, the roof and the ground beyond it
+    /// are not.
+    #[test]
+    fn pixels_the_right_view_cannot_see_are_told_occluded() {
+        let mut d = vec![10.0f32; 8];
+        d.extend([30.0f32; 8]);
+        d.extend([10.0f32; 8]);
+        let mut status = vec![PixelStatus::Valid; d.len()];
+        remove_occluded(&mut d, &mut status, 24, 1.0);
+        let occluded: Vec<usize> = (0..24)
+            .filter(|&x| status[x] == PixelStatus::Occluded)
+            .collect();
+        assert_eq!(occluded, (0..8).collect::<Vec<_>>());
+        assert!(d[..8].iter().all(|v| v.is_nan()) && d[8..].iter().all(|v| v.is_finite()));
+    }
+
+    /// A depth edge matched 3 px past the grey-value edge (the roof fattened onto the
+    /// ground): the 3 pixels between them are removed, the rest kept; a jump that lies on
+    /// the grey-value edge removes nothing.
+    #[test]
+    fn a_depth_edge_is_trimmed_back_to_the_grey_value_edge() {
+        let w = 20;
+        // Ground dark, roof bright from column 10; the roof's disparity (30) matched from
+        // column 7 on.
+        let image = GreyImage::from_fn(w, 1, |x, _| if x < 10.0 { 40.0 } else { 200.0 });
+        let mut d: Vec<f32> = (0..w).map(|x| if x < 7 { 10.0 } else { 30.0 }).collect();
+        let mut status = vec![PixelStatus::Valid; w];
+        trim_depth_edges(&mut d, &mut status, &image, [8, 0], 2.0);
+        let removed: Vec<usize> = (0..w).filter(|&x| d[x].is_nan()).collect();
+        assert_eq!(removed, vec![7, 8, 9]);
+        assert!(removed.iter().all(|&x| status[x] == PixelStatus::DepthEdge));
+        let mut on_edge: Vec<f32> = (0..w).map(|x| if x < 10 { 10.0 } else { 30.0 }).collect();
+        let mut status = vec![PixelStatus::Valid; w];
+        trim_depth_edges(&mut on_edge, &mut status, &image, [8, 0], 2.0);
+        assert!(on_edge.iter().all(|v| v.is_finite()));
+    }
+}
+
 mod grid_only {
     use super::tests::pair;
     use cloudcontrol::dense::{match_images, BandGrid, DisparityPrior, PixelStatus, SgmOptions};
