@@ -201,8 +201,9 @@ fn one_seed(args: &AccuracyArgs, seed: u64, targets: &Targets) -> Result<SeedRes
         written.clone()
     };
     if args.reuse_blocks && synth::holds_block(&block, &config) {
-        // A fresh run over the kept block.
-        if let Ok(p) = Project::load(&project_path) {
+        // A fresh run over the kept block. The project as synth wrote it names the output
+        // (its copy without surfaces may not exist yet, and names the same one).
+        if let Ok(p) = Project::load(&written) {
             let _ = std::fs::remove_dir_all(p.output);
         }
     } else {
