@@ -3,7 +3,9 @@
 # as C++, and the Python binding's tests. Sets up what is missing first.
 set -euo pipefail
 cd "$(dirname "$0")"
+t0=$SECONDS
 ./setup.sh
+echo "== setup took $((SECONDS - t0)) s"
 
 # The sanitizer build of the fuzz targets (fuzz/target, the fuzz crate's own workspace)
 # overlaps the Rust tests at the lowest priority: their test binaries leave a core idle
@@ -12,8 +14,12 @@ mkdir -p fuzz/target
 FUZZ_NICE=19 fuzz/run.sh build > fuzz/target/ci-build.log 2>&1 &
 fuzz_build=$!
 
+# Each part prints its time: CI's log is cut at its time limit, and the times say where
+# the limit went.
+t0=$SECONDS
 echo "== Rust tests"
 cargo test --release
+echo "== Rust tests took $((SECONDS - t0)) s"
 
 echo "== C program against the library"
 mkdir -p bindings/c/build
@@ -25,12 +31,16 @@ g++ -std=c++11 -Wall -Wextra -Werror -pedantic -Iinclude bindings/c/build/header
 echo "header compiles as C++"
 
 echo "== Python binding tests"
+t0=$SECONDS
 CLOUDCONTROL_LIB="$PWD/target/release/libcloudcontrol.so" .venv/bin/python -m pytest -q -p no:cacheprovider bindings/python/tests
+echo "== Python tests took $((SECONDS - t0)) s"
 
 echo "== Fuzz targets: every target ${FUZZ_SECONDS:-60} s, two at a time, ASan, -rss_limit_mb=2048 (fuzz/README.md)"
+t0=$SECONDS
 if ! wait "$fuzz_build"; then
     cat fuzz/target/ci-build.log
     echo "fuzz: the background build failed; fuzz/run.sh ci builds again"
 fi
 tail -n 1 fuzz/target/ci-build.log
+echo "fuzz: waited $((SECONDS - t0)) s for the background build"
 fuzz/run.sh ci

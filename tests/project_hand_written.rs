@@ -11,14 +11,13 @@
 use cloudcontrol::formats::crs::{Crs, Transformer};
 use cloudcontrol::geometry::opk_from_matrix;
 use cloudcontrol::pipeline::products::LIDAR_DEM;
-use cloudcontrol::synth::{self, PosQuality, Preset, SynthConfig};
 use serde_json::Value;
 use std::fmt::Write as _;
 use std::path::{Path, PathBuf};
 use std::process::Command;
 
 mod common;
-use common::{epoch, exe, json_of, px};
+use common::{block_copy, epoch, exe, json_of, px};
 
 /// Rows of a synth truth or input CSV as header → value maps.
 fn rows(path: &Path) -> Vec<std::collections::BTreeMap<String, String>> {
@@ -66,17 +65,9 @@ struct Project {
 
 fn write_project(root: &Path) -> Project {
     let gen = root.join("gen");
-    synth::generate(
-        &SynthConfig {
-            preset: Preset::Small,
-            seed: 5,
-            change: 0.5,
-            pos: PosQuality::Good,
-            laz: false,
-        },
-        &gen,
-    )
-    .unwrap();
+    // The shared block (the Python orientation tests use it too): each distinct synthetic
+    // block costs CI 75 s to render.
+    block_copy("small", 2, "good", &gen);
     let p = root.join("project");
     std::fs::create_dir_all(&p).unwrap();
     laz_without_crs(&gen.join("lidar"), &p.join("lidar"));
