@@ -35,7 +35,7 @@ t0=$SECONDS
 CLOUDCONTROL_LIB="$PWD/target/release/libcloudcontrol.so" .venv/bin/python -m pytest -q -p no:cacheprovider bindings/python/tests
 echo "== Python tests took $((SECONDS - t0)) s"
 
-echo "== Fuzz targets: every target ${FUZZ_SECONDS:-60} s, two at a time, ASan, -rss_limit_mb=2048 (fuzz/README.md)"
+echo "== Fuzz targets: every target ${FUZZ_SECONDS:-30} s, two at a time, ASan, -rss_limit_mb=2048 (fuzz/README.md)"
 t0=$SECONDS
 if ! wait "$fuzz_build"; then
     cat fuzz/target/ci-build.log
