@@ -50,8 +50,8 @@ require_fuzz() {
 # names the functions (the symbol table stays); its reproducer replays with file and
 # line through tests/fuzz_replay.rs.
 #
-# The optimisation level is FUZZ_OPT_LEVEL: 1 for the CI path (`ci` and `build`, which
-# share fuzz/target), 3 (cargo fuzz's) for `release`. Measured on 2 cores from an empty
+# The optimisation level is build's argument: 1 for the CI path (`ci` and `build`, which
+# share fuzz/target), 3 (cargo fuzz's) for `release`; FUZZ_OPT_LEVEL overrides it. Measured on 2 cores from an empty
 # fuzz/target: level 3 built in 24 min 26 s (32 CPU min), level 1 in 16 min 5 s (22 CPU
 # min), the library itself 14 → 5 min; level 1 runs at 43–97 % of level 3's exec/s
 # (image_decode 341/798, colmap_txt 1047/1422, dcp_package 513/644, las 253/262; 30 s
