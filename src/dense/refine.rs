@@ -15,7 +15,10 @@
 //! (`matching::lsm`, 2-D, bicubic, a template image per call): on the 274 688 matched
 //! pixels of a 640 × 480 pair, `lsm` with shifts and radiometry only took 1.51 s CPU, this
 //! one-dimensional version 0.16 s, the whole semi-global match around it 0.25 s
-//! (`tests/units/dense_sgm.rs`, `refinement_cost`, run by hand).
+//! (`tests/units/dense_sgm.rs`, `refinement_cost`, run by hand). Those figures are from
+//! before the window's sums were taken once per start column ([`Moments`]); on a busy
+//! machine after it, the whole match with its refinement took 0.60 s CPU there and `lsm`
+//! 4.32 s.
 
 use super::sgm::PixelStatus;
 use crate::matching::GreyImage;
