@@ -110,6 +110,25 @@ fn run_opencv(manifest: &Path) -> serde_json::Value {
     serde_json::from_slice(&out.stdout).unwrap()
 }
 
+/// Keeps in `best` each setting's fastest times of `best` and `round` (two runs of
+/// [`run_opencv`]: the same pairs and settings in the same order).
+fn keep_faster(best: &mut serde_json::Value, round: &serde_json::Value) {
+    for (dir, runs) in best.as_object_mut().expect("OpenCV's results by pair") {
+        let other = round[dir.as_str()].as_array().expect("the same pairs");
+        for (run, o) in runs
+            .as_array_mut()
+            .expect("OpenCV's runs")
+            .iter_mut()
+            .zip(other)
+        {
+            for k in ["t1", "t2", "cpu1"] {
+                let t = run[k].as_f64().unwrap().min(o[k].as_f64().unwrap());
+                run[k] = t.into();
+            }
+        }
+    }
+}
+
 struct Case {
     name: &'static str,
     dir: PathBuf,
@@ -191,6 +210,8 @@ fn main() {
             range
         );
         let prior = DisparityPrior::range(range[0], range[1]);
+        // Scored once here (the match is deterministic); the timed rounds follow below, this
+        // run serving them as a warm-up.
         let map = match_images(
             &l.image,
             Some(&l.valid),
@@ -244,8 +265,7 @@ fn main() {
     // with its host (the same OpenCV call took 2.0 s in one run and 4.0 s in the next), and
     // timing all of ours before all of OpenCV's put the two sides in different phases (one
     // pair's 1-thread ratio came out 0.69–1.31 over four runs).
-    let mut peer_best: std::collections::HashMap<(String, String), [f64; 3]> = Default::default();
-    let mut peer = serde_json::Value::Null;
+    let mut peer: Option<serde_json::Value> = None;
     for _ in 0..repeat {
         for case in &mut done {
             for (i, pool) in pools.iter().enumerate() {
@@ -265,20 +285,13 @@ fn main() {
                 case.ours_cpu[i] = case.ours_cpu[i].min(cpu_seconds() - c);
             }
         }
-        peer = run_opencv(&manifest_path);
-        for (dir, runs) in peer.as_object().expect("OpenCV's results by pair") {
-            for run in runs.as_array().expect("OpenCV's runs") {
-                let label = run["label"].as_str().unwrap().to_string();
-                let t = ["t1", "t2", "cpu1"].map(|k| run[k].as_f64().unwrap());
-                let best = peer_best
-                    .entry((dir.clone(), label))
-                    .or_insert([f64::INFINITY; 3]);
-                for (b, t) in best.iter_mut().zip(t) {
-                    *b = b.min(t);
-                }
-            }
+        let round = run_opencv(&manifest_path);
+        match &mut peer {
+            None => peer = Some(round),
+            Some(best) => keep_faster(best, &round),
         }
     }
+    let peer = peer.expect("--repeat of at least 1");
     println!(
         "\n{:<16} {:<22} {:>6} {:>6} {:>6} {:>7} {:>6} {:>8} {:>8} {:>8}",
         "pair", "matcher", "compl", ">1px", "med|e|", "dz med", "dzNMAD", "t1 s", "t2 s", "cpu1 s"
@@ -309,17 +322,15 @@ fn main() {
                 }
                 assert_eq!(d.len(), pair.left.width * pair.height);
                 let s = score(sp, pair, &d, truth, &case.classes);
-                let [t1, t2, cpu1] =
-                    peer_best[&(case.dir.to_string_lossy().into_owned(), label.clone())];
-                let t = [t1, t2];
+                let t = [run["t1"].as_f64().unwrap(), run["t2"].as_f64().unwrap()];
                 println!(
                     "{:<16} {:<22} {} {:>8.3} {:>8.3} {:>8.3}",
                     "",
                     label,
                     fmt(&s),
-                    t1,
-                    t2,
-                    cpu1
+                    t[0],
+                    t[1],
+                    run["cpu1"].as_f64().unwrap()
                 );
                 // OpenCV's best setting: fewest pixels more than 1 px off among those
                 // at least as complete as 90 % of ours.
