@@ -71,15 +71,20 @@ pub fn cli_in(dir: &std::path::Path, args: &[&str]) -> (bool, String, String) {
 /// a run's products name their inputs by absolute paths, which must stay valid) made
 /// where it stays, its stamp removed first. Tests take a [`copy_block`] of it, never the
 /// shared folder itself.
+///
+/// The check and the making happen under an exclusive `flock` of `<key>.lock` beside it:
+/// test.sh runs the Python tests beside the Rust tests, and both share these folders
+/// (bindings/python/tests/conftest.py takes the same lock). Once stamped, a folder is not
+/// touched again by this build, so copies need no lock. A `flock` is held per open file,
+/// so it also keeps this binary's threads apart.
 fn shared_folder(
     key: &str,
     in_place: bool,
     make: impl FnOnce(&std::path::Path),
 ) -> std::path::PathBuf {
-    use std::sync::Mutex;
-    static LOCK: Mutex<()> = Mutex::new(());
-    let _held = LOCK.lock().unwrap_or_else(|e| e.into_inner());
     let root = std::path::Path::new(env!("CARGO_TARGET_TMPDIR")).join("blocks");
+    std::fs::create_dir_all(&root).unwrap();
+    let held = lock_exclusive(&root.join(format!("{key}.lock")));
     let dir = root.join(key);
     let stamp_file = root.join(format!("{key}.stamp"));
     let meta = std::fs::metadata(exe()).unwrap();
@@ -92,7 +97,6 @@ fn shared_folder(
     if dir.is_dir() && std::fs::read_to_string(&stamp_file).is_ok_and(|s| s.trim() == stamp) {
         return dir;
     }
-    std::fs::create_dir_all(&root).unwrap();
     let _ = std::fs::remove_file(&stamp_file);
     if in_place {
         let _ = std::fs::remove_dir_all(&dir);
@@ -105,7 +109,25 @@ fn shared_folder(
         std::fs::rename(&tmp, &dir).unwrap();
     }
     std::fs::write(&stamp_file, stamp).unwrap();
+    drop(held);
     dir
+}
+
+/// The file at `path` (created if missing) under an exclusive `flock`, which lasts until
+/// the file is closed (or the process dies).
+fn lock_exclusive(path: &std::path::Path) -> std::fs::File {
+    use std::os::fd::AsRawFd;
+    let f = std::fs::OpenOptions::new()
+        .create(true)
+        .truncate(false)
+        .write(true)
+        .open(path)
+        .unwrap();
+    // std's File::lock needs Rust 1.89; the crate's rust-version is 1.85.
+    // SAFETY: flock on a descriptor this function owns.
+    let r = unsafe { libc::flock(f.as_raw_fd(), libc::LOCK_EX) };
+    assert_eq!(r, 0, "flock {}", path.display());
+    f
 }
 
 /// A synthetic block (`<preset>-<seed>-<pos>`, a [`shared_folder`]): the small blocks cost
