@@ -339,6 +339,38 @@ impl Project {
         reference.chain(archive)
     }
 
+    /// The project file `path`'s text with the epochs' surfaces and changes turned off,
+    /// and an archive orthophoto asked for on its own surface made on the control's ground
+    /// instead, the one surface left: what `bench accuracy --no-surfaces` runs, and the
+    /// tests that check orientations alone. The text is written anew from its TOML
+    /// (comments are not kept); the file itself is not touched.
+    pub fn without_surfaces(path: &Path) -> Result<String, ProjectError> {
+        let parse = |message: String| ProjectError::Parse {
+            path: path.to_path_buf(),
+            message,
+        };
+        let text = std::fs::read_to_string(path).map_err(|source| ProjectError::Io {
+            path: path.to_path_buf(),
+            source,
+        })?;
+        let mut doc: toml::Table = text.parse().map_err(|e| parse(format!("{e}")))?;
+        let outputs = doc
+            .entry("outputs")
+            .or_insert_with(|| toml::Value::Table(toml::Table::new()))
+            .as_table_mut()
+            .ok_or_else(|| ProjectError::Key {
+                path: path.to_path_buf(),
+                key: "outputs".into(),
+                message: "not a table".into(),
+            })?;
+        outputs.insert("dsm".into(), false.into());
+        outputs.insert("change".into(), false.into());
+        if outputs.contains_key("ortho_surface") {
+            outputs.insert("ortho_surface".into(), "control".into());
+        }
+        toml::to_string(&doc).map_err(|e| parse(e.to_string()))
+    }
+
     /// Reads and validates a project file. Relative paths are taken from the file's folder.
     pub fn load(path: &Path) -> Result<Self, ProjectError> {
         let text = crate::formats::input::read_text(path, crate::formats::input::Cap::project())

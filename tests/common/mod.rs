@@ -189,14 +189,12 @@ pub fn copy_block(src: &std::path::Path, dest: &std::path::Path) {
     }
 }
 
-/// Turns the epochs' surfaces and their changes off in the project file `path` (one
-/// without an `[outputs]` table, as synth writes them), for a test of orientation: dense
-/// matching and the change analysis are half of a small block's run, and `pipeline_run`
-/// and the dense tests check them.
+/// Turns the epochs' surfaces and their changes off in the project file `path`
+/// (`Project::without_surfaces`, as `bench accuracy --no-surfaces` does), for a test of
+/// orientation: dense matching and the change analysis are half of a small block's run,
+/// and `pipeline_run` and the dense tests check them.
 pub fn without_surfaces(path: &std::path::Path) {
-    let mut text = std::fs::read_to_string(path).unwrap();
-    assert!(!text.contains("[outputs]"), "{}", path.display());
-    text.push_str("\n[outputs]\ndsm = false\nchange = false\n");
+    let text = cloudcontrol::pipeline::project::Project::without_surfaces(path).unwrap();
     std::fs::write(path, text).unwrap();
 }
 

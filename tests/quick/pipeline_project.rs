@@ -74,6 +74,48 @@ fn documented_example_loads_with_paths_resolved() {
     );
 }
 
+/// `Project::without_surfaces` (bench accuracy --no-surfaces, the orientation tests):
+/// the surfaces and changes off, an orthophoto on the epoch's DSM back on the control's
+/// ground, everything else the project as it was; a project without `[outputs]` gains
+/// one.
+#[test]
+fn without_surfaces_turns_off_the_surfaces_alone() {
+    use cloudcontrol::pipeline::project::OrthoSurface;
+    let dir = tempfile::tempdir().unwrap();
+    let text = example_tree(dir.path());
+    let on = text.replace("ortho_surface = \"control\"", "ortho_surface = \"dsm\"");
+    let a = load(dir.path(), &on).unwrap();
+    assert!(a.outputs.dsm && a.outputs.change && a.outputs.ortho_surface == OrthoSurface::Dsm);
+    let path = dir.path().join("project.toml");
+    let off = Project::without_surfaces(&path).unwrap();
+    assert_eq!(
+        std::fs::read_to_string(&path).unwrap(),
+        on,
+        "the file is not touched"
+    );
+    let b = load(dir.path(), &off).unwrap();
+    assert!(!b.outputs.dsm && !b.outputs.change);
+    assert_eq!(b.outputs.ortho_surface, OrthoSurface::Control);
+    // The same project but for its outputs (and the text's digest).
+    let mut back = b.clone();
+    back.outputs = a.outputs.clone();
+    back.file_sha256 = a.file_sha256.clone();
+    assert_eq!(back, a);
+    // Without an [outputs] table.
+    let bare = &text[..text.find("[outputs]").unwrap()];
+    let c = load(dir.path(), bare).unwrap();
+    let d = load(dir.path(), &Project::without_surfaces(&path).unwrap()).unwrap();
+    assert!(!d.outputs.dsm && !d.outputs.change);
+    let mut back = d.clone();
+    back.outputs = c.outputs.clone();
+    back.file_sha256 = c.file_sha256.clone();
+    assert_eq!(back, c);
+    assert!(matches!(
+        Project::without_surfaces(&dir.path().join("missing.toml")),
+        Err(cloudcontrol::pipeline::project::ProjectError::Io { .. })
+    ));
+}
+
 #[test]
 fn mistakes_fail_naming_the_key() {
     let dir = tempfile::tempdir().unwrap();

@@ -142,27 +142,13 @@ fn run_child(project: &Path, log: &Path) -> Result<ChildRun, String> {
     })
 }
 
-/// Writes the project `from` to `to` with the epochs' surfaces and changes off (and
-/// orthophotos on the control's ground, which is all that is left to rectify onto).
+/// Writes the project `from` to `to` without the epochs' surfaces
+/// ([`Project::without_surfaces`]).
 fn without_surfaces(from: &Path, to: &Path) -> Result<(), String> {
-    let text = std::fs::read_to_string(from).map_err(|e| format!("{}: {e}", from.display()))?;
-    let mut doc: toml::Table = text
-        .parse()
-        .map_err(|e| format!("{}: {e}", from.display()))?;
-    let outputs = doc
-        .entry("outputs")
-        .or_insert_with(|| toml::Value::Table(toml::Table::new()))
-        .as_table_mut()
-        .ok_or_else(|| format!("{}: outputs is not a table", from.display()))?;
-    outputs.insert("dsm".into(), false.into());
-    outputs.insert("change".into(), false.into());
-    if outputs.contains_key("ortho_surface") {
-        outputs.insert("ortho_surface".into(), "control".into());
-    }
     let text = format!(
         "# {} without the epochs' surfaces (cloudcontrol bench accuracy --no-surfaces).\n{}",
         from.file_name().unwrap_or_default().to_string_lossy(),
-        toml::to_string(&doc).map_err(|e| e.to_string())?
+        Project::without_surfaces(from).map_err(|e| e.to_string())?
     );
     std::fs::write(to, text).map_err(|e| format!("{}: {e}", to.display()))
 }
