@@ -349,11 +349,9 @@ impl Project {
             path: path.to_path_buf(),
             message,
         };
-        let text = std::fs::read_to_string(path).map_err(|source| ProjectError::Io {
-            path: path.to_path_buf(),
-            source,
-        })?;
-        let mut doc: toml::Table = text.parse().map_err(|e| parse(format!("{e}")))?;
+        let mut doc: toml::Table = read_text(path)?
+            .parse()
+            .map_err(|e| parse(format!("{e}")))?;
         let outputs = doc
             .entry("outputs")
             .or_insert_with(|| toml::Value::Table(toml::Table::new()))
@@ -373,17 +371,7 @@ impl Project {
 
     /// Reads and validates a project file. Relative paths are taken from the file's folder.
     pub fn load(path: &Path) -> Result<Self, ProjectError> {
-        let text = crate::formats::input::read_text(path, crate::formats::input::Cap::project())
-            .map_err(|e| match e {
-                crate::formats::FormatError::Io { source, .. } => ProjectError::Io {
-                    path: path.into(),
-                    source,
-                },
-                e => ProjectError::Parse {
-                    path: path.into(),
-                    message: e.detail(),
-                },
-            })?;
+        let text = read_text(path)?;
         let mut p: Project = toml::from_str(&text).map_err(|e| ProjectError::Parse {
             path: path.into(),
             message: e.to_string(),
@@ -745,6 +733,22 @@ impl Project {
 /// files"): a regular file (links followed) within its kind's size cap, or for a folder
 /// (photos, LiDAR, a COLMAP model) a tree of regular files and folders without link
 /// cycles. The kind is told by the key.
+/// A project file's text, read within the project files' size cap (as every input is).
+fn read_text(path: &Path) -> Result<String, ProjectError> {
+    crate::formats::input::read_text(path, crate::formats::input::Cap::project()).map_err(|e| {
+        match e {
+            crate::formats::FormatError::Io { source, .. } => ProjectError::Io {
+                path: path.into(),
+                source,
+            },
+            e => ProjectError::Parse {
+                path: path.into(),
+                message: e.detail(),
+            },
+        }
+    })
+}
+
 fn check_input(key: &str, p: &Path) -> Result<(), crate::formats::FormatError> {
     use crate::formats::input::{check_file, check_tree, Cap};
     let name = key.rsplit('.').next().unwrap_or(key);

@@ -130,8 +130,9 @@ fn lock_exclusive(path: &std::path::Path) -> std::fs::File {
     f
 }
 
-/// A synthetic block (`<preset>-<seed>-<pos>`, a [`shared_folder`]): the small blocks cost
-/// 120–140 CPU s each to render, and six tests used three of them twice over.
+/// A synthetic block (`<preset>-<seed>-<pos>`, a [`shared_folder`]): a small block costs
+/// 66 CPU s to render (37 s on 2 cores, 2026-11-30; 120–140 CPU s on slower days), and
+/// the Rust and Python tests use eight of them, most more than once.
 pub fn shared_block(preset: &str, seed: u64, pos: &str) -> std::path::PathBuf {
     shared_folder(&format!("{preset}-{seed}-{pos}"), false, |tmp| {
         let o = std::process::Command::new(exe())
