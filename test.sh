@@ -29,7 +29,6 @@ echo "== setup took $((SECONDS - t0)) s"
 # Their log is printed after the Rust tests.
 t0=$SECONDS
 echo "== Rust tests, with the Python binding's tests beside them"
-mkdir -p target
 CLOUDCONTROL_LIB="$PWD/target/release/libcloudcontrol.so" .venv/bin/python -m pytest -q \
     -p no:cacheprovider bindings/python/tests > target/python-tests.log 2>&1 &
 python_tests=$!

@@ -75,8 +75,8 @@ pub fn cli_in(dir: &std::path::Path, args: &[&str]) -> (bool, String, String) {
 /// The check and the making happen under an exclusive `flock` of `<key>.lock` beside it:
 /// test.sh runs the Python tests beside the Rust tests, and both share these folders
 /// (bindings/python/tests/conftest.py takes the same lock). Once stamped, a folder is not
-/// touched again by this build, so copies need no lock. A `flock` is held per open file,
-/// so it also keeps this binary's threads apart.
+/// touched again by this build, so copies need no lock. The lock is the library's
+/// (`formats::Lock`), which also keeps this binary's threads apart.
 fn shared_folder(
     key: &str,
     in_place: bool,
@@ -84,7 +84,14 @@ fn shared_folder(
 ) -> std::path::PathBuf {
     let root = std::path::Path::new(env!("CARGO_TARGET_TMPDIR")).join("blocks");
     std::fs::create_dir_all(&root).unwrap();
-    let held = lock_exclusive(&root.join(format!("{key}.lock")));
+    let lock_file = root.join(format!("{key}.lock"));
+    std::fs::OpenOptions::new()
+        .create(true)
+        .truncate(false)
+        .write(true)
+        .open(&lock_file)
+        .unwrap();
+    let held = cloudcontrol::formats::Lock::exclusive(&lock_file, true).unwrap();
     let dir = root.join(key);
     let stamp_file = root.join(format!("{key}.stamp"));
     let meta = std::fs::metadata(exe()).unwrap();
@@ -111,23 +118,6 @@ fn shared_folder(
     std::fs::write(&stamp_file, stamp).unwrap();
     drop(held);
     dir
-}
-
-/// The file at `path` (created if missing) under an exclusive `flock`, which lasts until
-/// the file is closed (or the process dies).
-fn lock_exclusive(path: &std::path::Path) -> std::fs::File {
-    use std::os::fd::AsRawFd;
-    let f = std::fs::OpenOptions::new()
-        .create(true)
-        .truncate(false)
-        .write(true)
-        .open(path)
-        .unwrap();
-    // std's File::lock needs Rust 1.89; the crate's rust-version is 1.85.
-    // SAFETY: flock on a descriptor this function owns.
-    let r = unsafe { libc::flock(f.as_raw_fd(), libc::LOCK_EX) };
-    assert_eq!(r, 0, "flock {}", path.display());
-    f
 }
 
 /// A synthetic block (`<preset>-<seed>-<pos>`, a [`shared_folder`]): a small block costs
