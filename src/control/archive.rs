@@ -65,13 +65,17 @@ pub struct ArchiveOptions {
     /// seeds 1–10, the digital epoch's worst checkpoint height went from 1.78 to
     /// 0.73 GSD with them, the film's worst from 0.34 to 0.39 (bench accuracy).
     pub ties: bool,
-    /// 50 px by default, not 100: a 1000 × 666 frame then carries up to 20 × 14 points
-    /// instead of 10 × 7, and its nine standard positions their three points each where
-    /// the texture allows (at 100 px, 5 of seed 10's 6 photos were short at a position,
-    /// with 194 tie points in the epoch). The self-calibration rests on them: the digital
-    /// epoch's worst checkpoint height over small seeds 1–10 went from 1.40 (seed 10) to
-    /// 0.78 GSD, run time unchanged within noise. A film scan stays capped at
-    /// `MAX_POINTS_PER_SIDE` a side.
+    /// 25 px by default: a 1000 × 666 frame then carries up to 40 × 27 points, about one
+    /// a matching template (31 px), the densest spacing at which neighbouring points'
+    /// templates stay mostly their own. The self-calibration and the epoch's surface rest
+    /// on them. From 50 px (small seeds 1–10, pipeline runs, `benches/dense_epochs.rs
+    /// --run`) the digital epoch's worst checkpoint height went from 0.86 to 0.73 GSD
+    /// (mean 0.59 → 0.54), its DSM's worst |median| from 0.76 to 0.37 GSD (mean 0.27 →
+    /// 0.18) and worst NMAD from 1.18 to 1.04, run time unchanged (49.1 s both, seed 6);
+    /// the median still follows each run's checkpoint height error (formats/dsm/). From
+    /// 100 to 50 px the worst checkpoint height had gone from 1.40 to 0.78 GSD (seeds
+    /// 1–10; at 100 px, 5 of seed 10's 6 photos were short at a standard position). A
+    /// film scan stays capped at `MAX_POINTS_PER_SIDE` a side.
     pub tie_interval_px: f64,
     pub tie_window_px: f64,
     pub tie_ncc_threshold: f64,
@@ -89,7 +93,7 @@ impl Default for ArchiveOptions {
             epoch_second_pass: true,
             tie_pass: true,
             ties: true,
-            tie_interval_px: 50.0,
+            tie_interval_px: 25.0,
             tie_window_px: 10.0,
             tie_ncc_threshold: 0.8,
         }
