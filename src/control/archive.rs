@@ -72,10 +72,11 @@ pub struct ArchiveOptions {
     /// --run`) the digital epoch's worst checkpoint height went from 0.86 to 0.73 GSD
     /// (mean 0.59 → 0.54), its DSM's worst |median| from 0.76 to 0.37 GSD (mean 0.27 →
     /// 0.18) and worst NMAD from 1.18 to 1.04, run time unchanged (49.1 s both, seed 6);
-    /// the median still follows each run's checkpoint height error (formats/dsm/). From
-    /// 100 to 50 px the worst checkpoint height had gone from 1.40 to 0.78 GSD (seeds
-    /// 1–10; at 100 px, 5 of seed 10's 6 photos were short at a standard position). A
-    /// film scan stays capped at `MAX_POINTS_PER_SIDE` a side.
+    /// the median still follows each run's checkpoint height error (formats/dsm/); every
+    /// photo of every seed oriented. From 100 to 50 px the worst checkpoint height had gone
+    /// from 1.40 to 0.78 GSD (`bench accuracy`, seeds 1–10, other runs than those above;
+    /// at 100 px, 5 of seed 10's 6 photos were short at a standard position). A film scan
+    /// stays capped at `MAX_POINTS_PER_SIDE` a side.
     pub tie_interval_px: f64,
     pub tie_window_px: f64,
     pub tie_ncc_threshold: f64,
