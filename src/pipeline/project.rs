@@ -729,10 +729,6 @@ impl Project {
     }
 }
 
-/// The checks of a listed input that need not read it (formats/README.md, "Input
-/// files"): a regular file (links followed) within its kind's size cap, or for a folder
-/// (photos, LiDAR, a COLMAP model) a tree of regular files and folders without link
-/// cycles. The kind is told by the key.
 /// A project file's text, read within the project files' size cap (as every input is).
 fn read_text(path: &Path) -> Result<String, ProjectError> {
     crate::formats::input::read_text(path, crate::formats::input::Cap::project()).map_err(|e| {
@@ -749,6 +745,10 @@ fn read_text(path: &Path) -> Result<String, ProjectError> {
     })
 }
 
+/// The checks of a listed input that need not read it (formats/README.md, "Input
+/// files"): a regular file (links followed) within its kind's size cap, or for a folder
+/// (photos, LiDAR, a COLMAP model) a tree of regular files and folders without link
+/// cycles. The kind is told by the key.
 fn check_input(key: &str, p: &Path) -> Result<(), crate::formats::FormatError> {
     use crate::formats::input::{check_file, check_tree, Cap};
     let name = key.rsplit('.').next().unwrap_or(key);
