@@ -1,12 +1,13 @@
 //! Two surface models compared: B − A on A's grid (B sampled bilinearly where the grids
 //! differ, said in the report), A's terrain, the stable terrain, B's Nuth & Kääb shift
-//! and remaining tilt against A there, and the statistics of dh before and after the
-//! shift. The shift is a check of B's orientation: applied to the written dh only when
+//! and its shift and tilt fitted together there, and the statistics of dh before and after
+//! the shift. The shift is a check of B's orientation: applied to the written dh only when
 //! asked (`apply_shift`). The one call `cloudcontrol change` makes.
 
 use super::areas::{areas_geojson, changed_areas, AreaOptions, ChangedArea};
 use super::nuth_kaab::{dh_moved, nuth_kaab_from, NuthKaab, NuthKaabOptions};
 use super::render::{dh_map_png, map_range};
+use super::shift_tilt::{shift_and_tilt, ShiftTilt};
 use super::stable::{stable_terrain, StableOptions, StableStep};
 use super::stats::{dh_statistics, DhStatistics};
 use super::terrain::{slope_aspect, Terrain};
@@ -15,7 +16,6 @@ use crate::formats::crs::Crs;
 use crate::formats::raster::{read_dem, write_dem, GeoTiffOptions};
 use crate::formats::{write_bytes_atomically, FormatError};
 use crate::geometry::Dem;
-use nalgebra::{Matrix3, Vector3};
 use serde::{Deserialize, Serialize};
 use std::path::Path;
 
@@ -42,7 +42,7 @@ pub struct ChangeOptions {
     pub apply_shift: bool,
 }
 
-/// A plane fitted to dh on stable terrain: what remains after the shift when B is tilted.
+/// The gradient of dh: B tilted against A.
 #[derive(Debug, Clone, Serialize, Deserialize)]
 pub struct Tilt {
     /// dh gradient (m per km) east and north.
@@ -65,7 +65,9 @@ pub struct ChangeReport {
     pub stable_steps: Vec<StableStep>,
     pub stable_cells: usize,
     pub nuth_kaab: NuthKaab,
-    pub tilt: Tilt,
+    /// The shift and tilt fitted together (null where the stable cells do not determine
+    /// them): what to judge B's orientation by when Nuth & Kääb's shift is a tilt.
+    pub shift_and_tilt: Option<ShiftTilt>,
     /// Whether `dh.tif` is of B moved by the shift.
     pub shift_applied: bool,
     /// dh on stable terrain as written, and after the shift.
@@ -154,8 +156,14 @@ pub fn compare_dems(
         &options.nuth_kaab,
         raw.clone(),
     )?;
+    let joint = shift_and_tilt(
+        a,
+        &terrain,
+        &stable.mask,
+        &moved,
+        [nk.shift_m[0], nk.shift_m[1]],
+    );
     let shifted: Vec<f64> = moved.into_iter().map(|v| v + nk.shift_m[2]).collect();
-    let tilt = fit_tilt(a, &shifted, &stable.mask);
     let statistics_after_shift = dh_statistics(&shifted, &stable.mask, &terrain);
     let (dh, statistics) = if options.apply_shift {
         (shifted, statistics_after_shift.clone())
@@ -188,7 +196,7 @@ pub fn compare_dems(
             stable_cells: stable.cells(),
             stable_steps: stable.steps,
             nuth_kaab: nk,
-            tilt,
+            shift_and_tilt: joint,
             shift_applied: options.apply_shift,
             statistics_after_shift,
             changed_areas: areas.len(),
@@ -202,37 +210,6 @@ pub fn compare_dems(
         areas,
         terrain,
     })
-}
-
-/// Plane dh = c + e·(x − x̄) + n·(y − ȳ) by least squares over the stable cells.
-fn fit_tilt(a: &Dem, dh: &[f64], stable: &[bool]) -> Tilt {
-    let centre = |i: usize| {
-        let (c, r) = ((i % a.width) as f64 + 0.5, (i / a.width) as f64 + 0.5);
-        a.transform.pixel_to_world(c, r)
-    };
-    let (x0, y1, x1, y0) = {
-        let (a0, b0, a1, b1) = a.extent();
-        (a0, b1, a1, b0)
-    };
-    let (xm, ym) = ((x0 + x1) / 2.0, (y0 + y1) / 2.0);
-    let mut n = Matrix3::zeros();
-    let mut rhs = Vector3::zeros();
-    for (i, (&v, &m)) in dh.iter().zip(stable).enumerate() {
-        if !(m && v.is_finite()) {
-            continue;
-        }
-        let (x, y) = centre(i);
-        let row = Vector3::new(1.0, (x - xm) / 1000.0, (y - ym) / 1000.0);
-        n += row * row.transpose();
-        rhs += row * v;
-    }
-    let p = n.lu().solve(&rhs).unwrap_or_else(Vector3::zeros);
-    let (hx, hy) = ((x1 - x0) / 2000.0, (y1 - y0) / 2000.0);
-    Tilt {
-        east_m_per_km: p.y,
-        north_m_per_km: p.z,
-        max_over_extent_m: p.y.abs() * hx + p.z.abs() * hy,
-    }
 }
 
 /// Compares the rasters `b` and the reference `a` (GeoTIFF or any DEM GDAL reads, the

@@ -6,13 +6,14 @@
 //! statistics of dh there (median, NMAD, quantiles, by slope class).
 //!
 //! The steps compose as xdem's: [`terrain`] (slope and aspect of A) → [`stable`] (the mask)
-//! → [`nuth_kaab`] (the shift) → [`stats`] → [`areas`] (what changed, as polygons);
+//! → [`nuth_kaab`] (the shift) → [`shift_tilt`] (shift and tilt together) → [`stats`] → [`areas`] (what changed, as polygons);
 //! [`compare`] runs them on two rasters, [`render`] draws dh for the report.
 
 pub mod areas;
 pub mod compare;
 pub mod nuth_kaab;
 pub mod render;
+pub mod shift_tilt;
 pub mod stable;
 pub mod stats;
 pub mod terrain;
@@ -20,6 +21,7 @@ pub mod terrain;
 pub use areas::{areas_geojson, changed_areas, AreaOptions, ChangedArea};
 pub use compare::{compare_dems, write_change, CellKnowledge, ChangeOptions, ChangeReport};
 pub use nuth_kaab::{nuth_kaab, NuthKaab, NuthKaabOptions};
+pub use shift_tilt::{shift_and_tilt, ShiftTilt};
 pub use stable::{stable_terrain, StableOptions, StableTerrain};
 pub use stats::{dh_statistics, DhStatistics, SlopeClass};
 pub use terrain::{slope_aspect, Terrain};

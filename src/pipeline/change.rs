@@ -1,8 +1,11 @@
 //! The change stage of an epoch (`change-<epoch>/`): the epoch's own surface
 //! (`surface-<epoch>/dsm.tif`) against the control's surface model (the LiDAR's, today) and
 //! against the next younger epoch's surface ([`crate::change`]). The Nuth & Kääb shift is
-//! reported in the epoch's ground pixels as a check of its orientation and flagged beyond
-//! [`ShiftLimits`]; it is not applied (`dh.tif` is of the surface as measured).
+//! reported in the epoch's ground pixels as a check of its orientation, beside the shift
+//! and tilt fitted together ([`crate::change::shift_tilt`]), which is what is flagged beyond
+//! [`ShiftLimits`]: a tilted surface reads as a Nuth & Kääb shift over gentle terrain, and
+//! the orientation is what both are checking. Neither is applied (`dh.tif` is of the
+//! surface as measured).
 //!
 //! Stable terrain starts from the LiDAR's bare ground: a cell whose surface stands more than
 //! the control's bare-ground tolerance above its ground (a building, a tree) is left out
@@ -55,10 +58,29 @@ pub struct EpochComparison {
     pub shift_gsd: [f64; 3],
     pub shift_plan_gsd: f64,
     pub shift_plan_sigma_gsd: f64,
-    /// Why the shift is beyond [`ShiftLimits`] (or not determined), when it is.
+    /// The shift fitted together with a tilt, in ground pixels (null where the stable
+    /// terrain does not determine it).
+    pub with_tilt: Option<ShiftWithTilt>,
+    /// Why the shift is beyond [`ShiftLimits`] (or not determined), when it is: the shift
+    /// fitted with the tilt where there is one, else Nuth & Kääb's.
     #[serde(skip_serializing_if = "Option::is_none")]
     pub flag: Option<String>,
     pub change: ChangeReport,
+}
+
+/// [`crate::change::ShiftTilt`] in the epoch's ground pixels.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub struct ShiftWithTilt {
+    /// East, north, up (GSD), the up part at the compared extent's centre.
+    pub shift_gsd: [f64; 3],
+    pub shift_plan_gsd: f64,
+    /// Standard errors (block jackknife) of the plan length and of the up part (GSD).
+    pub shift_plan_sigma_gsd: f64,
+    pub shift_up_sigma_gsd: f64,
+    /// dh gradient east and north (m per km) and the height it makes at the extent's edge
+    /// (GSD).
+    pub tilt_m_per_km: [f64; 2],
+    pub tilt_over_extent_gsd: f64,
 }
 
 /// `change.json` of the stage.
@@ -172,29 +194,45 @@ fn comparison(
     limits: &ShiftLimits,
     change: ChangeReport,
 ) -> EpochComparison {
-    let s = change.nuth_kaab.shift_m;
-    let shift_gsd = [s[0] / gsd, s[1] / gsd, s[2] / gsd];
-    let plan = shift_gsd[0].hypot(shift_gsd[1]);
-    // The standard error of the plan length, along the shift's direction.
-    let [se, sn] = change.nuth_kaab.sigma_m.map(|v| v / gsd);
-    let sigma = if plan > 0.0 {
-        ((shift_gsd[0] * se).powi(2) + (shift_gsd[1] * sn).powi(2)).sqrt() / plan
-    } else {
-        se.hypot(sn)
+    let nk = &change.nuth_kaab;
+    let (shift_gsd, plan, sigma) = in_gsd(nk.shift_m, nk.sigma_m, gsd);
+    let with_tilt = change.shift_and_tilt.as_ref().map(|j| {
+        let (shift_gsd, plan, sigma) = in_gsd(j.shift_m, [j.sigma_m[0], j.sigma_m[1]], gsd);
+        ShiftWithTilt {
+            shift_gsd,
+            shift_plan_gsd: plan,
+            shift_plan_sigma_gsd: sigma,
+            shift_up_sigma_gsd: j.sigma_m[2] / gsd,
+            tilt_m_per_km: [j.tilt.east_m_per_km, j.tilt.north_m_per_km],
+            tilt_over_extent_gsd: j.tilt.max_over_extent_m / gsd,
+        }
+    });
+    // What is judged: the shift with its tilt where the terrain gave one.
+    let (judged, judged_plan, judged_sigma, fitted) = match &with_tilt {
+        Some(w) => (
+            w.shift_gsd,
+            w.shift_plan_gsd,
+            w.shift_plan_sigma_gsd,
+            format!(
+                " with a tilt of {:+.2}, {:+.2} m/km fitted with it (Nuth & Kääb alone: {plan:.2} GSD)",
+                w.tilt_m_per_km[0], w.tilt_m_per_km[1]
+            ),
+        ),
+        None => (shift_gsd, plan, sigma, String::new()),
     };
-    let beyond_plan = plan > limits.plan_gsd;
-    let flag = if let Some(note) = &change.nuth_kaab.note {
+    let beyond_plan = judged_plan > limits.plan_gsd;
+    let flag = if let Some(note) = &nk.note {
         Some(note.clone())
-    } else if beyond_plan || shift_gsd[2].abs() > limits.height_gsd {
+    } else if beyond_plan || judged[2].abs() > limits.height_gsd {
         // Beyond the limits, and said whether the data determine it (twice its σ).
-        let determined = if beyond_plan && plan <= 2.0 * sigma {
+        let determined = if beyond_plan && judged_plan <= 2.0 * judged_sigma {
             " — within twice its standard error: not determined by this terrain"
         } else {
             ""
         };
         Some(format!(
-            "shift {plan:.2} ± {sigma:.2} GSD in plan, {:+.2} GSD in height against {against} (limits {} and {}){determined}",
-            shift_gsd[2], limits.plan_gsd, limits.height_gsd
+            "shift {judged_plan:.2} ± {judged_sigma:.2} GSD in plan, {:+.2} GSD in height{fitted} against {against} (limits {} and {}){determined}",
+            judged[2], limits.plan_gsd, limits.height_gsd
         ))
     } else {
         None
@@ -205,7 +243,22 @@ fn comparison(
         shift_gsd,
         shift_plan_gsd: plan,
         shift_plan_sigma_gsd: sigma,
+        with_tilt,
         flag,
         change,
     }
+}
+
+/// A shift (m) and the standard errors of its plan part (m) in ground pixels: the shift,
+/// its plan length, and the standard error of that length along the shift's direction.
+fn in_gsd(shift_m: [f64; 3], sigma_m: [f64; 2], gsd: f64) -> ([f64; 3], f64, f64) {
+    let shift = shift_m.map(|v| v / gsd);
+    let plan = shift[0].hypot(shift[1]);
+    let [se, sn] = sigma_m.map(|v| v / gsd);
+    let sigma = if plan > 0.0 {
+        ((shift[0] * se).powi(2) + (shift[1] * sn).powi(2)).sqrt() / plan
+    } else {
+        se.hypot(sn)
+    };
+    (shift, plan, sigma)
 }

@@ -216,6 +216,14 @@ fn sample_report() -> Report {
                     shift_gsd: [0.41, -0.12, 0.05],
                     shift_plan_gsd: 0.4272,
                     shift_plan_sigma_gsd: 0.05,
+                    with_tilt: Some(cloudcontrol::pipeline::change::ShiftWithTilt {
+                        shift_gsd: [0.12, -0.05, 0.04],
+                        shift_plan_gsd: 0.13,
+                        shift_plan_sigma_gsd: 0.09,
+                        shift_up_sigma_gsd: 0.02,
+                        tilt_m_per_km: [0.8, -0.3],
+                        tilt_over_extent_gsd: 0.31,
+                    }),
                     converged: true,
                     stable_cells: 45_431,
                     median_m: -0.113,
@@ -668,6 +676,10 @@ fn html_report_renders_in_headless_chromium() {
     // The film epoch's surface against the LiDAR, flagged.
     assert!(html.contains(
         "<tr class=\"bad\"><td>film-1985</td><td>1985</td><td>lidar_surface</td><td>0.41</td>"
+    ));
+    // Beside Nuth & Kääb's plan shift, the shift and tilt fitted together.
+    assert!(html.contains(
+        "<td>0.43 ± 0.05</td><td>0.13 ± 0.09</td><td>0.04 ± 0.02</td><td>0.80, -0.30</td>"
     ));
     assert!(html.contains("<td>DCPs of epoch reference</td>"));
     // Tie statistics: points × photos, σ0 of each group, and the standard positions short

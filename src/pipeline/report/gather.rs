@@ -460,6 +460,7 @@ pub fn make_report(
                     shift_gsd: cmp.shift_gsd,
                     shift_plan_gsd: cmp.shift_plan_gsd,
                     shift_plan_sigma_gsd: cmp.shift_plan_sigma_gsd,
+                    with_tilt: cmp.with_tilt.clone(),
                     converged: r.nuth_kaab.converged,
                     stable_cells: r.stable_cells,
                     median_m: r.statistics.median_m,

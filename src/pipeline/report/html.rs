@@ -307,10 +307,13 @@ fn surface_change_table(report: &Report) -> String {
         "<section id=\"surface-change\"><h2>Surfaces through time</h2>\
          <p>Each epoch's own surface (dense matching) against the control's surface and the \
          next younger epoch's: the Nuth &amp; Kääb shift that would move it onto the other \
-         (in the epoch's ground pixels; not applied) and the height difference on stable \
+         (in the epoch's ground pixels; not applied), the shift and tilt fitted together \
+         (what the flag judges: a tilted surface reads as a Nuth &amp; Kääb shift over gentle \
+         terrain; ± block-jackknife standard errors) and the height difference on stable \
          terrain (change-&lt;epoch&gt;/).</p>\
          <table id=\"surface-change-table\"><tr><th>epoch</th><th>date</th><th>against</th>\
          <th>shift E (GSD)</th><th>N (GSD)</th><th>up (GSD)</th><th>plan (GSD)</th>\
+         <th>plan with tilt (GSD)</th><th>up with tilt (GSD)</th><th>tilt E, N (m/km)</th>\
          <th>stable cells</th><th>median dh (m)</th><th>NMAD (m)</th>\
          <th>changed areas (m²)</th><th>flag</th></tr>",
     );
@@ -322,7 +325,7 @@ fn surface_change_table(report: &Report) -> String {
                 ""
             };
             h.push_str(&format!(
-                "<tr{bad}><td>{}</td><td>{}</td><td>{}</td><td>{}</td><td>{}</td><td>{}</td><td>{} ± {}</td><td>{}</td><td>{}</td><td>{}</td><td>{} ({})</td><td>{}</td></tr>",
+                "<tr{bad}><td>{}</td><td>{}</td><td>{}</td><td>{}</td><td>{}</td><td>{}</td><td>{} ± {}</td>{}<td>{}</td><td>{}</td><td>{}</td><td>{} ({})</td><td>{}</td></tr>",
                 esc(&e.name),
                 esc(&e.date),
                 esc(&c.against),
@@ -331,6 +334,18 @@ fn surface_change_table(report: &Report) -> String {
                 fmt(c.shift_gsd[2], 2),
                 fmt(c.shift_plan_gsd, 2),
                 fmt(c.shift_plan_sigma_gsd, 2),
+                match &c.with_tilt {
+                    Some(w) => format!(
+                        "<td>{} ± {}</td><td>{} ± {}</td><td>{}, {}</td>",
+                        fmt(w.shift_plan_gsd, 2),
+                        fmt(w.shift_plan_sigma_gsd, 2),
+                        fmt(w.shift_gsd[2], 2),
+                        fmt(w.shift_up_sigma_gsd, 2),
+                        fmt(w.tilt_m_per_km[0], 2),
+                        fmt(w.tilt_m_per_km[1], 2)
+                    ),
+                    None => "<td>–</td><td>–</td><td>–</td>".to_string(),
+                },
                 c.stable_cells,
                 fmt(c.median_m, 3),
                 fmt(c.nmad_m, 3),

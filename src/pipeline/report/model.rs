@@ -153,6 +153,10 @@ pub struct SurfaceChange {
     /// Standard error of the plan length (GSD).
     #[serde(default, deserialize_with = "nan_if_null")]
     pub shift_plan_sigma_gsd: f64,
+    /// The shift fitted together with a tilt (what the flag judges), when the terrain
+    /// determined it.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub with_tilt: Option<crate::pipeline::change::ShiftWithTilt>,
     pub converged: bool,
     pub stable_cells: usize,
     /// dh = epoch − `against` on stable terrain.
