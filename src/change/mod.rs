@@ -6,8 +6,8 @@
 //! statistics of dh there (median, NMAD, quantiles, by slope class).
 //!
 //! The steps compose as xdem's: [`terrain`] (slope and aspect of A) → [`stable`] (the mask)
-//! → [`nuth_kaab`] (the shift) → [`shift_tilt`] (shift and tilt together) → [`stats`] → [`areas`] (what changed, as polygons);
-//! [`compare`] runs them on two rasters, [`render`] draws dh for the report.
+//! → [`nuth_kaab`] (the shift) → [`shift_tilt`] (shift and tilt together) → [`stats`] →
+//! [`areas`] (what changed, as polygons); [`compare`] runs them on two rasters, [`render`] draws dh for the report.
 
 pub mod areas;
 pub mod compare;
