@@ -6,7 +6,8 @@ use std::process::ExitCode;
 
 /// Elevation change B − A of two surface models (GeoTIFF DEMs or DSMs, the same projected
 /// CRS): dh.tif on A's grid, stable.tif (the stable terrain it is judged on), change.json
-/// (B's Nuth & Kääb shift and tilt against A, the statistics of dh there, by slope).
+/// (B's Nuth & Kääb shift against A, its shift and tilt fitted together, the statistics of
+/// dh there, by slope).
 ///
 /// Stable terrain: both have a height, slope ≤ --max-slope, then |dh − median| ≤ k·NMAD
 /// repeated. The shift is reported; dh.tif is of B as given unless --apply-shift.
