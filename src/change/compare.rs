@@ -7,6 +7,7 @@
 use super::areas::{areas_geojson, changed_areas, AreaOptions, ChangedArea};
 use super::nuth_kaab::{dh_moved, nuth_kaab_from, NuthKaab, NuthKaabOptions};
 use super::render::{dh_map_png, map_range};
+pub use super::shift_tilt::Tilt;
 use super::shift_tilt::{shift_and_tilt, ShiftTilt};
 use super::stable::{stable_terrain, StableOptions, StableStep};
 use super::stats::{dh_statistics, DhStatistics};
@@ -40,16 +41,6 @@ pub struct ChangeOptions {
     pub areas: AreaOptions,
     /// Write dh of B moved by its shift (the co-registered difference).
     pub apply_shift: bool,
-}
-
-/// The gradient of dh: B tilted against A.
-#[derive(Debug, Clone, Serialize, Deserialize)]
-pub struct Tilt {
-    /// dh gradient (m per km) east and north.
-    pub east_m_per_km: f64,
-    pub north_m_per_km: f64,
-    /// Largest height the tilt makes over the compared extent, from its centre (m).
-    pub max_over_extent_m: f64,
 }
 
 #[derive(Debug, Clone, Serialize, Deserialize)]

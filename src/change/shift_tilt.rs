@@ -13,7 +13,6 @@
 //! warps), so the standard errors come from refitting with each of 4 × 4 blocks of the
 //! extent left out.
 
-use super::compare::Tilt;
 use super::terrain::Terrain;
 use crate::geometry::Dem;
 use nalgebra::{SMatrix, SVector};
@@ -28,6 +27,16 @@ const BLOCKS: usize = 4;
 /// Tukey's biweight constant, in robust residual scales (95 % efficiency on Gaussian dh).
 const TUKEY_C: f64 = 4.685;
 const IRLS_ITERATIONS: usize = 10;
+
+/// The gradient of dh: B tilted against A.
+#[derive(Debug, Clone, Serialize, Deserialize)]
+pub struct Tilt {
+    /// dh gradient (m per km) east and north.
+    pub east_m_per_km: f64,
+    pub north_m_per_km: f64,
+    /// Largest height the tilt makes over the compared extent, from its centre (m).
+    pub max_over_extent_m: f64,
+}
 
 /// The shift and tilt that, applied together, move B onto A.
 #[derive(Debug, Clone, Serialize, Deserialize)]
@@ -48,7 +57,6 @@ pub struct ShiftTilt {
 }
 
 /// Normal equations of the fit, one per jackknife block.
-#[derive(Clone)]
 struct Normals {
     n: [Mat5; BLOCKS * BLOCKS],
     b: [Vec5; BLOCKS * BLOCKS],
