@@ -742,6 +742,12 @@ enum CcpStatus ccp_project_run(const char *project_path, char **out_json);
 // gives (with the status `CCP_STATUS_PARTIAL` when it is partial). Release the string
 // with `ccp_string_free`. It fails as `ccp_project_run` does (`CCP_STATUS_BUSY` while
 // another run writes the output folder).
+//
+// Between calls the run waits on a thread of the library, suspended where its tasks were
+// missing, and holds the output folder; the next call with the same project resumes it
+// (a project that changed meanwhile ends it and starts afresh). So a stage's global part
+// is computed once, not replayed on each call; a run in another process replays from the
+// results in the folder, with the same outcome.
 enum CcpStatus ccp_project_plan(const char *project_path, char **out_json);
 
 // Runs one task that `ccp_project_plan` returned (`task_json`: the task object as given)

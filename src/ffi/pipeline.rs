@@ -3,9 +3,10 @@
 
 use super::{guard, CcpStatus, FfiError};
 use crate::pipeline::project::{Project, ProjectError};
-use crate::pipeline::run::{run_project, run_project_with, RunError};
+use crate::pipeline::run::{run_project, RunError};
 use crate::pipeline::stages::{StageError, WorkError};
-use crate::pipeline::tasks::{self, Task, TaskMode};
+use crate::pipeline::tasks::suspend::{self, Planned};
+use crate::pipeline::tasks::{self, Task};
 use std::ffi::{c_char, CString};
 use std::path::PathBuf;
 
@@ -140,6 +141,12 @@ unsafe fn hand_out_json(v: &serde_json::Value, out_json: *mut *mut c_char) -> Re
 /// gives (with the status `CCP_STATUS_PARTIAL` when it is partial). Release the string
 /// with `ccp_string_free`. It fails as `ccp_project_run` does (`CCP_STATUS_BUSY` while
 /// another run writes the output folder).
+///
+/// Between calls the run waits on a thread of the library, suspended where its tasks were
+/// missing, and holds the output folder; the next call with the same project resumes it
+/// (a project that changed meanwhile ends it and starts afresh). So a stage's global part
+/// is computed once, not replayed on each call; a run in another process replays from the
+/// results in the folder, with the same outcome.
 #[no_mangle]
 pub unsafe extern "C" fn ccp_project_plan(
     project_path: *const c_char,
@@ -149,15 +156,13 @@ pub unsafe extern "C" fn ccp_project_plan(
         clear_out_json(out_json)?;
         let path = super::control::path_arg(project_path, "project_path")?;
         let project = Project::load(&PathBuf::from(path)).map_err(RunError::from)?;
-        let (v, partial_epochs) =
-            match run_project_with(&project, &mut |_| {}, None, TaskMode::Plan) {
-                Ok(s) => (s.to_json(), s.partial),
-                Err(RunError::Pending { stage, tasks }) => (
-                    serde_json::json!({ "pending": { "stage": stage, "tasks": tasks } }),
-                    Vec::new(),
-                ),
-                Err(e) => return Err(e.into()),
-            };
+        let (v, partial_epochs) = match suspend::plan(project)? {
+            Planned::Done(s) => (s.to_json(), s.partial),
+            Planned::Pending { stage, tasks } => (
+                serde_json::json!({ "pending": { "stage": stage, "tasks": tasks } }),
+                Vec::new(),
+            ),
+        };
         hand_out_json(&v, out_json)?;
         partial(&partial_epochs)
     })

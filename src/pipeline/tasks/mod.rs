@@ -33,6 +33,7 @@ pub mod outputs;
 pub mod reference;
 pub mod rounds;
 pub mod surface;
+pub mod suspend;
 
 pub(crate) use epoch::EpochTasks;
 pub use epoch::{open_packages, EpochContext, EpochPlan};
@@ -294,16 +295,29 @@ impl StageTasks {
         parallel: bool,
         exec: impl Fn(&Task) -> Result<TaskSummary, WorkError> + Sync,
     ) -> Result<(), WorkError> {
-        let missing: Vec<Task> = tasks
-            .iter()
-            .filter(|t| !t.result().is_file())
-            .cloned()
-            .collect();
+        let missing_of = || -> Vec<Task> {
+            tasks
+                .iter()
+                .filter(|t| !t.result().is_file())
+                .cloned()
+                .collect()
+        };
+        let mut missing = missing_of();
         if missing.is_empty() {
             return Ok(());
         }
         match mode {
-            TaskMode::Plan => Err(WorkError::Pending(missing)),
+            // A suspended planning run waits here for its tasks ([`suspend`]); any other
+            // ends with them pending, and a later run replays up to here.
+            TaskMode::Plan => loop {
+                if !suspend::wait_for(&self.stage, &missing) {
+                    return Err(WorkError::Pending(missing));
+                }
+                missing = missing_of();
+                if missing.is_empty() {
+                    return Ok(());
+                }
+            },
             TaskMode::InProcess => {
                 // Each task in the caller's span (its epoch), and its end as a progress
                 // event (target `cloudcontrol::progress`: the CLI's per-photo progress).
