@@ -9,7 +9,8 @@ files written from the tasks' results) runs in this process.
 
 A run alternates between :func:`cloudcontrol.pipeline.plan`, which runs every stage it can
 and stops at the first one whose tasks have not all run, and a round of those
-tasks on the cluster. Each task reads its inputs from the output folder and the project's
+tasks on the cluster. Between the calls the run waits suspended in this process's copy of
+the library, so a stage's global part is computed once, not replayed on each call. Each task reads its inputs from the output folder and the project's
 files and writes its result there, atomically, so the folder must be on storage every
 worker sees. A task whose worker dies is retried by Dask (``retries``), and a retried task
 writes the same result; the products do not depend on which worker ran what, or how many

@@ -1,9 +1,10 @@
 //! The rounds of an archive epoch's global passes (second pass, tie pass, tie points) as
 //! tasks: one task per photo of a round, the round's data written once to the stage's
-//! folder for the processes that run them. A planning run replays the epoch's global
-//! part from its first pass each time it is called: rounds whose results are all there
-//! are read back, the first one that is not is written and its tasks returned. The
-//! rounds are the same in every replay (their inputs are the results before them), so
+//! folder for the processes that run them. A planning run waits, suspended, for each
+//! round's results ([`super::suspend`]); one that cannot (a planning call in another
+//! process) replays the epoch's global part from its first pass: rounds whose results are
+//! all there are read back, the first one that is not is written and its tasks returned.
+//! The rounds are the same in every replay (their inputs are the results before them), so
 //! round `n` of one replay is round `n` of the next.
 
 use super::epoch::{own_scans, EpochContext};
