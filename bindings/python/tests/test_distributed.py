@@ -1,19 +1,23 @@
 """The workflow on Dask (cloudcontrol.distributed): the small preset run on a LocalCluster
 of two worker processes, one of them killed while it orients an archive photo, gives the
 products of `cloudcontrol run` byte for byte; a scan that cannot be read is reported with
-its photo and reason and the epoch goes on without it."""
+its photo and reason and the epoch goes on without it. The same run planned from processes
+of their own (each call replays the run from the results on disk, where the Dask run's
+calls resume the run this process keeps suspended) gives the same products too."""
 import filecmp
 import json
 import os
 import pathlib
 import signal
+import subprocess
+import sys
 import threading
 import time
 
 import pytest
 
 import cloudcontrol
-from cloudcontrol import distributed
+from cloudcontrol import distributed, pipeline
 
 dd = pytest.importorskip("dask.distributed")
 
@@ -31,7 +35,7 @@ def _block(shared_block, dest):
     # The change analysis runs in the calling process (no tasks) after the surfaces: not
     # what this test is about, and a fifth of each run.
     text += "\n[outputs]\nchange = false\n"
-    for name in ("plain", "dask"):
+    for name in ("plain", "dask", "replay"):
         (d / f"{name}.toml").write_text(text.replace('output = "../run"', f'output = "run_{name}"'))
     # A scan cut short, as a failed transfer leaves it.
     scan = d / "epochs" / "film_1978" / "images" / f"{BAD_SCAN}.png"
@@ -46,6 +50,24 @@ def _files(root: pathlib.Path, products: dict) -> list[str]:
             files = [p] if p.is_file() else sorted(f for f in p.rglob("*") if f.is_file())
             out += [str(f.relative_to(root)) for f in files]
     return sorted(out)
+
+
+def _replayed(project: pathlib.Path) -> tuple[dict, int]:
+    """Runs `project` with each planning call in a new process (no suspended run to
+    resume: it replays from the result files) and the tasks here; the summary and the
+    number of calls."""
+    code = ("import json, sys; from cloudcontrol import pipeline; "
+            "print(json.dumps(pipeline.plan(sys.argv[1], partial_ok=True)))")
+    calls = 0
+    while True:
+        out = subprocess.run([sys.executable, "-c", code, str(project)], check=True,
+                             capture_output=True, text=True).stdout
+        calls += 1
+        res = json.loads(out)
+        if res.get("pending") is None:
+            return res, calls
+        for t in res["pending"]["tasks"]:
+            pipeline.run_task(t)
 
 
 def test_dask_run_with_a_killed_worker_gives_the_products_of_a_plain_run(shared_block, tmp_path):
@@ -120,6 +142,13 @@ def test_dask_run_with_a_killed_worker_gives_the_products_of_a_plain_run(shared_
     a, b = _files(plain, ours["products"]), _files(dask, res["products"])
     assert a == b and len(a) > 20
     differ = [f for f in a if not filecmp.cmp(plain / f, dask / f, shallow=False)]
+    assert differ == []
+    # Planned call by call from new processes, each replaying the run: the same products.
+    replay, calls = _replayed(block / "replay.toml")
+    assert calls == len(res["rounds"]) + 1
+    c = _files(block / "run_replay", replay["products"])
+    assert c == a
+    differ = [f for f in a if not filecmp.cmp(plain / f, block / "run_replay" / f, shallow=False)]
     assert differ == []
     # The photo the tie pass oriented holds control patches found from its tie pose.
     photos = json.loads((dask / "epoch-digital_2012" / "result.json").read_text())["photos"]
