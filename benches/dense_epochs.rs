@@ -4,7 +4,8 @@
 //!     cargo bench --bench dense_epochs [-- --preset small --seeds 1,2,3,4,5
 //!                                          --epochs film_1978 --prior dem|plane]
 //!     cargo bench --bench dense_epochs -- --run RUN --block BLOCK   (a pipeline run's
-//!                                          surfaces, from its adjusted orientations)
+//!                                          surfaces, from its adjusted orientations,
+//!                                          and those orientations against the truth)
 //!
 //! Per block (generated once into target/dense-epochs/<preset>-<seed>/) and epoch, the
 //! true orientation (`synth::reading::synth_truth_block`: the matching, pairing and
@@ -202,6 +203,12 @@ fn score_run(run: &Path, block_dir: &Path) {
             shift[1],
             shift[2]
         );
+        if let Some(o) = orientation_error(block_dir, epoch, &block) {
+            println!(
+                "{epoch:<15} orientation against the truth ({} photos): centres {:+.3} {:+.3} {:+.3} m on average, RMS {:.3} m, worst {:.3} m; rotation RMS {:.4}°, worst {:.4}°",
+                o.photos, o.mean_m[0], o.mean_m[1], o.mean_m[2], o.rms_m, o.worst_m, o.rms_deg, o.worst_deg
+            );
+        }
     }
     for epoch in &EPOCHS[1..] {
         match changed_area_score(run, block_dir, epoch) {
@@ -224,6 +231,63 @@ fn score_run(run: &Path, block_dir: &Path) {
             None => println!("{epoch:<15} no change-{epoch}/changed_areas.geojson"),
         }
     }
+}
+
+/// How far a run's adjusted photos lie from their true exterior orientation: where a DSM
+/// made from them departs from the one matched with the true orientation (`--seeds`
+/// mode), this says whether the orientation is why.
+struct OrientationError {
+    photos: usize,
+    mean_m: [f64; 3],
+    rms_m: f64,
+    worst_m: f64,
+    rms_deg: f64,
+    worst_deg: f64,
+}
+
+fn orientation_error(
+    block_dir: &Path,
+    epoch: &str,
+    block: &cloudcontrol::block::Block,
+) -> Option<OrientationError> {
+    let truth = synth_truth_block(block_dir, epoch).ok()?;
+    let true_pose: std::collections::BTreeMap<&str, _> = truth
+        .photos
+        .values()
+        .map(|p| (p.name.as_str(), &p.pose))
+        .collect();
+    let (o, to) = (Vector3::from(block.origin), Vector3::from(truth.origin));
+    let mut d = Vec::new();
+    for ph in block.photos.values() {
+        if ph.status != cloudcontrol::block::PhotoStatus::Oriented {
+            continue;
+        }
+        let Some(t) = true_pose.get(ph.name.as_str()) else {
+            continue;
+        };
+        let dc = (ph.pose.center + o) - (t.center + to);
+        // The angle of the rotation between the two: acos((trace − 1) / 2).
+        let tr = (ph.pose.rotation * t.rotation.transpose()).trace();
+        let angle = ((tr - 1.0) / 2.0).clamp(-1.0, 1.0).acos().to_degrees();
+        d.push((dc, angle));
+    }
+    if d.is_empty() {
+        return None;
+    }
+    let n = d.len() as f64;
+    let mean: Vector3<f64> = d.iter().map(|(c, _)| c).sum::<Vector3<f64>>() / n;
+    let metres: Vec<f64> = d.iter().map(|(c, _)| c.norm()).collect();
+    let degrees: Vec<f64> = d.iter().map(|(_, a)| *a).collect();
+    let rms = |v: &[f64]| (v.iter().map(|x| x * x).sum::<f64>() / n).sqrt();
+    let worst = |v: &[f64]| v.iter().copied().fold(0.0, f64::max);
+    Some(OrientationError {
+        photos: d.len(),
+        mean_m: mean.into(),
+        rms_m: rms(&metres),
+        worst_m: worst(&metres),
+        rms_deg: rms(&degrees),
+        worst_deg: worst(&degrees),
+    })
 }
 
 /// The changed areas the run's `change-<epoch>` stage found against the present, scored
