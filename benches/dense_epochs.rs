@@ -17,6 +17,7 @@
 //! present (NMAD against the epoch's truth and against the present's). The worst case of
 //! each column is named at the end.
 
+use cloudcontrol::adjust::resection::rotation_angle;
 use cloudcontrol::change::{changed_areas, compare_dems, AreaOptions, ChangeOptions};
 use cloudcontrol::dense::epoch::{epoch_dsm, DsmOptions};
 use cloudcontrol::dense::products::DsmReport;
@@ -266,9 +267,7 @@ fn orientation_error(
             continue;
         };
         let dc = (ph.pose.center + o) - (t.center + to);
-        // The angle of the rotation between the two: acos((trace − 1) / 2).
-        let tr = (ph.pose.rotation * t.rotation.transpose()).trace();
-        let angle = ((tr - 1.0) / 2.0).clamp(-1.0, 1.0).acos().to_degrees();
+        let angle = rotation_angle(&ph.pose.rotation, &t.rotation).to_degrees();
         d.push((dc, angle));
     }
     if d.is_empty() {
