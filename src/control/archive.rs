@@ -437,6 +437,17 @@ pub fn finish_epoch<R: EpochRounds>(
                 c.free_params.clear();
             }
         }
+        // No LiDAR planes on the archive block's tie points (the reference's
+        // `LidarPlanes`: ground and building points, σ 5 cm, gate 0.5 or 1 m, their common
+        // datum offset σ 5 cm or free). On small seeds 1–5 they held the digital epoch's
+        // tie points within 4 cm (NMAD) of its true surface, yet its DSM, matched on the
+        // same photos, came out 0.19–0.69 GSD low (median of every seed with the offset's
+        // σ 5 cm; seed 2 still −0.65 with it free; +0.02 to +0.17 without planes) and
+        // 8–10 cm below its tie and control points (seed 2): the rays disagree with the
+        // planes through a camera model the block cannot free (focal length correlated
+        // 0.998 with the camera heights, k2 and the principal point not significant). The
+        // film epoch, with 30–70 tie points near a plane, lost (centres RMS 0.5 → 3.5–4.5 m,
+        // seed 3). `benches/dense_epochs.rs --run` measured each variant.
         let aopts = AdjustOptions {
             loss: opts.loss,
             rejection: Rejection::Threshold(opts.reject_k),
