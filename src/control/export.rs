@@ -332,10 +332,10 @@ impl OrientedBlock {
 }
 
 /// Reads an oriented block's `block.json` and `images.json`. An image path that is
-/// relative is taken from the working directory, as the workflow writes it, and else
-/// from the folder of `images.json` (a moved project). Every oriented photo needs an
-/// existing image, and every image a photo of the block. The images are set as the
-/// photos' `image`.
+/// relative is taken from the folder of its file, as the workflow writes it (so a project
+/// moved whole still finds its photos), and else from the working directory (a file
+/// written by hand before that rule). Every oriented photo needs an existing image, and
+/// every image a photo of the block. The images are set as the photos' `image`.
 pub fn read_oriented_block(block_json: &Path, images_json: &Path) -> Result<Block, EpochError> {
     let mut block: Block = serde_json::from_value(read_json(block_json)?)
         .map_err(|e| input_err(block_json, e.to_string()))?;
@@ -355,7 +355,13 @@ pub fn read_oriented_block(block_json: &Path, images_json: &Path) -> Result<Bloc
                 format!("{e} (expected an object of photo id → image path)"),
             )
         })?;
-    let base = images_json.parent().unwrap_or(Path::new(""));
+    let base = crate::formats::paths::folder_of(images_json);
+    let block_folder = crate::formats::paths::folder_of(block_json);
+    for p in block.photos.values_mut() {
+        if let Some(image) = &mut p.image {
+            *image = crate::formats::paths::resolve_from(block_folder, image);
+        }
+    }
     let mut images = BTreeMap::new();
     for (pid, path) in listed {
         let Some(photo) = block.photos.get(&pid) else {
@@ -367,8 +373,9 @@ pub fn read_oriented_block(block_json: &Path, images_json: &Path) -> Result<Bloc
                 ),
             ));
         };
-        let found = if path.is_relative() && !path.exists() {
-            base.join(&path)
+        let from_file = crate::formats::paths::resolve_from(base, &path);
+        let found = if from_file.exists() || !path.exists() {
+            from_file
         } else {
             path.clone()
         };

@@ -12,6 +12,7 @@ use crate::control::archive::EpochResult;
 use crate::control::checkpoints::CheckpointEvaluation;
 use crate::control::export::read_oriented_block;
 use crate::control::photo::PhotoReport;
+use crate::formats::paths::relative_to;
 use crate::formats::{write_bytes_atomically, FormatError};
 use serde::{Deserialize, Serialize};
 use std::collections::BTreeMap;
@@ -28,21 +29,38 @@ pub fn read_json<T: for<'de> Deserialize<'de>>(path: &Path) -> Result<T, FormatE
     serde_json::from_slice(&bytes).map_err(|e| FormatError::invalid(path, e.to_string()))
 }
 
-/// Writes the files of an epoch stage into `dir`.
+/// Writes the files of an epoch stage into `dir`. The photos' images are named relative
+/// to `dir` in `block.json` and `images.json` (formats/workflow), so that a project moved
+/// whole keeps its stages and finds its photos; the block keeps its paths as they were.
 pub fn save_epoch(
     dir: &Path,
-    result: &EpochResult,
+    result: &mut EpochResult,
     report: &EpochReport,
     eval: &Option<CheckpointEvaluation>,
 ) -> Result<(), FormatError> {
-    write_json(&dir.join("block.json"), &result.block)?;
-    let images: BTreeMap<PhotoId, &PathBuf> = result
+    let images: BTreeMap<PhotoId, PathBuf> = result
         .block
         .photos
         .values()
-        .filter_map(|p| Some((p.id, p.image.as_ref()?)))
+        .filter_map(|p| Some((p.id, p.image.clone()?)))
         .collect();
-    write_json(&dir.join("images.json"), &images)?;
+    for p in result.block.photos.values_mut() {
+        if let Some(image) = &mut p.image {
+            *image = relative_to(image, dir);
+        }
+    }
+    let written = write_json(&dir.join("block.json"), &result.block);
+    for (id, image) in &images {
+        if let Some(p) = result.block.photos.get_mut(id) {
+            p.image = Some(image.clone());
+        }
+    }
+    written?;
+    let named: BTreeMap<PhotoId, PathBuf> = images
+        .iter()
+        .map(|(id, image)| (*id, relative_to(image, dir)))
+        .collect();
+    write_json(&dir.join("images.json"), &named)?;
     write_json(&dir.join("result.json"), result)?;
     write_json(&dir.join("epoch.json"), report)?;
     if let Some(e) = eval {

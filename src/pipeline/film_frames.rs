@@ -82,7 +82,7 @@ pub fn to_frame_images(
         .iter()
         .map(|j| j.resample(&plan.frame))
         .collect::<Result<Vec<_>, _>>()?;
-    let report = plan.report(reports);
+    let report = plan.report(reports, dir);
     Ok(FilmFrames {
         block: plan.block,
         pixel_mm: plan.pixel_mm,
@@ -245,13 +245,23 @@ impl FrameJob {
 }
 
 impl FramePlan {
-    /// The report of the frame images, from each job's report in job order.
-    pub fn report(&self, photos: impl IntoIterator<Item = FrameImageReport>) -> FramesReport {
+    /// The report of the frame images, from each job's report in job order, to be written
+    /// into `folder`: it names each scan relative to that folder, so that a project moved
+    /// whole still finds them.
+    pub fn report(
+        &self,
+        photos: impl IntoIterator<Item = FrameImageReport>,
+        folder: &Path,
+    ) -> FramesReport {
+        let named = photos.into_iter().map(|mut r| {
+            r.scan = crate::formats::paths::relative_to(&r.scan, folder);
+            r
+        });
         FramesReport {
             format_mm: self.format_mm,
             frame: self.frame,
             pixel_source: self.pixel_source.clone(),
-            photos: self.jobs.iter().map(|j| j.photo).zip(photos).collect(),
+            photos: self.jobs.iter().map(|j| j.photo).zip(named).collect(),
         }
     }
 }

@@ -405,33 +405,21 @@ pub(crate) fn write_products(
             let name = j.target.file_name().unwrap_or_default();
             std::fs::rename(&j.target, to.join(name)).map_err(|e| FormatError::io(&j.target, e))?;
         }
-        write_json(&to.join("frames.json"), &f.report(frame_reports))?;
+        write_json(&to.join("frames.json"), &f.report(frame_reports, &to))?;
     }
     tasks.clear();
     Ok(())
 }
 
-/// `image` relative to the folder `from`, with `/` separators (BlocksExchange readers on
-/// Windows take them), lexically: both are made absolute against the working folder and
-/// `.`/`..` resolved without touching the file system.
+/// `image` relative to the folder `from` ([`crate::formats::paths::relative_to`]), with
+/// `/` separators (BlocksExchange readers on Windows take them).
 fn relative_image_path(image: &Path, from: &Path) -> String {
-    fn absolute(p: &Path) -> Vec<String> {
-        let p = std::path::absolute(p).unwrap_or_else(|_| p.to_path_buf());
-        let mut out: Vec<String> = Vec::new();
-        for c in p.components() {
-            match c {
-                std::path::Component::ParentDir => {
-                    out.pop();
-                }
-                std::path::Component::Normal(n) => out.push(n.to_string_lossy().into_owned()),
-                _ => {}
-            }
-        }
-        out
+    let rel = crate::formats::paths::relative_to(image, from);
+    if rel.is_absolute() {
+        return rel.display().to_string();
     }
-    let (to, from) = (absolute(image), absolute(from));
-    let common = to.iter().zip(&from).take_while(|(a, b)| a == b).count();
-    let mut parts: Vec<&str> = vec![".."; from.len() - common];
-    parts.extend(to[common..].iter().map(String::as_str));
-    parts.join("/")
+    rel.components()
+        .map(|c| c.as_os_str().to_string_lossy())
+        .collect::<Vec<_>>()
+        .join("/")
 }

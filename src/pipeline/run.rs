@@ -636,11 +636,13 @@ fn run_stages(
         };
         let mut clean = clean_sources(out, "sources", key, &plan, &lidar_dir, task_mode)?;
         // The stage is written in a temporary folder that is renamed when it is done: the
-        // report names the cleaned tiles inside the stage folder, not where they were made.
+        // report names the cleaned tiles inside the stage folder, not where they were made,
+        // and the input tiles relative to it (a project moved whole).
         for t in &mut clean.tiles {
             if let Ok(rel) = t.output.strip_prefix(dir) {
                 t.output = rel.to_path_buf();
             }
+            t.file = crate::formats::paths::relative_to(&t.file, dir);
         }
         write_json(&dir.join("clean.json"), &clean)?;
         if let Some(cps) = &checkpoints {
@@ -769,7 +771,7 @@ fn run_stages(
         let stage_name = format!("epoch-{}", e.name);
         let edir = stage!(keyed stage_name.clone(), inputs, |dir: &Path, key: &str| {
             let mut notes = Vec::new();
-            let (result, icp) = if let Some(b) = &e.block {
+            let (mut result, icp) = if let Some(b) = &e.block {
                 // An existing oriented block: taken as it is, checked against the LiDAR.
                 let block = b.read()?;
                 let photos = PhotoInput::from_folder(&e.photos)?;
@@ -895,7 +897,7 @@ fn run_stages(
             let mut rep = epoch_report(&result, &e.date, &eval, surveyed, icp);
             rep.control = control_of(project, e, is_reference, &dcp_dirs);
             rep.warnings.extend(notes);
-            Ok(save_epoch(dir, &result, &rep, &eval)?)
+            Ok(save_epoch(dir, &mut result, &rep, &eval)?)
         });
         let rep: EpochReport =
             read_json(&edir.join("epoch.json")).map_err(|x| StageError::Failed {

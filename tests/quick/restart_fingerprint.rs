@@ -133,6 +133,44 @@ fn run(project: &Path) -> Ran {
     }
 }
 
+/// The files of a run that name input files for reading them again (an epoch's block and
+/// images, the LiDAR catalogue and cleaning report, the film frames' report) are free of
+/// `project`'s absolute path. Descriptions for people (report, `epoch.json`'s control,
+/// a DCP's source) name the inputs as the project gave them.
+fn assert_names_no_absolute_input(run: &Path, project: &Path) {
+    const NAMING: [&str; 5] = [
+        "images.json",
+        "block.json",
+        "catalogue.json",
+        "clean.json",
+        "frames.json",
+    ];
+    let names = [
+        project.to_string_lossy().into_owned(),
+        project
+            .canonicalize()
+            .unwrap()
+            .to_string_lossy()
+            .into_owned(),
+    ];
+    let (mut read, mut naming) = (0, Vec::new());
+    for f in common::files_below(run) {
+        if !f
+            .file_name()
+            .is_some_and(|n| NAMING.iter().any(|m| n == *m))
+        {
+            continue;
+        }
+        let text = String::from_utf8_lossy(&std::fs::read(&f).unwrap()).into_owned();
+        if names.iter().any(|n| text.contains(n.as_str())) {
+            naming.push(f.display().to_string());
+        }
+        read += 1;
+    }
+    assert!(read >= 2, "{read} files below {}", run.display());
+    assert!(naming.is_empty(), "{naming:#?} name {}", names[0]);
+}
+
 #[test]
 fn a_project_folder_copied_or_moved_elsewhere_skips_every_finished_stage() {
     let tmp = tempfile::tempdir().unwrap();
@@ -140,6 +178,9 @@ fn a_project_folder_copied_or_moved_elsewhere_skips_every_finished_stage() {
     let project = tiny_project(&blk);
     let first = run(&project);
     assert_eq!(first.ran, STAGES, "skipped {:?}", first.skipped);
+    // No product names the project's folder: what a run writes names its inputs relative
+    // to the file, so that they are found again wherever the project goes.
+    assert_names_no_absolute_input(&blk.join("run"), &blk);
     // The project folder, inputs and output together, copied to another path (new
     // inodes, new times: the digest cache has none of its files) …
     let copy = tmp.path().join("elsewhere/deeper/block");
@@ -153,6 +194,25 @@ fn a_project_folder_copied_or_moved_elsewhere_skips_every_finished_stage() {
     let again = run(&moved.join("project_digital.toml"));
     assert!(again.ran.is_empty(), "ran {:?}", again.ran);
     assert_eq!(again.skipped, STAGES);
+    // Its skipped epoch stage names the photos where they are now, read as the DCP
+    // export and the outputs read it, and the copy that was moved away is gone.
+    let epoch = moved.join("run/epoch-digital_2012");
+    let images: std::collections::BTreeMap<u32, PathBuf> =
+        serde_json::from_slice(&std::fs::read(epoch.join("images.json")).unwrap()).unwrap();
+    assert_eq!(images.len(), 2);
+    let here = moved.canonicalize().unwrap();
+    for path in images.values() {
+        assert!(path.is_relative(), "{}", path.display());
+        let found = epoch.join(path).canonicalize().unwrap();
+        assert!(found.starts_with(&here), "{}", found.display());
+    }
+    assert!(!copy.exists());
+    let block = cloudcontrol::pipeline::epoch_files::load_block(&epoch).unwrap();
+    for p in block.photos.values() {
+        let image = p.image.as_ref().unwrap();
+        assert!(image.is_file(), "{}", image.display());
+        assert!(image.canonicalize().unwrap().starts_with(&here));
+    }
     // The original is untouched by all this.
     let original = run(&project);
     assert!(original.ran.is_empty(), "ran {:?}", original.ran);

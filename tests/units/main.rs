@@ -31,6 +31,7 @@ mod formats_adjust_report;
 mod formats_crs_input;
 mod formats_csv;
 mod formats_ortho_tiles;
+mod formats_paths;
 mod formats_pos;
 mod formats_tiff_window;
 mod geometry_serde_matrix;

@@ -202,7 +202,10 @@ def test_film_products_are_in_fiducial_frame_images(block, tmp_path):
     # The frame image against OpenCV's cubic warp of the scan through the same transform
     # (OpenCV's pixel centres are integers, ours at +0.5).
     name = sorted(oriented)[0]
-    scan = cv2.imread(oriented[name]["image"], cv2.IMREAD_GRAYSCALE).astype(np.float32)
+    # block.json names the scan relative to its own folder (formats/workflow).
+    scan_path = out / "epoch-film_1978" / oriented[name]["image"]
+    assert not pathlib.Path(oriented[name]["image"]).is_absolute() and scan_path.is_file()
+    scan = cv2.imread(str(scan_path), cv2.IMREAD_GRAYSCALE).astype(np.float32)
     frame_to_mm = np.array([[p, 0, -p * w / 2], [0, -p, p * h / 2], [0, 0, 1]])
     shift = lambda d: np.array([[1, 0, d], [0, 1, d], [0, 0, 1]])
     m = shift(-0.5) @ np.linalg.inv(io[name]) @ frame_to_mm @ shift(0.5)

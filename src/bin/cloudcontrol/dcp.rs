@@ -149,7 +149,7 @@ pub struct SelectArgs {
     #[arg(long)]
     block: PathBuf,
     /// images.json of the epoch: photo id → image path (a relative path is taken from the
-    /// working directory, else from the folder of images.json).
+    /// folder of images.json, else from the working directory).
     #[arg(long)]
     images: PathBuf,
     /// LAS/LAZ tiles or folders of them (classified: ground is class 2).

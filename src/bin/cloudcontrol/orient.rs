@@ -113,7 +113,14 @@ fn write_outputs(
     camera: &EpochCamera,
 ) -> Result<serde_json::Value, String> {
     std::fs::create_dir_all(out).map_err(|e| format!("{}: {e}", out.display()))?;
-    let block = serde_json::to_vec_pretty(&r.block).map_err(|e| e.to_string())?;
+    // The photos named relative to the folder, as the workflow's block.json names them.
+    let mut named = r.block.clone();
+    for p in named.photos.values_mut() {
+        if let Some(image) = &mut p.image {
+            *image = cloudcontrol::formats::paths::relative_to(image, out);
+        }
+    }
+    let block = serde_json::to_vec_pretty(&named).map_err(|e| e.to_string())?;
     write_bytes_atomically(&out.join("block.json"), &block).map_err(|e| e.to_string())?;
     let mut exports = serde_json::Map::new();
     let mut oriented = r.block.oriented_only();
