@@ -43,8 +43,9 @@ pub fn normalise(path: &Path) -> PathBuf {
 /// `path` as a file in `folder` names it: relative to that folder, so that a project
 /// moved or copied whole (inputs and run folder together) still finds what its products
 /// name. Taken between the two paths as the file system resolves them (links followed),
-/// since a reader opens `folder/../x` from the folder's real place; lexically between the
-/// absolute paths where either does not exist yet. Absolute when the two share no root (another drive).
+/// since a reader opens `folder/../x` from the folder's real place; lexically between
+/// the absolute paths where either does not exist yet. Absolute when the two share no
+/// root (another drive).
 pub fn relative_to(path: &Path, folder: &Path) -> PathBuf {
     let real = |p: &Path| {
         std::fs::canonicalize(p)

@@ -433,14 +433,18 @@ impl Catalogue {
         serde_json::to_string_pretty(self).expect("catalogue serialises")
     }
 
-    /// Writes the catalogue JSON atomically, every tile relative to the catalogue's folder
-    /// ([`crate::formats::paths::relative_to`]): a catalogue moved together with its tiles
-    /// still finds them.
+    /// Writes the catalogue JSON atomically. Tiles below the catalogue's folder are
+    /// written relative to it (the folder can move with its catalogue), the others with
+    /// their absolute path.
     pub fn save(&self, path: &Path) -> Result<()> {
         let folder = catalogue_folder(path)?;
         let mut c = self.clone();
         for t in &mut c.tiles {
-            t.file = crate::formats::paths::relative_to(&t.file, &folder);
+            let abs = std::path::absolute(&t.file).map_err(|e| LidarError::io(&t.file, e))?;
+            t.file = match abs.strip_prefix(&folder) {
+                Ok(rel) if !rel.as_os_str().is_empty() => rel.to_path_buf(),
+                _ => abs,
+            };
         }
         Ok(write_bytes_atomically(path, c.to_json().as_bytes())?)
     }
