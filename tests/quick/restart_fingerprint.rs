@@ -173,8 +173,8 @@ fn a_project_folder_copied_or_moved_elsewhere_skips_every_finished_stage() {
     let project = tiny_project(&blk);
     let first = run(&project);
     assert_eq!(first.ran, STAGES, "skipped {:?}", first.skipped);
-    // No product names the project's folder: what a run writes names its inputs relative
-    // to the file, so that they are found again wherever the project goes.
+    // No file that names inputs to read them again names the project's folder: they are
+    // named relative to the file, so that they are found wherever the project goes.
     assert_names_no_absolute_input(&blk.join("run"), &blk);
     // The project folder, inputs and output together, copied to another path (new
     // inodes, new times: the digest cache has none of its files) …
