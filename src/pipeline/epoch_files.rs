@@ -29,37 +29,42 @@ pub fn read_json<T: for<'de> Deserialize<'de>>(path: &Path) -> Result<T, FormatE
     serde_json::from_slice(&bytes).map_err(|e| FormatError::invalid(path, e.to_string()))
 }
 
-/// Writes the files of an epoch stage into `dir`. The photos' images are named relative
-/// to `dir` in `block.json` and `images.json` (formats/workflow), so that a project moved
-/// whole keeps its stages and finds its photos; the block keeps its paths as they were.
+/// Writes `block` as `path` (block.json) with its photos' images named relative to the
+/// file's folder (formats/workflow), so that a project moved whole finds its photos, and
+/// returns those names (photo id → image) for images.json. The block keeps its paths:
+/// they are put back after the write, not copied with the block's points.
+pub fn write_block_json(
+    path: &Path,
+    block: &mut Block,
+) -> Result<BTreeMap<PhotoId, PathBuf>, FormatError> {
+    let folder = crate::formats::paths::folder_of(path);
+    let mut given = BTreeMap::new();
+    let mut named = BTreeMap::new();
+    for p in block.photos.values_mut() {
+        if let Some(image) = &mut p.image {
+            let rel = relative_to(image, folder);
+            named.insert(p.id, rel.clone());
+            given.insert(p.id, std::mem::replace(image, rel));
+        }
+    }
+    let written = write_json(path, block);
+    for (id, image) in given {
+        if let Some(p) = block.photos.get_mut(&id) {
+            p.image = Some(image);
+        }
+    }
+    written.map(|()| named)
+}
+
+/// Writes the files of an epoch stage into `dir` (block.json and images.json name the
+/// photos relative to `dir`, [`write_block_json`]).
 pub fn save_epoch(
     dir: &Path,
     result: &mut EpochResult,
     report: &EpochReport,
     eval: &Option<CheckpointEvaluation>,
 ) -> Result<(), FormatError> {
-    let images: BTreeMap<PhotoId, PathBuf> = result
-        .block
-        .photos
-        .values()
-        .filter_map(|p| Some((p.id, p.image.clone()?)))
-        .collect();
-    for p in result.block.photos.values_mut() {
-        if let Some(image) = &mut p.image {
-            *image = relative_to(image, dir);
-        }
-    }
-    let written = write_json(&dir.join("block.json"), &result.block);
-    for (id, image) in &images {
-        if let Some(p) = result.block.photos.get_mut(id) {
-            p.image = Some(image.clone());
-        }
-    }
-    written?;
-    let named: BTreeMap<PhotoId, PathBuf> = images
-        .iter()
-        .map(|(id, image)| (*id, relative_to(image, dir)))
-        .collect();
+    let named = write_block_json(&dir.join("block.json"), &mut result.block)?;
     write_json(&dir.join("images.json"), &named)?;
     write_json(&dir.join("result.json"), result)?;
     write_json(&dir.join("epoch.json"), report)?;

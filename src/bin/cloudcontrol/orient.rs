@@ -109,19 +109,13 @@ fn explicit_input(a: &OrientArgs, dem_crs: Option<String>) -> Result<EpochInput,
 
 fn write_outputs(
     out: &Path,
-    r: &EpochResult,
+    r: &mut EpochResult,
     camera: &EpochCamera,
 ) -> Result<serde_json::Value, String> {
     std::fs::create_dir_all(out).map_err(|e| format!("{}: {e}", out.display()))?;
     // The photos named relative to the folder, as the workflow's block.json names them.
-    let mut named = r.block.clone();
-    for p in named.photos.values_mut() {
-        if let Some(image) = &mut p.image {
-            *image = cloudcontrol::formats::paths::relative_to(image, out);
-        }
-    }
-    let block = serde_json::to_vec_pretty(&named).map_err(|e| e.to_string())?;
-    write_bytes_atomically(&out.join("block.json"), &block).map_err(|e| e.to_string())?;
+    cloudcontrol::pipeline::epoch_files::write_block_json(&out.join("block.json"), &mut r.block)
+        .map_err(|e| e.to_string())?;
     let mut exports = serde_json::Map::new();
     let mut oriented = r.block.oriented_only();
     // An epoch that oriented no photo has no model to give: none is written (the command
@@ -243,8 +237,8 @@ pub fn run_orient(
     // Progress per photo on stderr (a spinner on a terminal, lines in a log).
     let shown =
         crate::console::ProgressGuard::start(quiet || json_out, &format!("orient {}", input.name));
-    let r = archive::orient_epoch(&input, &packages, &dem, &opts).map_err(|e| e.to_string())?;
-    let report = write_outputs(&a.out, &r, &input.camera)?;
+    let mut r = archive::orient_epoch(&input, &packages, &dem, &opts).map_err(|e| e.to_string())?;
+    let report = write_outputs(&a.out, &mut r, &input.camera)?;
     drop(shown);
     if json_out {
         outln!(
